@@ -1,0 +1,28 @@
+"""TeMoto for Python and ROS 1.
+
+Every top-level package is both a ROS package (package.xml, found through
+ROS_PACKAGE_PATH) and a Python package. Message modules are generated into the
+packages by tools/gen_msgs.py. Versions of third-party packages are pinned in
+requirements.txt only.
+"""
+from setuptools import setup
+
+PACKAGES = [
+    'temoto_core',
+    'temoto_er_manager',
+    'temoto_sensor_manager',
+    'temoto_output_manager',
+    'temoto_context_manager',
+    'temoto_action_engine',
+    'vaultbot_sim',
+]
+
+setup(
+    name='temoto',
+    version='0.1.0',
+    description='TeMoto: supervisory teleoperation with a Resource Registrar, for ROS 1 in Python',
+    python_requires='>=3.11',
+    packages=[],   # development install: the repository root is put on sys.path
+    py_modules=[],
+    entry_points={'console_scripts': ['temoto = temoto_core.cli:main']},
+)

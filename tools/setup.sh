@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Idempotent install: Debian packages, the venv (from /usr/bin/python3 with
+# --system-site-packages), pinned pip packages, and generated messages.
+# A warm rerun only checks and takes about a second.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+venv="$root/.venv"
+t0=$(date +%s%N)
+
+# 1. Debian packages
+mapfile -t pkgs < <(grep -v -E '^\s*(#|$)' tools/apt-packages.txt)
+missing=$(dpkg-query -W -f='${db:Status-Abbrev} ${Package}\n' "${pkgs[@]}" 2>/dev/null | awk '$1 != "ii" {print $2}' || true)
+installed_count=$(dpkg-query -W -f='${db:Status-Abbrev}\n' "${pkgs[@]}" 2>/dev/null | grep -c '^ii' || true)
+if [ "$installed_count" -lt "${#pkgs[@]}" ]; then
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "error: Debian packages are missing and installing them needs root: run 'sudo make setup' (or apt-get install $(echo $missing))" >&2
+    exit 1
+  fi
+  echo "setup: installing Debian packages (${#pkgs[@]} listed)..."
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${pkgs[@]}" >/dev/null
+fi
+
+# 2. venv from Debian's interpreter, so that Debian's rospy and pip packages meet
+if [ ! -x "$venv/bin/python" ]; then
+  echo "setup: creating the venv from /usr/bin/python3..."
+  /usr/bin/python3 -m venv --system-site-packages "$venv"
+fi
+
+# 3. pinned pip packages (requirements.txt is a complete lock: installed with --no-deps)
+want=$(sha256sum requirements.txt setup.py | sha256sum | cut -d' ' -f1)
+if [ "$(cat "$venv/.requirements.sha" 2>/dev/null)" != "$want" ]; then
+  echo "setup: installing pinned pip packages..."
+  log="$venv/pip-install.log"
+  { "$venv/bin/pip" install --disable-pip-version-check --no-deps -r requirements.txt &&
+    "$venv/bin/pip" install --disable-pip-version-check --no-deps --no-build-isolation -e . ; } >"$log" 2>&1 ||
+    { tail -20 "$log" >&2; echo "error: pip install failed; full log in $log" >&2; exit 1; }
+  echo "$want" > "$venv/.requirements.sha"
+fi
+
+# 4. messages
+"$venv/bin/python" tools/gen_msgs.py "$root" >/dev/null
+
+ms=$(( ($(date +%s%N) - t0) / 1000000 ))
+printf 'setup: ready in %d.%03d s\n' $((ms / 1000)) $((ms % 1000))
