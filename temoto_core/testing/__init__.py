@@ -1,0 +1,17 @@
+"""rostest-style helpers for pytest: a private roscore, node and launch-file
+subprocesses that are registered before a test goes on, bag recording, and a
+process census that proves nothing outlives a test session.
+
+Everything started here carries the environment variable
+``TEMOTO_TEST_SESSION=<token>``. Children inherit it, and so do the processes
+*they* start (an ER Manager's children, RViz's Xvfb), which is what lets
+:func:`leftover_processes` find a leak at any depth by scanning ``/proc``.
+"""
+from temoto_core.testing.master import RosMaster, free_port, master_proxy
+from temoto_core.testing.processes import (ManagedProcess, ProcessGroupLauncher, leftover_processes,
+                                           SESSION_ENV)
+from temoto_core.testing.bag import BagRecorder
+from temoto_core.testing.wait import wait_for
+
+__all__ = ['RosMaster', 'free_port', 'master_proxy', 'ManagedProcess', 'ProcessGroupLauncher',
+           'leftover_processes', 'SESSION_ENV', 'BagRecorder', 'wait_for']

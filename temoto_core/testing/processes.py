@@ -1,0 +1,201 @@
+"""Subprocesses for tests: nodes and launch files, registered before a test
+goes on, and always stopped by process group."""
+import os
+import signal
+import subprocess
+import sys
+import time
+import xmlrpc.client
+from typing import Dict, List, Optional, Sequence, Tuple
+
+SESSION_ENV = 'TEMOTO_TEST_SESSION'
+REGISTER_TIMEOUT = 20.0
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+
+
+def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigterm_grace: float = 2.0) -> Optional[int]:
+    """SIGINT, then SIGTERM, then SIGKILL to the child's process group; reap it.
+
+    The child must have been started with ``start_new_session=True`` so that
+    its group is its own and nothing else is signalled.
+    """
+    pgid = proc.pid
+    for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGKILL, 5.0)):
+        if proc.poll() is not None and not _group_alive(pgid):
+            break
+        try:
+            os.killpg(pgid, sig)
+        except ProcessLookupError:
+            pass
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline:
+            if proc.poll() is not None and not _group_alive(pgid):
+                break
+            time.sleep(0.01)
+    try:
+        return proc.wait(timeout=1.0)
+    except subprocess.TimeoutExpired:
+        return None
+
+
+def tail(path: str, lines: int = 20) -> str:
+    try:
+        with open(path, 'rb') as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 8192))
+            return '\n'.join(f.read().decode('utf-8', 'replace').splitlines()[-lines:])
+    except OSError:
+        return '(no log)'
+
+
+class ManagedProcess:
+    """A child in its own session, with its output in a log file."""
+
+    def __init__(self, argv: Sequence[str], env: Dict[str, str], log_path: str, name: str = '') -> None:
+        self.argv = list(argv)
+        self.name = name or os.path.basename(argv[0])
+        self.log_path = log_path
+        with open(log_path, 'ab') as log:
+            self.proc = subprocess.Popen(self.argv, env=env, stdin=subprocess.DEVNULL, stdout=log,
+                                         stderr=subprocess.STDOUT, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, sigint_grace: float = 3.0) -> Optional[int]:
+        return stop_process_group(self.proc, sigint_grace=sigint_grace)
+
+    def log(self, lines: int = 20) -> str:
+        return tail(self.log_path, lines)
+
+
+class ProcessGroupLauncher:
+    """Starts node scripts and launch files against one master, and stops them all.
+
+    ``node()`` and ``launch()`` return only once every node they start is
+    registered with the master, or raise with the tail of the log.
+    """
+
+    def __init__(self, env: Dict[str, str], workdir: str) -> None:
+        self.env = env
+        self.workdir = workdir
+        self.processes: List[ManagedProcess] = []
+        self._rospack = None
+
+    # -- lookup -------------------------------------------------------------------------------
+    def find_executable(self, package: str, executable: str) -> str:
+        import rospkg
+        import roslib.packages
+        if self._rospack is None:
+            self._rospack = rospkg.RosPack(rospkg.get_ros_paths(self.env))
+        found = roslib.packages.find_node(package, executable, self._rospack)
+        if not found:
+            raise FileNotFoundError('no executable %r in package %r' % (executable, package))
+        return found[0]
+
+    def _argv_for(self, path: str) -> List[str]:
+        # Python node scripts run under this interpreter (the venv) whatever their shebang resolves to.
+        with open(path, 'rb') as f:
+            first = f.readline()
+        return [sys.executable, path] if b'python' in first else [path]
+
+    # -- start --------------------------------------------------------------------------------
+    def command(self, argv: Sequence[str], name: str, env: Optional[Dict[str, str]] = None) -> ManagedProcess:
+        """Any command, tracked and stopped like a node (no registration wait)."""
+        proc = ManagedProcess(argv, env or self.env, os.path.join(self.workdir, '%s.%d.log' % (name, len(self.processes))), name)
+        self.processes.append(proc)
+        return proc
+
+    def node(self, package: str, executable: str, args: Sequence[str] = (), name: Optional[str] = None,
+             namespace: str = '', params: Optional[Dict[str, object]] = None, wait: bool = True,
+             timeout: float = REGISTER_TIMEOUT) -> ManagedProcess:
+        name = name or executable
+        argv = self._argv_for(self.find_executable(package, executable)) + list(args) + ['__name:=' + name]
+        if namespace:
+            argv.append('__ns:=' + namespace)
+        for key, value in (params or {}).items():
+            argv.append('_%s:=%s' % (key, value))
+        proc = self.command(argv, name)
+        if wait:
+            full = '/'.join(p for p in (namespace.strip('/'), name) if p)
+            self.wait_registered(proc, ['/' + full], timeout)
+        return proc
+
+    def launch(self, package: str, launch_file: str, args: Sequence[str] = (), wait: bool = True,
+               timeout: float = REGISTER_TIMEOUT) -> ManagedProcess:
+        import rospkg
+        import roslaunch.config
+        path = os.path.join(rospkg.RosPack(rospkg.get_ros_paths(self.env)).get_path(package), 'launch', launch_file)
+        proc = self.command(['roslaunch', '--wait', path] + list(args), os.path.splitext(launch_file)[0])
+        if wait:
+            config = roslaunch.config.load_config_default([(path, list(args))], None)
+            names = [n.namespace.rstrip('/') + '/' + n.name for n in config.nodes]
+            self.wait_registered(proc, names, timeout)
+        return proc
+
+    def wait_registered(self, proc: ManagedProcess, node_names: Sequence[str], timeout: float) -> None:
+        master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
+        pending = set(node_names)
+        deadline = time.monotonic() + timeout
+        while pending:
+            if not proc.alive():
+                raise RuntimeError('%s exited (rc %s) before %s registered; log:\n%s'
+                                   % (proc.name, proc.proc.returncode, sorted(pending), proc.log()))
+            if time.monotonic() > deadline:
+                raise TimeoutError('%s: %s not registered after %.0f s; log:\n%s'
+                                   % (proc.name, sorted(pending), timeout, proc.log()))
+            for n in list(pending):
+                if master.lookupNode('/temoto_test', n)[0] == 1:
+                    pending.discard(n)
+            if pending:
+                time.sleep(0.02)
+
+    # -- stop ---------------------------------------------------------------------------------
+    def stop_all(self) -> None:
+        for proc in reversed(self.processes):
+            proc.stop()
+        self.processes.clear()
+
+
+def leftover_processes(token: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:
+    """Processes (any depth) whose environment carries ``SESSION_ENV=token``."""
+    marker = ('%s=%s' % (SESSION_ENV, token)).encode()
+    skip = {os.getpid(), *exclude}
+    found = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit() or int(entry) in skip:
+            continue
+        try:
+            with open('/proc/%s/environ' % entry, 'rb') as f:
+                if marker not in f.read().split(b'\0'):
+                    continue
+            with open('/proc/%s/cmdline' % entry, 'rb') as f:
+                cmd = f.read().replace(b'\0', b' ').decode('utf-8', 'replace').strip()
+        except OSError:
+            continue
+        found.append((int(entry), cmd))
+    return found
+
+
+def kill_leftovers(token: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:
+    """SIGKILL every leftover of ``token`` and return what was found."""
+    found = leftover_processes(token, exclude)
+    for pid, _ in found:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    return found

@@ -1,0 +1,76 @@
+"""pytest fixtures: ``tests/conftest.py`` loads this with ``pytest_plugins``.
+
+- ``ros_master`` (session): one roscore per test session, so one per xdist worker;
+- ``rospy_client`` (session): the in-process rospy node (``init_node`` works once per process);
+- ``procs`` (function): node scripts and launch files as subprocesses, stopped at teardown;
+- ``bag_recorder`` (function): a factory for bags recorded during a test.
+
+At the end of the session every process that carries this session's token is
+a leak: it is killed and the session fails, naming it.
+"""
+import os
+import uuid
+
+import pytest
+
+from temoto_core.testing.bag import BagRecorder
+from temoto_core.testing.master import RosMaster
+from temoto_core.testing.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
+
+# A test that runs an inner pytest session passes this so it knows the inner token.
+FORCED_TOKEN_ENV = 'TEMOTO_TEST_SESSION_FORCE'
+
+
+@pytest.fixture(scope='session')
+def session_token():
+    token = os.environ.pop(FORCED_TOKEN_ENV, '') or uuid.uuid4().hex
+    os.environ[SESSION_ENV] = token
+    return token
+
+
+@pytest.fixture(scope='session')
+def ros_master(tmp_path_factory, session_token):
+    master = RosMaster(str(tmp_path_factory.mktemp('roscore')), session_token).start()
+    saved = {k: os.environ.get(k) for k in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME')}
+    for key in saved:
+        os.environ[key] = master.env[key]
+    yield master
+    master.stop()
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+    leaked = kill_leftovers(session_token)
+    if leaked:
+        pytest.fail('processes outlived the test session (killed now): %s' % leaked, pytrace=False)
+
+
+@pytest.fixture(scope='session')
+def rospy_client(ros_master):
+    import rospy
+    rospy.init_node('pytest_client', anonymous=True, disable_signals=True)
+    yield rospy
+    rospy.signal_shutdown('test session over')
+
+
+@pytest.fixture
+def procs(ros_master, tmp_path):
+    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
+    yield launcher
+    launcher.stop_all()
+
+
+@pytest.fixture
+def bag_recorder(ros_master, tmp_path):
+    started = []
+
+    def record(topics, name='test.bag'):
+        recorder = BagRecorder(str(tmp_path / name), topics, ros_master.env, 'bag_%s' % uuid.uuid4().hex[:8])
+        started.append(recorder)
+        return recorder.start()
+
+    yield record
+    for recorder in started:
+        if recorder.process is not None:
+            recorder.stop()

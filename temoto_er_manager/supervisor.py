@@ -1,0 +1,465 @@
+"""Start, watch, stop and reap child processes. No ROS in here.
+
+Why it looks like this (each point fixes a flaw of the original, see
+shared/reference/temoto_original.md §2):
+
+- **No shell.** A child is started from an argv list; nothing is ever parsed by
+  ``/bin/sh``.
+- **Own process group.** Every child starts with ``start_new_session=True``, so
+  a stop signal reaches the child and everything it spawned in its group.
+- **Event-driven exit detection.** One reaper thread blocks in ``select`` on a
+  pidfd per child (``os.pidfd_open``). A child's death wakes it at once; it reaps
+  the child (no zombie) and hands an :class:`ExitInfo` to ``on_exit`` unless the
+  exit was asked for (an intentional stop is never reported as a failure).
+- **Escalating stop.** SIGINT to the group, then SIGTERM, then SIGKILL, with
+  configurable grace periods; the stop returns only once the child is reaped.
+- **Children die with the manager.** Each child gets ``PR_SET_PDEATHSIG``
+  (``death_signal``, SIGKILL by default) so that a SIGKILLed manager leaves no
+  orphan: no recovery of running children is configured in this port, so an
+  orphan would be a process nobody can stop or watch. The kernel sends the
+  signal when the *thread* that forked the child exits, so every fork happens on
+  one spawner thread that lives as long as the supervisor (rospy runs each
+  service request in a short-lived thread, which would otherwise kill the child
+  as soon as the request returned).
+"""
+from __future__ import annotations
+
+import ctypes
+import errno
+import itertools
+import logging
+import os
+import queue
+import select
+import shlex
+import signal
+import subprocess
+import threading
+import time
+from collections import deque
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+_log = logging.getLogger('temoto_er_manager.supervisor')
+
+_PR_SET_PDEATHSIG = 1
+_libc = ctypes.CDLL(None, use_errno=True)
+_prctl = _libc.prctl          # resolved before any fork: the child must not load anything
+
+
+class SupervisorError(Exception):
+    """A process could not be started, or did not become ready."""
+
+
+class ProcessExitedEarly(SupervisorError):
+    """The child exited before it was ready."""
+
+    def __init__(self, message: str, exit_info: 'ExitInfo'):
+        super().__init__(message)
+        self.exit_info = exit_info
+
+
+class StartCancelled(SupervisorError):
+    """The process was stopped (unload, shutdown) while it was still starting."""
+
+
+class ReadyTimeout(SupervisorError):
+    """The child stayed alive but did not become ready in time."""
+
+
+@dataclass
+class ProcessSpec:
+    """What to run and how. ``argv[0]`` is an absolute path or a name looked up in ``env['PATH']``."""
+    argv: list[str]
+    env: dict[str, str]
+    log_path: str
+    cwd: Optional[str] = None
+    label: str = ''                 # free text for messages and listings, e.g. "pkg/exe"
+    node_names: list[str] = field(default_factory=list)   # ROS nodes that must register
+
+    @property
+    def command(self) -> str:
+        return shlex.join(self.argv)
+
+
+@dataclass
+class ExitInfo:
+    pid: int
+    returncode: int                 # Popen convention: -N means killed by signal N
+    command: str
+    log_tail: str
+    intentional: bool
+    when: float                     # time.time() of detection
+
+    @property
+    def reason(self) -> str:
+        return describe_returncode(self.returncode)
+
+    def message(self) -> str:
+        tail = self.log_tail.rstrip()
+        text = 'process %d (%s) %s' % (self.pid, self.command, self.reason)
+        return text + ('; last output:\n' + tail if tail else '; no output')
+
+
+def describe_returncode(rc: int) -> str:
+    if rc < 0:
+        try:
+            name = signal.Signals(-rc).name
+        except ValueError:
+            name = 'signal %d' % -rc
+        return 'was killed by %s (signal %d)' % (name, -rc)
+    if rc == 0:
+        return 'exited with code 0 (a clean exit while the resource was still in use)'
+    return 'exited with code %d' % rc
+
+
+def read_tail(path: str, lines: int, max_bytes: int = 16384) -> str:
+    """The last ``lines`` lines of a log file (reads at most ``max_bytes`` from its end)."""
+    try:
+        with open(path, 'rb') as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - max_bytes))
+            data = f.read()
+    except OSError:
+        return ''
+    text = data.decode('utf-8', errors='replace')
+    return '\n'.join(text.splitlines()[-lines:])
+
+
+class ManagedProcess:
+    """One child. Its state changes are announced on ``cond``."""
+
+    _ids = itertools.count(1)
+
+    def __init__(self, spec: ProcessSpec, popen: subprocess.Popen, pidfd: int, started: float):
+        self.key = next(self._ids)
+        self.spec = spec
+        self.popen = popen
+        self.pid = popen.pid
+        self.pidfd = pidfd
+        self.started = started              # time.time() when spawned
+        self.ready = False
+        self.stopping = False               # set before any stop signal: the exit is intentional
+        self.exit_info: Optional[ExitInfo] = None
+        self.cond = threading.Condition()
+
+    @property
+    def alive(self) -> bool:
+        return self.exit_info is None
+
+    @property
+    def state(self) -> str:
+        if self.exit_info is not None:
+            return 'exited'
+        if self.stopping:
+            return 'stopping'
+        return 'running' if self.ready else 'starting'
+
+    def snapshot(self) -> dict:
+        info = self.exit_info
+        return {
+            'pid': self.pid, 'label': self.spec.label, 'command': self.spec.command,
+            'log_path': self.spec.log_path, 'node_names': list(self.spec.node_names),
+            'started': self.started, 'uptime': (info.when if info else time.time()) - self.started,
+            'state': self.state, 'returncode': info.returncode if info else None,
+        }
+
+
+ReadyCheck = Callable[[ManagedProcess], bool]
+ExitCallback = Callable[[ManagedProcess, ExitInfo], None]
+
+
+class ProcessSupervisor:
+    """Owns child processes from start to reaping.
+
+    ``on_exit(proc, info)`` runs on a dedicated callback thread for every child
+    that exits *without* having been asked to (crash, signal from elsewhere,
+    or exit 0 while still held). A slow callback never delays reaping.
+    """
+
+    def __init__(self, on_exit: Optional[ExitCallback] = None, *, sigint_grace: float = 3.0,
+                 sigterm_grace: float = 2.0, death_signal: int = signal.SIGKILL, tail_lines: int = 20):
+        self.on_exit = on_exit
+        self.sigint_grace = sigint_grace
+        self.sigterm_grace = sigterm_grace
+        self.death_signal = int(death_signal)
+        self.tail_lines = tail_lines
+        self._lock = threading.Lock()
+        self._procs: dict[int, ManagedProcess] = {}          # pidfd -> process, while not reaped
+        self._all: dict[int, ManagedProcess] = {}            # key -> process, until forgotten
+        self._closed = False
+        self._wake_r, self._wake_w = os.pipe2(os.O_CLOEXEC | os.O_NONBLOCK)
+        self._spawn_q: queue.Queue = queue.Queue()
+        self._callbacks: queue.Queue = queue.Queue()
+        self._recent_exits: deque = deque(maxlen=64)
+        self._spawner = threading.Thread(target=self._spawn_loop, name='er-spawner', daemon=True)
+        self._reaper = threading.Thread(target=self._reap_loop, name='er-reaper', daemon=True)
+        self._notifier = threading.Thread(target=self._callback_loop, name='er-exit-callbacks', daemon=True)
+        self._spawner.start()
+        self._reaper.start()
+        self._notifier.start()
+
+    # -- starting ------------------------------------------------------------------------------
+
+    def start(self, spec: ProcessSpec) -> ManagedProcess:
+        """Spawn the child (on the spawner thread) and return at once; see :meth:`wait_ready`."""
+        if self._closed:
+            raise SupervisorError('the process supervisor is shut down')
+        fut: Future = Future()
+        self._spawn_q.put((spec, fut))
+        return fut.result()
+
+    def _spawn_loop(self) -> None:
+        while True:
+            item = self._spawn_q.get()
+            if item is None:
+                return
+            spec, fut = item
+            try:
+                fut.set_result(self._spawn(spec))
+            except BaseException as e:        # the caller sees it through the future
+                fut.set_exception(e)
+
+    def _spawn(self, spec: ProcessSpec) -> ManagedProcess:
+        os.makedirs(os.path.dirname(spec.log_path) or '.', exist_ok=True)
+        parent = os.getpid()
+        death_signal = self.death_signal
+
+        def in_child():                       # runs between fork and exec: no allocation, no imports
+            if death_signal:
+                _prctl(_PR_SET_PDEATHSIG, death_signal, 0, 0, 0)
+                if os.getppid() != parent:    # the manager died before prctl took effect
+                    os._exit(125)
+
+        with open(spec.log_path, 'ab', buffering=0) as log:
+            log.write(('[temoto_er_manager] %s $ %s\n' % (time.strftime('%Y-%m-%d %H:%M:%S'),
+                                                          spec.command)).encode())
+            try:
+                popen = subprocess.Popen(spec.argv, env=spec.env, cwd=spec.cwd, stdin=subprocess.DEVNULL,
+                                         stdout=log, stderr=subprocess.STDOUT, close_fds=True,
+                                         start_new_session=True, preexec_fn=in_child)
+            except OSError as e:
+                raise SupervisorError('cannot start %s: %s' % (spec.command, e.strerror or e)) from e
+        started = time.time()
+        pidfd = os.pidfd_open(popen.pid)
+        proc = ManagedProcess(spec, popen, pidfd, started)
+        with self._lock:
+            self._procs[pidfd] = proc
+            self._all[proc.key] = proc
+        os.write(self._wake_w, b'x')          # let the reaper select on the new pidfd
+        _log.info('started pid %d: %s (log %s)', proc.pid, spec.command, spec.log_path)
+        return proc
+
+    def wait_ready(self, proc: ManagedProcess, check: Optional[ReadyCheck], timeout: float,
+                   interval: float = 0.02) -> None:
+        """Block until ``check(proc)`` is true, the child exits, it is stopped, or ``timeout``.
+
+        ``check`` is polled every ``interval`` (the ROS master has no push API for
+        registrations); the child's exit or a stop wakes the wait at once, so a
+        node that dies while starting fails the load immediately. Without
+        ``check`` the process is ready when it is still alive after ``timeout``
+        (a settle time).
+        """
+        deadline = time.monotonic() + timeout
+        while True:
+            self._raise_if_gone(proc)
+            if check is not None:
+                try:
+                    ok = check(proc)
+                except Exception as e:        # a flaky look-up is "not yet"
+                    _log.debug('ready check for pid %d failed: %s', proc.pid, e)
+                    ok = False
+                if ok and self._mark_ready(proc):
+                    return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                if check is None and self._mark_ready(proc):
+                    return
+                self._raise_if_gone(proc)
+                raise ReadyTimeout('process %d (%s) did not become ready within %.1f s'
+                                   % (proc.pid, proc.spec.label or proc.spec.command, timeout))
+            with proc.cond:
+                proc.cond.wait_for(lambda: not proc.alive or proc.stopping,
+                                   timeout=min(interval, remaining) if check is not None else remaining)
+
+    @staticmethod
+    def _raise_if_gone(proc: ManagedProcess) -> None:
+        with proc.cond:
+            if proc.stopping:
+                raise StartCancelled('process %d (%s) was stopped while it was starting'
+                                     % (proc.pid, proc.spec.label or proc.spec.command))
+            if not proc.alive:
+                info = proc.exit_info
+                raise ProcessExitedEarly('process %d (%s) %s before it was ready; last output:\n%s'
+                                         % (proc.pid, info.command, info.reason, info.log_tail), info)
+
+    @staticmethod
+    def _mark_ready(proc: ManagedProcess) -> bool:
+        with proc.cond:
+            if proc.alive and not proc.stopping:
+                proc.ready = True
+                proc.cond.notify_all()
+                return True
+            return False
+
+    # -- watching ------------------------------------------------------------------------------
+
+    def _reap_loop(self) -> None:
+        while True:
+            with self._lock:
+                fds = list(self._procs)
+            try:
+                readable, _, _ = select.select([self._wake_r] + fds, [], [])
+            except OSError as e:              # a pidfd closed under us by a race: rebuild the set
+                if e.errno in (errno.EBADF, errno.EINTR):
+                    continue
+                raise
+            if self._wake_r in readable:
+                try:
+                    while os.read(self._wake_r, 4096):
+                        pass
+                except BlockingIOError:
+                    pass
+                if self._closed and not self._procs:
+                    return
+            for fd in readable:
+                if fd != self._wake_r:
+                    self._reap(fd)
+
+    def _reap(self, pidfd: int) -> None:
+        with self._lock:
+            proc = self._procs.pop(pidfd, None)
+        if proc is None:
+            return
+        rc = proc.popen.wait()                # already dead: returns at once and reaps
+        os.close(pidfd)
+        with proc.cond:
+            info = ExitInfo(pid=proc.pid, returncode=rc, command=proc.spec.command,
+                            log_tail=read_tail(proc.spec.log_path, self.tail_lines),
+                            intentional=proc.stopping, when=time.time())
+            proc.exit_info = info
+            proc.cond.notify_all()
+        self._recent_exits.append(info)
+        if info.intentional:
+            _log.info('pid %d stopped: %s', proc.pid, info.reason)
+        else:
+            _log.warning('pid %d %s: %s', proc.pid, info.reason, proc.spec.command)
+            # also a child that exits before it is ready: wait_ready reports that to the loader,
+            # and the consumer-facing owner decides what a failure during loading means.
+            self._callbacks.put((proc, info))
+        try:
+            os.killpg(proc.pid, 0)            # leftovers in the child's group (its own children)?
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            pass
+        else:
+            if not info.intentional:
+                # the group leader died but members remain: they are part of this resource, stop them
+                threading.Thread(target=self._kill_group_leftovers, args=(proc.pid,), daemon=True).start()
+
+    def _kill_group_leftovers(self, pgid: int) -> None:
+        self._signal_group_until_empty(pgid)
+
+    def _callback_loop(self) -> None:
+        while True:
+            item = self._callbacks.get()
+            if item is None:
+                return
+            proc, info = item
+            if self.on_exit is not None:
+                try:
+                    self.on_exit(proc, info)
+                except Exception:
+                    _log.exception('exit callback for pid %d failed', proc.pid)
+
+    # -- stopping ------------------------------------------------------------------------------
+
+    def stop(self, proc: ManagedProcess, sigint_grace: Optional[float] = None,
+             sigterm_grace: Optional[float] = None) -> ExitInfo:
+        """Stop the child's group: SIGINT, then SIGTERM, then SIGKILL; return once it is reaped.
+
+        Safe to call twice and on an exited process (returns its exit info).
+        """
+        sigint_grace = self.sigint_grace if sigint_grace is None else sigint_grace
+        sigterm_grace = self.sigterm_grace if sigterm_grace is None else sigterm_grace
+        with proc.cond:
+            if proc.exit_info is not None and not proc.stopping:
+                # already dead on its own (and already reported); still clean its group
+                info = proc.exit_info
+                self._signal_group_until_empty(proc.pid, quick=True)
+                return info
+            proc.stopping = True
+            proc.cond.notify_all()            # a wait_ready in progress gives up now
+        for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace),
+                           (signal.SIGKILL, 5.0)):
+            with proc.cond:
+                if proc.exit_info is not None:
+                    break
+            self._killpg(proc.pid, sig)
+            with proc.cond:
+                if proc.cond.wait_for(lambda: proc.exit_info is not None, timeout=grace):
+                    break
+        with proc.cond:
+            if proc.exit_info is None:        # SIGKILL + 5 s and still not reaped: never seen; be loud
+                raise SupervisorError('process %d did not exit after SIGKILL' % proc.pid)
+            info = proc.exit_info
+        self._signal_group_until_empty(proc.pid, quick=True)
+        return info
+
+    @staticmethod
+    def _killpg(pgid: int, sig: int) -> bool:
+        try:
+            os.killpg(pgid, sig)
+            return True
+        except ProcessLookupError:
+            return False
+        except PermissionError:               # pid reused by someone else's group: not ours
+            return False
+
+    def _signal_group_until_empty(self, pgid: int, quick: bool = False) -> None:
+        """Members left in a dead leader's group (its children): SIGTERM, then SIGKILL."""
+        steps = ((signal.SIGTERM, 0.5 if quick else self.sigterm_grace), (signal.SIGKILL, 1.0))
+        for sig, grace in steps:
+            if not self._killpg(pgid, sig):
+                return
+            deadline = time.monotonic() + grace
+            while time.monotonic() < deadline:   # no pidfd for unknown members: short bounded poll
+                if not self._killpg(pgid, 0):
+                    return
+                time.sleep(0.02)
+
+    def forget(self, proc: ManagedProcess) -> None:
+        """Drop an exited process from the listing."""
+        with self._lock:
+            if proc.exit_info is not None:
+                self._all.pop(proc.key, None)
+
+    def processes(self) -> list[ManagedProcess]:
+        with self._lock:
+            return list(self._all.values())
+
+    def shutdown(self) -> None:
+        """Stop every child (in parallel) and end the supervisor's threads."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            procs = [p for p in self._all.values() if p.alive]
+        threads = [threading.Thread(target=self._stop_quietly, args=(p,), daemon=True) for p in procs]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(self.sigint_grace + self.sigterm_grace + 10.0)
+        self._spawn_q.put(None)
+        self._callbacks.put(None)
+        os.write(self._wake_w, b'x')
+        self._reaper.join(2.0)
+
+    def _stop_quietly(self, proc: ManagedProcess) -> None:
+        try:
+            self.stop(proc)
+        except Exception:
+            _log.exception('stopping pid %d failed', proc.pid)

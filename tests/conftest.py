@@ -1,0 +1,1 @@
+pytest_plugins = ['temoto_core.testing.pytest_plugin']
