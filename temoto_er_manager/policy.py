@@ -15,6 +15,8 @@ import signal
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+
 ROS_EXECUTE = 'ros_execute'
 SYS_EXECUTE = 'sys_execute'
 ACTIONS = (ROS_EXECUTE, SYS_EXECUTE)
@@ -27,12 +29,15 @@ _MAX_FIELD = 4096
 _FORBIDDEN_SPECIAL = ('__ns:=', '__master:=', '__ip:=', '__hostname:=', '__log:=')
 
 
-class RequestRefused(ValueError):
-    """A request that is invalid or not allowed. ``code`` names the TeMoto error kind."""
+class RequestRefused(TemotoError):
+    """A request that is invalid, not allowed, or names something that does not exist.
 
-    def __init__(self, code: str, message: str):
-        super().__init__(message)
-        self.code = code
+    ``kind`` is the name of a :class:`temoto_core.errors.ErrorCode`.
+    """
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(ErrorCode[kind], Subsystem.ER_MANAGER, message)
+        self.kind = kind
 
 
 @dataclass
@@ -95,11 +100,11 @@ class LoadRequest:
 
 def _check_text(name: str, value: Any) -> str:
     if not isinstance(value, str):
-        raise RequestRefused('INVALID_REQUEST', '%s must be a string' % name)
+        raise RequestRefused('BAD_REQUEST', '%s must be a string' % name)
     if '\x00' in value:
-        raise RequestRefused('INVALID_REQUEST', '%s contains a NUL character' % name)
+        raise RequestRefused('BAD_REQUEST', '%s contains a NUL character' % name)
     if len(value) > _MAX_FIELD:
-        raise RequestRefused('INVALID_REQUEST', '%s is longer than %d characters' % (name, _MAX_FIELD))
+        raise RequestRefused('BAD_REQUEST', '%s is longer than %d characters' % (name, _MAX_FIELD))
     return value
 
 
@@ -109,11 +114,11 @@ def normalise_namespace(ns: str, base_ns: str) -> str:
         ns = base_ns or '/'
     elif not ns.startswith('/'):
         if ns.startswith('~'):
-            raise RequestRefused('INVALID_REQUEST', 'ros_namespace %r: private (~) names are not allowed' % ns)
+            raise RequestRefused('BAD_REQUEST', 'ros_namespace %r: private (~) names are not allowed' % ns)
         ns = (base_ns.rstrip('/') if base_ns else '') + '/' + ns
     segments = [s for s in ns.split('/') if s]
     if '//' in ns.rstrip('/') or any(not _NS_SEGMENT_RE.match(s) for s in segments):
-        raise RequestRefused('INVALID_REQUEST',
+        raise RequestRefused('BAD_REQUEST',
                              'ros_namespace %r is not a legal ROS namespace (segments must match '
                              '[A-Za-z][A-Za-z0-9_]*)' % ns)
     return '/' + '/'.join(segments)
@@ -126,14 +131,14 @@ def validate_request(action: str, ros_namespace: str, package_name: str, executa
                         ('package_name', package_name), ('executable', executable), ('args', args)):
         _check_text(name, value)
     if action not in ACTIONS:
-        raise RequestRefused('ACTION_UNKNOWN', 'action %r is not one of %s' % (action, ', '.join(ACTIONS)))
+        raise RequestRefused('BAD_REQUEST', 'action %r is not one of %s' % (action, ', '.join(ACTIONS)))
     ns = normalise_namespace(ros_namespace, base_ns)
     try:
         argv_args = tuple(shlex.split(args))
     except ValueError as e:
-        raise RequestRefused('INVALID_REQUEST', 'args %r cannot be split: %s' % (args, e)) from None
+        raise RequestRefused('BAD_REQUEST', 'args %r cannot be split: %s' % (args, e)) from None
     if not executable:
-        raise RequestRefused('INVALID_REQUEST', 'executable is empty')
+        raise RequestRefused('BAD_REQUEST', 'executable is empty')
 
     if action == SYS_EXECUTE:
         if executable not in config.sys_allowlist:
@@ -142,21 +147,21 @@ def validate_request(action: str, ros_namespace: str, package_name: str, executa
                                  'sys_allowlist (%s)' % (executable, ', '.join(config.sys_allowlist) or
                                                          'empty: sys_execute is disabled'))
         if package_name:
-            raise RequestRefused('INVALID_REQUEST', 'sys_execute takes no package_name (got %r)' % package_name)
+            raise RequestRefused('BAD_REQUEST', 'sys_execute takes no package_name (got %r)' % package_name)
         return LoadRequest(action, ns, '', executable, args, argv_args)
 
     if not _PACKAGE_RE.match(package_name):
-        raise RequestRefused('INVALID_REQUEST', 'package_name %r is not a legal ROS package name' % package_name)
+        raise RequestRefused('BAD_REQUEST', 'package_name %r is not a legal ROS package name' % package_name)
     if config.package_allowlist and package_name not in config.package_allowlist:
         raise RequestRefused('NOT_ALLOWED', 'package %r is not in this manager\'s package_allowlist (%s)'
                              % (package_name, ', '.join(config.package_allowlist)))
     if not _FILE_RE.match(executable) or os.sep in executable:
-        raise RequestRefused('INVALID_REQUEST',
+        raise RequestRefused('BAD_REQUEST',
                              'executable %r must be a plain file name inside the package (no path, no '
                              'leading dot)' % executable)
     for a in argv_args:
         for special in _FORBIDDEN_SPECIAL:
             if a.startswith(special):
-                raise RequestRefused('INVALID_REQUEST', 'args may not set %s (use the request fields)'
+                raise RequestRefused('BAD_REQUEST', 'args may not set %s (use the request fields)'
                                      % special.rstrip(':='))
     return LoadRequest(action, ns, package_name, executable, args, argv_args)

@@ -1,0 +1,79 @@
+"""ROS master look-ups that decide whether a node "really started".
+
+A name registered at the master is not proof: a node that was SIGKILLed never
+unregisters, so its stale entry would make a restarted node look ready at once.
+So a node counts only when the master knows it *and* the process answering at
+its XML-RPC URI reports a pid that belongs to the child we started.
+"""
+from __future__ import annotations
+
+import http.client
+import xmlrpc.client
+from typing import Iterable
+
+CALLER_ID = '/temoto_er_manager'
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    def __init__(self, timeout: float):
+        super().__init__()
+        self._timeout = timeout
+
+    def make_connection(self, host):
+        conn = super().make_connection(host)
+        conn.timeout = self._timeout
+        return conn
+
+
+def _proxy(uri: str, timeout: float) -> xmlrpc.client.ServerProxy:
+    return xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout), allow_none=True)
+
+
+def lookup_node(master_uri: str, node_name: str, timeout: float = 1.0) -> str | None:
+    """The node's XML-RPC URI, or None when the master does not know it."""
+    code, _msg, uri = _proxy(master_uri, timeout).lookupNode(CALLER_ID, node_name)
+    return uri if code == 1 else None
+
+
+def node_pid(node_uri: str, timeout: float = 1.0) -> int | None:
+    try:
+        code, _msg, pid = _proxy(node_uri, timeout).getPid(CALLER_ID)
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException):
+        return None                       # stale registration: nobody answers there
+    return int(pid) if code == 1 else None
+
+
+def parent_pid(pid: int) -> int | None:
+    """The parent of ``pid`` from /proc (Linux), or None if it is gone."""
+    try:
+        with open('/proc/%d/stat' % pid, 'rb') as f:
+            stat = f.read().decode(errors='replace')
+    except OSError:
+        return None
+    # the command name (field 2) may contain spaces and parentheses: split after the last ')'
+    return int(stat.rsplit(')', 1)[1].split()[1])
+
+
+def node_is_ours(master_uri: str, node_name: str, pids: Iterable[int], parent: int | None = None,
+                 timeout: float = 1.0) -> bool:
+    """True when ``node_name`` is registered and its process is one of ``pids`` (or a child of ``parent``)."""
+    uri = lookup_node(master_uri, node_name, timeout)
+    if uri is None:
+        return False
+    pid = node_pid(uri, timeout)
+    if pid is None:
+        return False
+    if pid in set(pids):
+        return True
+    return parent is not None and parent_pid(pid) == parent
+
+
+def registered_nodes(master_uri: str, timeout: float = 1.0) -> set[str]:
+    """Every node name that publishes, subscribes or serves something (getSystemState)."""
+    code, _msg, state = _proxy(master_uri, timeout).getSystemState(CALLER_ID)
+    names: set[str] = set()
+    if code == 1:
+        for section in state:
+            for _topic, nodes in section:
+                names.update(nodes)
+    return names
