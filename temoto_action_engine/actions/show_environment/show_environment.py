@@ -1,0 +1,182 @@
+"""show_environment: the paper's demo. Keep the operator seeing the surroundings.
+
+The original ``ShowEnv`` task stepped through depth camera -> Hokuyo -> Sick in its sensor
+status callback and never released the failed sensors. This port:
+- takes the priority list from the engine parameter ``~actions/show_environment/sensor_priority``
+  (default: the VaultBot's, from the paper's section 4);
+- on a FAILED status of the active sensor (or its display) releases that sensor and display,
+  then requests the next entry and shows it through the Output Manager;
+- when every entry has failed, says so on the feedback topic and in the log, and retries from
+  the top of the list with a bounded exponential backoff until a device comes back;
+- publishes each step (active, failed, unavailable, all_failed, retry) on
+  /<ns>/action_engine/events so a bag shows when FAILED arrived and what replaced the sensor.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from temoto_action_engine.action_base import ActionBase, ActionError
+
+FAILED = 1      # temoto_core/ResourceStatus.FAILED (wire contract)
+
+DEFAULT_PRIORITY = [
+    {'label': 'RGB-D camera cloud', 'sensor_type': 'depth camera', 'output_topics': ['camera_data'],
+     'display_type': 'point cloud', 'display_key': 'camera_data'},
+    {'label': 'arm LIDAR stitched cloud', 'sensor_type': 'lidar', 'output_topics': ['lidar_data', 'cloud_data'],
+     'display_type': 'point cloud', 'display_key': 'cloud_data'},
+    {'label': 'base LIDAR scan', 'sensor_type': 'lidar', 'output_topics': ['lidar_data'],
+     'display_type': 'laser scan', 'display_key': 'lidar_data'},
+]
+
+
+@dataclass(frozen=True)
+class SensorChoice:
+    label: str
+    sensor_type: str
+    output_topics: tuple
+    display_type: str
+    display_key: str
+
+
+@dataclass
+class Active:
+    index: int
+    choice: SensorChoice
+    sensor_name: str
+    resource_id: int
+    topic: str
+    display_id: object
+
+
+def parse_priority(raw) -> list[SensorChoice]:
+    """Validate the priority list parameter; raise ActionError naming the bad entry."""
+    if not isinstance(raw, list) or not raw:
+        raise ActionError('sensor_priority must be a non-empty list, got %r' % (raw,))
+    out = []
+    for i, e in enumerate(raw):
+        if not isinstance(e, dict):
+            raise ActionError('sensor_priority[%d] must be a mapping, got %r' % (i, e))
+        keys = e.get('output_topics')
+        if not isinstance(keys, list) or not keys or not all(isinstance(k, str) and k for k in keys):
+            raise ActionError('sensor_priority[%d].output_topics must be a non-empty list of keys' % i)
+        for f in ('sensor_type', 'display_type'):
+            if not isinstance(e.get(f), str) or not e[f]:
+                raise ActionError('sensor_priority[%d].%s must be a non-empty string' % (i, f))
+        key = e.get('display_key', keys[0])
+        if key not in keys:
+            raise ActionError('sensor_priority[%d].display_key %r is not one of its output_topics %s'
+                              % (i, key, keys))
+        out.append(SensorChoice(str(e.get('label', e['sensor_type'])), e['sensor_type'], tuple(keys),
+                                e['display_type'], key))
+    return out
+
+
+class ShowEnvironment(ActionBase):
+    def on_start(self):
+        self.priority = parse_priority(self.config.get('sensor_priority', DEFAULT_PRIORITY))
+        self.retry_initial = float(self.config.get('retry_initial_s', 2.0))
+        self.retry_max = float(self.config.get('retry_max_s', 30.0))
+        self.backoff = self.retry_initial
+        self.retry_at = None
+        self.active: Active | None = None
+        self.smi = self.sensor_manager
+        self.omi = self.output_manager
+        # Replaces the interface's default policy (reload the same request), as ShowEnv did.
+        self.smi.register_update_callback(self.post)
+        self.activate_from(0)
+        if self.active:
+            self.set_output('topic', self.active.topic)
+
+    def execute(self):
+        while self.action_ok():
+            if self.active is None and self.retry_at is not None:
+                timeout = max(0.0, self.retry_at - time.monotonic())
+            else:
+                timeout = 3600.0
+            ev = self.next_item(timeout)
+            if not self.action_ok():
+                break
+            if ev is not None:
+                self.handle_status(ev)
+            elif self.active is None and self.retry_at is not None and time.monotonic() >= self.retry_at:
+                self.event('retry', backoff_s=self.backoff)
+                self.activate_from(0)
+
+    def on_stop(self):
+        if self.active is not None:
+            self.release_active()
+
+    # ------------------------------------------------------------------ steps
+    def handle_status(self, ev) -> None:
+        rid = getattr(ev, 'resource_id', None)
+        code = getattr(ev, 'code', getattr(ev, 'status_code', None))
+        message = getattr(ev, 'message', '')
+        a = self.active
+        if a is None or rid not in (a.resource_id, a.display_id):
+            self.log_info('status %s for resource %s, which is not in use any more; ignored' % (code, rid))
+            return
+        if code != FAILED:
+            self.log_info('status %s for %s: %s' % (code, a.sensor_name, message))
+            return
+        self.event('sensor_failed', sensor_name=a.sensor_name, sensor_type=a.choice.sensor_type,
+                   label=a.choice.label, priority_index=a.index, message=message,
+                   failed_part='display' if rid == a.display_id and rid != a.resource_id else 'sensor')
+        self.release_active()
+        self.activate_from(a.index + 1)
+
+    def activate_from(self, start: int) -> None:
+        """Bring up the first entry from ``start`` on that works; on none, schedule a retry."""
+        for i in range(start, len(self.priority)):
+            if not self.action_ok():
+                return
+            choice = self.priority[i]
+            try:
+                result = self.smi.start_sensor(choice.sensor_type,
+                                               output_topics={k: '' for k in choice.output_topics})
+            except Exception as e:
+                self.event('sensor_unavailable', sensor_type=choice.sensor_type, label=choice.label,
+                           priority_index=i, message=str(e))
+                continue
+            topic = dict(result.output_topics).get(choice.display_key, '')
+            try:
+                if not topic:
+                    raise ActionError('the sensor gave no %r topic' % choice.display_key)
+                display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label)
+            except Exception as e:
+                self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
+                           priority_index=i, message=str(e))
+                self._stop_sensor(result.resource_id)
+                continue
+            self.active = Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
+            recovered = self.retry_at is not None
+            self.retry_at = None
+            self.backoff = self.retry_initial
+            self.event('sensor_active', sensor_name=result.sensor_name, sensor_type=choice.sensor_type,
+                       label=choice.label, priority_index=i, topic=topic, display_type=choice.display_type)
+            self.feedback('%sshowing the %s (%s) as %s on %s' % ('a sensor is back: ' if recovered else '',
+                                                                 choice.label, result.sensor_name,
+                                                                 choice.display_type, topic))
+            return
+        # Every entry failed: say so, keep watching with a bounded backoff.
+        delay = self.backoff
+        self.retry_at = time.monotonic() + delay
+        self.backoff = min(self.backoff * 2.0, self.retry_max)
+        labels = ', '.join(c.label for c in self.priority)
+        self.event('all_failed', retry_in_s=delay, sensors=labels)
+        self.log_err('every sensor failed (%s); the operator has no view; retrying in %.1f s' % (labels, delay))
+        self.feedback('every sensor failed (%s); nothing to show. Retrying in %.0f s.' % (labels, delay))
+
+    def release_active(self) -> None:
+        a, self.active = self.active, None
+        try:
+            self.omi.hide(a.display_id)
+        except Exception as e:
+            self.log_warn('hiding the display of %s: %s' % (a.sensor_name, e))
+        self._stop_sensor(a.resource_id)
+
+    def _stop_sensor(self, resource_id) -> None:
+        try:
+            self.smi.stop_sensor(resource_id)
+        except Exception as e:
+            self.log_warn('stopping sensor resource %s: %s' % (resource_id, e))

@@ -1,0 +1,205 @@
+"""ActionEngine: the index, the grounder and the running graphs, without any ROS wiring.
+
+The ROS node (``ros_engine.py``) only turns topics and services into calls on this class,
+so everything here is testable in-process with fake registrars.
+"""
+from __future__ import annotations
+
+import collections
+import itertools
+import json
+import os
+import threading
+from typing import Any, Callable
+
+import rospy
+
+from .action_base import ActionContext, default_rr_factory
+from .graph import ERROR, CANCELLED, GraphRun, NodeRun
+from .grounding import TOKEN_RE, Grounder, inflections, word_forms
+from .indexer import ActionIndex
+from .umrf import GraphSpec, UmrfError, parse_graph
+
+EVERYTHING = {'everything', 'all', 'every', 'anything'}
+
+
+class ActionEngine:
+    def __init__(self, index: ActionIndex, namespace: str = 'temoto', wake_words=(),
+                 action_config: dict | None = None, rr_factory: Callable[[str], Any] | None = None,
+                 publish_event: Callable[[dict], None] | None = None,
+                 publish_feedback: Callable[[str], None] | None = None, history: int = 20):
+        self.index = index
+        self.namespace = namespace
+        self.wake_words = [w for w in wake_words if w]
+        self.action_config = action_config or {}
+        self.rr_factory = rr_factory or default_rr_factory(namespace)
+        self._publish_event = publish_event or (lambda ev: None)
+        self._publish_feedback = publish_feedback or (lambda text: None)
+        self._lock = threading.RLock()
+        self._graphs: dict[str, GraphRun] = {}
+        self._finished: collections.OrderedDict = collections.OrderedDict()
+        self._history = history
+        self._uids = itertools.count(1)
+        self._grounder = None
+        self._closed = False
+
+    # ------------------------------------------------------------------ index
+    def reindex(self) -> dict:
+        self.index.reindex()
+        with self._lock:
+            self._grounder = None
+        for p in self.index.problems:
+            rospy.logerr('action plugin problem: %s' % p)
+        rospy.loginfo('indexed %d action(s): %s' % (len(self.index), ', '.join(self.index)))
+        return self.index.to_json()
+
+    def grounder(self, wake_words=None) -> Grounder:
+        with self._lock:
+            if self._grounder is None:
+                self._grounder = Grounder(self.index.descriptors())
+            g = self._grounder
+        if wake_words:
+            return Grounder(g.descriptors, wake_words)
+        return g
+
+    # ------------------------------------------------------------------ reporting
+    def feedback(self, text: str) -> None:
+        rospy.loginfo('feedback: %s' % text)
+        self._publish_feedback(text)
+
+    def _on_event(self, ev: dict) -> None:
+        self._publish_event(ev)
+        if ev.get('event') == 'state':
+            who = '%s_%s' % (ev['action'], ev['instance_id'])
+            if ev['state'] == ERROR:
+                self.feedback('%s failed: %s' % (ev['action'], ev['message']))
+            elif ev['state'] == CANCELLED and ev['message'] != 'graph stopped':
+                self.feedback('%s did not start: %s' % (ev['action'], ev['message']))
+            rospy.loginfo('graph %s: %s %s %s' % (ev['graph'], who, ev['state'], ev['message']))
+
+    # ------------------------------------------------------------------ graphs
+    def say(self, text: str, use_wake_words: bool = True):
+        """Ground an instruction and start its graph. Returns (GroundingResult, GraphRun or None)."""
+        result = self.grounder(self.wake_words if use_wake_words else None).ground(text)
+        if not result.addressed:
+            rospy.logdebug('not addressed to us: %r' % text)
+            return result, None
+        if not result.ok:
+            self.feedback(result.message)
+            return result, None
+        try:
+            run = self.start_graph(result.graph)
+        except (UmrfError, RuntimeError) as e:
+            self.feedback('could not start "%s": %s' % (text, e))
+            return result, None
+        if result.unmatched or any(c.ignored for c in result.clauses):
+            ignored = [w for c in result.clauses for w in c.ignored]
+            self.feedback('%s; running as graph %s (ignored words: %s)'
+                          % (result.message, run.name, ', '.join(ignored)))
+        else:
+            self.feedback('%s; running as graph %s' % (result.message, run.name))
+        return result, run
+
+    def start_graph(self, graph) -> GraphRun:
+        """Validate a UMRF graph (JSON text or dict) and start it. Raises UmrfError, changing nothing."""
+        spec: GraphSpec = parse_graph(graph, self.index)
+        with self._lock:
+            if self._closed:
+                raise RuntimeError('the engine is shutting down')
+            base, n = spec.name, 1
+            while spec.name in self._graphs:
+                n += 1
+                spec.name = '%s_%d' % (base, n)
+            run = GraphRun(spec, self.index, self._make_context, self._on_event, self._graph_finished)
+            self._graphs[spec.name] = run
+            self._finished.pop(spec.name, None)
+        run.start()
+        return run
+
+    def _make_context(self, node: NodeRun, run: GraphRun) -> ActionContext:
+        return ActionContext(
+            descriptor=node.indexed.descriptor, instance_id=node.spec.instance_id, graph_name=run.name,
+            inputs=dict(node.inputs), uid='%d_%d' % (os.getpid(), next(self._uids)),
+            config=dict(self.action_config.get(node.spec.name, {}) or {}), namespace=self.namespace,
+            rr_factory=self.rr_factory, publish_event=self._publish_event,
+            publish_feedback=self.feedback, engine=self)
+
+    def _graph_finished(self, run: GraphRun) -> None:
+        with self._lock:
+            if self._graphs.get(run.name) is run:
+                del self._graphs[run.name]
+                self._finished[run.name] = run
+                while len(self._finished) > self._history:
+                    self._finished.popitem(last=False)
+
+    def stop_graph(self, name: str, timeout: float = 15.0) -> tuple[bool, str]:
+        with self._lock:
+            run = self._graphs.get(name)
+            known = sorted(self._graphs)
+        if run is None:
+            return False, 'no running graph %r (running: %s)' % (name, ', '.join(known) or 'none')
+        left = run.stop(timeout)
+        if left:
+            return False, 'graph %s: %s did not stop within %.0f s' % (name, ', '.join(left), timeout)
+        return True, 'graph %s stopped' % name
+
+    def graph(self, name: str) -> GraphRun | None:
+        with self._lock:
+            return self._graphs.get(name) or self._finished.get(name)
+
+    def list_graphs(self) -> list[dict]:
+        with self._lock:
+            runs = list(self._graphs.values()) + list(self._finished.values())
+        return [r.to_json() for r in runs]
+
+    # ------------------------------------------------------------------ actions (for `stop`)
+    def _running_nodes(self, exclude_graph: str | None):
+        with self._lock:
+            runs = [r for n, r in self._graphs.items() if n != exclude_graph]
+        return [(r, n) for r in runs for n in r.running_nodes()]
+
+    def running_actions(self, exclude_graph: str | None = None) -> list[str]:
+        return ['%s/%s' % (r.name, n.key) for r, n in self._running_nodes(exclude_graph)]
+
+    def stop_actions(self, target: str, exclude_graph: str | None = None, timeout: float = 15.0) -> list[str]:
+        """Stop the running actions that ``target`` names best; returns 'graph/node' of those stopped.
+
+        ``target`` may be an action name, a node key, a graph name, or the words that started the
+        action ("showing the environment"); "everything"/"all" stops every running action.
+        """
+        words = [w.lower().strip(".'") for w in TOKEN_RE.findall(target or '')]
+        nodes = self._running_nodes(exclude_graph)
+        if any(w in EVERYTHING for w in words):
+            chosen = nodes
+        else:
+            scored = []
+            for run, node in nodes:
+                d = node.indexed.descriptor
+                score = 0
+                if target.strip() in (d.name, node.key, run.name):
+                    score += 10
+                verbs = set().union(*(inflections(v) for v in d.grounding.verbs)) if d.grounding.verbs else set()
+                subjects = set().union(*(word_forms(s) for s in d.grounding.subjects)) if d.grounding.subjects \
+                    else set()
+                values = {str(v).lower() for v in node.inputs.values()}
+                for w in words:
+                    score += (w in verbs) + 2 * (w in subjects) + 2 * (w in values) + (w in d.name.split('_'))
+                scored.append((score, run, node))
+            best = max((s for s, _, _ in scored), default=0)
+            chosen = [(r, n) for s, r, n in scored if s == best and best > 0]
+        stopped = []
+        for run, node in chosen:
+            if run.stop_node(node.key, timeout):
+                stopped.append('%s/%s' % (run.name, node.key))
+        return stopped
+
+    def shutdown(self, timeout: float = 15.0) -> None:
+        with self._lock:
+            self._closed = True
+            runs = list(self._graphs.values())
+        for r in runs:
+            r.stop(timeout)
+
+    @staticmethod
+    def dumps(obj) -> str:
+        return json.dumps(obj, sort_keys=True, default=str)
