@@ -274,7 +274,7 @@ def _person(w: UrdfWriter, xyz: tuple, yaw: float) -> None:
            mass=2.0, inertia=cyl_inertia(2.0, 0.045, 0.55), com=(0, 0, -0.275))
     # shoulder on the figure's right side, arm raised forward-sideways; the joint waves it.
     w.joint('person_shoulder_joint', 'revolute', 'person_body', 'person_arm', (0.0, -0.25, 1.42),
-            (0, -1.9, 0), axis=(1, 0, 0), lower=-1.2, upper=1.2, velocity=1.0, effort=10)
+            (0, -1.65, 0), axis=(1, 0, 0), lower=-1.2, upper=1.2, velocity=1.0, effort=10)
     w.link('person_hand', [('sphere', (0.07,), (0, 0, 0), (0, 0, 0), 'hand_green')],
            mass=0.4, inertia=sphere_inertia(0.4, 0.07))
     w.joint('person_hand_joint', 'fixed', 'person_arm', 'person_hand', (0, 0, -0.6))
@@ -314,12 +314,12 @@ def lab_world_urdf() -> str:
         ('cylinder', (0.29, 0.88), (0, 0, 0.44), (0, 0, 0), 'drum_red'),
         ('cylinder', (0.29, 0.88), (0.65, 0.1, 0.44), (0, 0, 0), 'drum_blue'),
         ('cylinder', (0.29, 0.88), (0.3, -0.55, 0.44), (0, 0, 0), 'drum_red'),
-    ], (3.6, 0.0, 0))
+    ], (3.5, -0.9, 0))
     _shelf(w, 'shelf_front', (4.7, 2.0, 0), 0.0)
     _shelf(w, 'shelf_left', (0.5, 3.2, 0), PI / 2)
     _static(w, 'crate', [('box', (0.6, 0.6, 0.6), (0, 0, 0.3), (0, 0, 0), 'cardboard')],
             (1.8, -1.2, 0), 0.3)
-    _person(w, (2.4, 0.6, 0), PI)
+    _person(w, (3.0, 1.0, 0), PI)
     return w.text()
 
 

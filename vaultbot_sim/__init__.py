@@ -1,0 +1,1 @@
+"""Simulated VaultBot: world, robot state, device cables and sensor drivers."""

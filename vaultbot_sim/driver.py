@@ -1,0 +1,118 @@
+"""What every simulated sensor driver shares: the cable, the robot state, the render loop.
+
+A driver behaves like a real one whose cable can be pulled:
+- it waits (bounded) for the sim's latched device states; a device that is
+  unplugged at start, or missing, makes it fail like a real driver (crash mode:
+  log an error and exit non-zero; stall mode: stay alive, publish nothing);
+- while running, unplug/crash exits with code 1 within a few milliseconds of the
+  states message (os._exit from the callback: a real crash does not clean up),
+  and unplug/stall stops publishing for the rest of the process's life.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+
+import rospy
+from sensor_msgs.msg import JointState
+
+from vaultbot_sim.devices import Cable, CableWatch
+from vaultbot_sim.motion import JointHistory
+from vaultbot_sim.msg import DeviceStates
+from vaultbot_sim.scene import Scene
+
+EXIT_DEVICE_LOST = 1
+
+
+class DriverBase:
+    """Subclasses set `device` and implement publish(stamp) using self.scene."""
+
+    device = ''
+    default_rate = 10.0
+
+    def __init__(self):
+        self.sim_ns = rospy.get_param('~sim_ns', '/vaultbot_sim').rstrip('/')
+        self.rate = float(rospy.get_param('~rate', self.default_rate))
+        if not 0 < self.rate <= 1000:
+            self.fail(f'~rate {self.rate} out of range (0, 1000]')
+        self.startup_timeout = float(rospy.get_param('~startup_timeout', 10.0))
+        self.cable = CableWatch(self.device)
+        self.lock = threading.Lock()
+        self.robot_hist = JointHistory()
+        self.world_hist = JointHistory()
+        self._states_seen = threading.Event()
+        self._js_seen = threading.Event()
+        rospy.Subscriber(self.sim_ns + '/device_states', DeviceStates, self._on_states, queue_size=5,
+                         tcp_nodelay=True)
+        if not self._states_seen.wait(self.startup_timeout):
+            self.fail(f'{self.device}: no device found: nothing on {self.sim_ns}/device_states '
+                      f'after {self.startup_timeout:.0f} s (is vaultbot_sim running?)')
+        if self.cable.verdict == 'stall':
+            rospy.logwarn('%s: device not responding (unplugged, stall): publishing nothing', self.device)
+        robot_urdf = self._param(self.sim_ns + '/robot_urdf')
+        world_urdf = self._param(self.sim_ns + '/world_urdf')
+        self.scene = Scene(robot_urdf, world_urdf, renderer=rospy.get_param('~renderer', 'tiny'))
+        rospy.Subscriber('/joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
+                         tcp_nodelay=True)
+        rospy.Subscriber(self.sim_ns + '/world_joint_states', JointState, self._on_js, self.world_hist,
+                         queue_size=20, tcp_nodelay=True)
+        if not self._js_seen.wait(self.startup_timeout):
+            self.fail(f'{self.device}: no /joint_states after {self.startup_timeout:.0f} s')
+
+    def _param(self, name: str) -> str:
+        deadline = time.monotonic() + self.startup_timeout
+        while time.monotonic() < deadline and not rospy.is_shutdown():
+            if rospy.has_param(name):
+                return rospy.get_param(name)
+            time.sleep(0.05)
+        self.fail(f'{self.device}: parameter {name} not set (is vaultbot_sim running?)')
+
+    def fail(self, text: str) -> None:
+        """Exit the way a driver does when it cannot reach its device."""
+        rospy.logerr(text)
+        sys.stderr.flush()
+        time.sleep(0.02)  # give the rosout publisher a moment; still well inside 100 ms
+        os._exit(EXIT_DEVICE_LOST)
+
+    def _on_states(self, msg: DeviceStates) -> None:
+        cables = [Cable(d.name, d.plugged, d.mode) for d in msg.devices]
+        verdict = self.cable.update(cables)
+        self._states_seen.set()
+        if verdict == 'crash':
+            self.fail(f'{self.device}: device disconnected (cable unplugged): exiting')
+
+    def _on_js(self, msg: JointState, hist: JointHistory) -> None:
+        with self.lock:
+            hist.add(msg.header.stamp.to_sec(), msg.name, msg.position, msg.velocity)
+        if hist is self.robot_hist:
+            self._js_seen.set()
+
+    def pose_scene(self, t: float) -> None:
+        with self.lock:
+            robot = self.robot_hist.cfg_at(t)
+            world = self.world_hist.cfg_at(t)
+        if robot:
+            self.scene.set_robot(robot)
+        if world:
+            self.scene.set_world(world)
+
+    def publish(self, stamp: rospy.Time) -> None:
+        raise NotImplementedError
+
+    def spin(self) -> None:
+        period = 1.0 / self.rate
+        next_t = time.monotonic()
+        while not rospy.is_shutdown():
+            if self.cable.verdict == 'run':
+                stamp = rospy.Time.now()
+                self.pose_scene(stamp.to_sec())
+                self.publish(stamp)
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -period:
+                next_t = time.monotonic()  # running late: drop frames rather than burst
+        self.scene.close()

@@ -1,0 +1,66 @@
+"""The three sensor drivers: D435 (RGB-D), Hokuyo UTM-30LX and SICK LMS511 (2D lasers)."""
+from __future__ import annotations
+
+import numpy as np
+import rospy
+from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
+from std_msgs.msg import Header
+
+from vaultbot_sim.driver import DriverBase
+from vaultbot_sim.rosmsgs import DepthProjector, camera_info, cloud_message, image_message, scan_message
+from vaultbot_sim.scene import Intrinsics
+from vaultbot_sim.spec import D435, HOKUYO, SICK, LaserSpec
+
+
+class LaserDriver(DriverBase):
+    spec: LaserSpec
+    topic = ''
+
+    def __init__(self):
+        self.default_rate = self.spec.rate_hz
+        super().__init__()
+        self.threads = int(rospy.get_param('~ray_threads', 1))
+        self.angles = self.spec.angle_min + np.arange(self.spec.beams) * self.spec.angle_increment
+        self.pub = rospy.Publisher(self.topic, LaserScan, queue_size=5, tcp_nodelay=True)
+
+    def publish(self, stamp: rospy.Time) -> None:
+        pose = self.scene.robot_link_pose(self.spec.frame)
+        ranges = self.scene.laser(pose, self.angles, self.spec.range_min, self.spec.range_max, self.threads)
+        self.pub.publish(scan_message(self.spec, ranges, Header(stamp=stamp, frame_id=self.spec.frame)))
+
+
+class HokuyoDriver(LaserDriver):
+    device = 'hokuyo'
+    spec = HOKUYO
+    topic = 'hokuyo/scan'
+
+
+class SickDriver(LaserDriver):
+    device = 'sick'
+    spec = SICK
+    topic = 'sick/scan'
+
+
+class D435Driver(DriverBase):
+    device = 'd435'
+    default_rate = D435.rate_hz
+
+    def __init__(self):
+        super().__init__()
+        self.intr = Intrinsics.from_hfov(D435.width, D435.height, D435.hfov_deg)
+        self.projector = DepthProjector(self.intr, D435.range_min, D435.range_max)
+        self.pub_points = rospy.Publisher('d435/depth_registered/points', PointCloud2, queue_size=2, tcp_nodelay=True)
+        self.pub_image = rospy.Publisher('d435/color/image_raw', Image, queue_size=2, tcp_nodelay=True)
+        self.pub_info = rospy.Publisher('d435/color/camera_info', CameraInfo, queue_size=2, tcp_nodelay=True)
+
+    def publish(self, stamp: rospy.Time) -> None:
+        pose = self.scene.robot_link_pose(D435.frame)
+        rgb, z, _ = self.scene.render(pose, self.intr, D435.range_min, D435.range_max + 0.5)
+        header = Header(stamp=stamp, frame_id=D435.frame)
+        # Build only what someone listens to; the cloud is the expensive part.
+        if self.pub_points.get_num_connections():
+            pts = self.projector.project(z, rgb)
+            self.pub_points.publish(cloud_message(pts, header, width=self.intr.width, height=self.intr.height))
+        if self.pub_image.get_num_connections():
+            self.pub_image.publish(image_message(rgb, header))
+        self.pub_info.publish(camera_info(self.intr, header))

@@ -1,0 +1,118 @@
+"""The vaultbot_sim node: owns the world, the robot's joint state, TF and the device cables.
+
+No physics runs here: the robot is kinematic (held pose + Hokuyo wrist sweep)
+and the drivers render their sensors from what this node publishes.
+TF is published directly (tf2_msgs/TFMessage), computed from the URDF, so no
+robot_state_publisher or tf2_ros is needed.
+"""
+from __future__ import annotations
+
+import math
+import threading
+
+import rospy
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
+
+import numpy as np
+
+from vaultbot_sim.devices import DeviceError, DeviceTable
+from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world
+from vaultbot_sim.motion import HandWave, SimState, WristSweep
+from vaultbot_sim.msg import DeviceState, DeviceStates
+from vaultbot_sim.rosmsgs import tf_message
+from vaultbot_sim.spec import HOLD_POSE, SWEEP_JOINT
+from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
+
+
+class SimNode:
+    def __init__(self):
+        world = rospy.get_param('~world', 'lab')
+        self.world_urdf = resolve_world(world)
+        self.robot_urdf = rospy.get_param('~robot_urdf', ROBOT_URDF)
+        self.rate = float(rospy.get_param('~rate', 50.0))
+        sweep = WristSweep(HOLD_POSE[SWEEP_JOINT], amplitude=float(rospy.get_param('~sweep_amplitude', math.pi / 2)),
+                           speed=float(rospy.get_param('~sweep_speed', math.pi / 2)),
+                           enabled=bool(rospy.get_param('~sweep', True)))
+        hand = HandWave(amplitude=float(rospy.get_param('~hand_amplitude', 0.3)),
+                        period=float(rospy.get_param('~hand_period', 8.0)),
+                        enabled=bool(rospy.get_param('~hand_motion', True)))
+        self.state = SimState(sweep, hand)
+        self.robot = TreeModel(self.robot_urdf)
+        self.world = TreeModel(self.world_urdf)
+        self.devices = DeviceTable()
+        self.lock = threading.Lock()
+
+        with open(self.robot_urdf) as f:
+            rospy.set_param('/robot_description', f.read())
+        rospy.set_param('~robot_urdf', self.robot_urdf)
+        rospy.set_param('~world_urdf', self.world_urdf)
+
+        self.pub_js = rospy.Publisher('joint_states', JointState, queue_size=10)
+        self.pub_world_js = rospy.Publisher('~world_joint_states', JointState, queue_size=10)
+        self.pub_tf = rospy.Publisher('tf', TFMessage, queue_size=10)
+        self.pub_tf_static = rospy.Publisher('tf_static', TFMessage, queue_size=1, latch=True)
+        self.pub_devices = rospy.Publisher('~device_states', DeviceStates, queue_size=1, latch=True)
+        self._publish_static()
+        self._publish_devices()
+        rospy.Service('~set_device_state', SetDeviceState, self._on_set_device)
+        rospy.Service('~set_sweep', SetSweep, self._on_set_sweep)
+        rospy.loginfo('vaultbot_sim: world %s, joint states at %.0f Hz', self.world_urdf, self.rate)
+
+    def _publish_static(self) -> None:
+        fixed = [('world', self.robot.root, np.eye(4))]
+        fixed += self.robot.fixed_transforms() + self.world.fixed_transforms()
+        self.pub_tf_static.publish(tf_message(fixed, rospy.Time.now()))
+
+    def _device_msgs(self) -> list[DeviceState]:
+        return [DeviceState(name=c.name, plugged=c.plugged, mode=c.mode) for c in self.devices.all()]
+
+    def _publish_devices(self) -> None:
+        msg = DeviceStates(devices=self._device_msgs())
+        msg.header.stamp = rospy.Time.now()
+        self.pub_devices.publish(msg)
+
+    def _on_set_device(self, req) -> SetDeviceStateResponse:
+        with self.lock:
+            try:
+                c = self.devices.set(req.device, req.state, req.mode)
+            except DeviceError as e:
+                rospy.logwarn('set_device_state: %s', e)
+                return SetDeviceStateResponse(success=False, message=str(e), devices=self._device_msgs())
+            self._publish_devices()
+            text = f'{c.name} {"plugged" if c.plugged else "unplugged (" + c.mode + ")"}'
+            rospy.loginfo('vaultbot_sim: %s', text)
+            return SetDeviceStateResponse(success=True, message=text, devices=self._device_msgs())
+
+    def _on_set_sweep(self, req) -> SetSweepResponse:
+        with self.lock:
+            try:
+                self.state.sweep.set(bool(req.enabled), float(req.speed))
+            except ValueError as e:
+                return SetSweepResponse(success=False, message=str(e))
+            text = f'sweep {"on" if req.enabled else "off"} at {self.state.sweep.speed:.3f} rad/s'
+            rospy.loginfo('vaultbot_sim: %s', text)
+            return SetSweepResponse(success=True, message=text)
+
+    def step(self) -> None:
+        now = rospy.Time.now()
+        with self.lock:
+            (names, pos, vel), (wnames, wpos, wvel) = self.state.step(now.to_sec())
+        js = JointState(name=names, position=pos, velocity=vel)
+        js.header.stamp = now
+        self.pub_js.publish(js)
+        wjs = JointState(name=wnames, position=wpos, velocity=wvel)
+        wjs.header.stamp = now
+        self.pub_world_js.publish(wjs)
+        moving = self.robot.moving_transforms(dict(zip(names, pos)))
+        moving += self.world.moving_transforms(dict(zip(wnames, wpos)))
+        self.pub_tf.publish(tf_message(moving, now))
+
+    def spin(self) -> None:
+        rate = rospy.Rate(self.rate)
+        while not rospy.is_shutdown():
+            self.step()
+            try:
+                rate.sleep()
+            except rospy.ROSInterruptException:
+                break

@@ -1,0 +1,69 @@
+"""Facts about the VaultBot's devices and its hold pose, in one place.
+
+Sensor figures are the datasheet ones (shared/reference/vaultbot.md). The hold
+pose was found with kinematics.solve_tool_pose: the D435 sits at about
+(0.62, 0.32, 1.12) m in base_link looking ahead, pitched 8 degrees down, and the
+Hokuyo at (0.62, -0.32, 1.05) m with its scan plane's x axis (= wrist_3 axis)
+pointing ahead, so turning wrist_3 sweeps the plane over the front hemisphere.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ARM_JOINTS = ['shoulder_pan', 'shoulder_lift', 'elbow', 'wrist_1', 'wrist_2', 'wrist_3']
+WHEEL_JOINTS = ['front_left_wheel_joint', 'front_right_wheel_joint', 'rear_left_wheel_joint',
+                'rear_right_wheel_joint']
+
+_LEFT = [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
+_RIGHT = [0.579, -1.537, -1.999, -2.748, -0.991, -2.356]
+HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
+                               **{f'left_{n}_joint': q for n, q in zip(ARM_JOINTS, _LEFT)},
+                               **{f'right_{n}_joint': q for n, q in zip(ARM_JOINTS, _RIGHT)}}
+
+SWEEP_JOINT = 'right_wrist_3_joint'
+PERSON_JOINT = 'person_shoulder_joint'
+
+DEVICES = ('d435', 'hokuyo', 'sick')
+STATES = ('plugged', 'unplugged')
+MODES = ('crash', 'stall')
+
+
+@dataclass(frozen=True)
+class LaserSpec:
+    frame: str
+    fov_deg: float
+    resolution_deg: float
+    rate_hz: float
+    range_min: float
+    range_max: float
+
+    @property
+    def beams(self) -> int:
+        return int(round(self.fov_deg / self.resolution_deg)) + 1
+
+    @property
+    def angle_min(self) -> float:
+        return -math.radians(self.fov_deg) / 2
+
+    @property
+    def angle_increment(self) -> float:
+        return math.radians(self.fov_deg) / (self.beams - 1)
+
+
+HOKUYO = LaserSpec('hokuyo_link', 270.0, 0.25, 40.0, 0.1, 30.0)                   # 1081 beams
+SICK = LaserSpec('sick_link', 190.0, 190.0 / 1140, 25.0, 0.1, 80.0)                # 1141 beams (0.1667 deg)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    frame: str = 'd435_optical_frame'
+    width: int = 424
+    height: int = 240
+    hfov_deg: float = 69.0       # colour FOV: the cloud is depth-registered to the colour camera
+    rate_hz: float = 30.0
+    range_min: float = 0.1
+    range_max: float = 10.0
+
+
+D435 = CameraSpec()
