@@ -94,7 +94,7 @@ class ExitInfo:
 
     @property
     def reason(self) -> str:
-        return describe_returncode(self.returncode)
+        return describe_returncode(self.returncode, self.intentional)
 
     def message(self) -> str:
         tail = self.log_tail.rstrip()
@@ -102,7 +102,7 @@ class ExitInfo:
         return text + ('; last output:\n' + tail if tail else '; no output')
 
 
-def describe_returncode(rc: int) -> str:
+def describe_returncode(rc: int, intentional: bool = False) -> str:
     if rc < 0:
         try:
             name = signal.Signals(-rc).name
@@ -110,7 +110,7 @@ def describe_returncode(rc: int) -> str:
             name = 'signal %d' % -rc
         return 'was killed by %s (signal %d)' % (name, -rc)
     if rc == 0:
-        return 'exited with code 0 (a clean exit while the resource was still in use)'
+        return 'exited with code 0' + ('' if intentional else ' (a clean exit while the resource was still in use)')
     return 'exited with code %d' % rc
 
 
