@@ -19,8 +19,9 @@ import genpy.generator
 
 
 def project_packages(root):
-    return sorted(os.path.basename(os.path.dirname(p))
-                  for p in glob.glob(os.path.join(root, '*', 'package.xml')))
+    """{name: dir} of the project's packages, including the test-only ones under tests/."""
+    manifests = glob.glob(os.path.join(root, '*', 'package.xml')) + glob.glob(os.path.join(root, 'tests', '*', 'package.xml'))
+    return {os.path.basename(os.path.dirname(p)): os.path.dirname(p) for p in sorted(manifests)}
 
 
 def search_path(root):
@@ -28,8 +29,8 @@ def search_path(root):
     path = {}
     for d in sorted(glob.glob('/usr/share/*/msg')):
         path.setdefault(os.path.basename(os.path.dirname(d)), []).append(d)
-    for pkg in project_packages(root):
-        path.setdefault(pkg, []).insert(0, os.path.join(root, pkg, 'msg'))
+    for pkg, pkg_dir in project_packages(root).items():
+        path.setdefault(pkg, []).insert(0, os.path.join(pkg_dir, 'msg'))
     return path
 
 
@@ -82,9 +83,9 @@ def main(argv):
     write_msg_package_shims(root)
     search = search_path(root)
     generated = 0
-    for pkg in project_packages(root):
+    for pkg, pkg_dir in project_packages(root).items():
         for kind, gen_cls in (('msg', genpy.generator.MsgGenerator), ('srv', genpy.generator.SrvGenerator)):
-            out_dir = os.path.join(root, pkg, kind)
+            out_dir = os.path.join(pkg_dir, kind)
             defs = sorted(glob.glob(os.path.join(out_dir, '*.' + kind)))
             if not defs or not (force or stale(defs, out_dir)):
                 continue

@@ -2,7 +2,8 @@
 
 - ``ros_master`` (session): one roscore per test session, so one per xdist worker;
 - ``rospy_client`` (session): the in-process rospy node (``init_node`` works once per process);
-- ``procs`` (function): node scripts and launch files as subprocesses, stopped at teardown;
+- ``procs`` (function) and ``module_procs`` (module): node scripts and launch files as subprocesses,
+  stopped at teardown;
 - ``bag_recorder`` (function): a factory for bags recorded during a test.
 
 At the end of the session every process that carries this session's token is
@@ -57,6 +58,14 @@ def rospy_client(ros_master):
 @pytest.fixture
 def procs(ros_master, tmp_path):
     launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
+    yield launcher
+    launcher.stop_all()
+
+
+@pytest.fixture(scope='module')
+def module_procs(ros_master, tmp_path_factory):
+    """Like ``procs``, for processes that a whole test module shares (they are slow to start)."""
+    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path_factory.mktemp('module_procs')))
     yield launcher
     launcher.stop_all()
 

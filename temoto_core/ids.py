@@ -1,0 +1,24 @@
+"""Resource ids that stay unique across restarts of a node.
+
+The original seeded a counter with the clock and still saw collisions after
+restarts ("made temoto_id more random"). Here every id is at least the current
+time in microseconds and strictly greater than the previous one, so a restarted
+node starts above every id its previous incarnation handed out, unless that
+incarnation allocated more than one id per microsecond for its whole life or
+the wall clock was set back. Ids fit in the wire's int64 until the year 294000.
+"""
+import threading
+import time
+
+
+class IdGenerator:
+    """Thread-safe, strictly increasing, clock-anchored int64 ids (never 0)."""
+
+    def __init__(self) -> None:
+        self._last = 0
+        self._lock = threading.Lock()
+
+    def next(self) -> int:
+        with self._lock:
+            self._last = max(self._last + 1, time.time_ns() // 1000)
+            return self._last

@@ -1,0 +1,38 @@
+"""Request equality for sharing: every field except the ``trr`` header.
+
+genpy messages compare every slot, header included, so two consumers asking for
+the same sensor from different status topics would never share it. The key
+below leaves ``trr`` out and compares ``diagnostic_msgs/KeyValue`` lists as
+multisets, because topic maps are unordered in meaning.
+"""
+from typing import Any, Hashable
+
+import genpy
+
+HEADER_FIELD = 'trr'
+KEYVALUE_TYPE = 'diagnostic_msgs/KeyValue'
+
+
+def _value_key(value: Any) -> Hashable:
+    if isinstance(value, genpy.Message):
+        return message_key(value)
+    if isinstance(value, (list, tuple)):
+        items = [_value_key(v) for v in value]
+        if value and all(isinstance(v, genpy.Message) and v._type == KEYVALUE_TYPE for v in value):
+            return ('multiset',) + tuple(sorted(items))
+        return tuple(items)
+    if isinstance(value, (genpy.Time, genpy.Duration)):
+        return (value.secs, value.nsecs)
+    if isinstance(value, bytearray):
+        return bytes(value)
+    return value
+
+
+def message_key(msg: genpy.Message, skip: str = '') -> Hashable:
+    """A hashable key of ``msg``'s fields, leaving out the field named ``skip``."""
+    return (msg._type,) + tuple(_value_key(getattr(msg, slot)) for slot in msg.__slots__ if slot != skip)
+
+
+def request_key(request: genpy.Message) -> Hashable:
+    """The default equality of resource requests (DESIGN.md, RR semantics 1)."""
+    return message_key(request, skip=HEADER_FIELD)
