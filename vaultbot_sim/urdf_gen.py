@@ -49,7 +49,7 @@ LIDAR_ARM = 'right'
 
 
 def fmt(*v: float) -> str:
-    return ' '.join(f'{x:.6g}' for x in v)
+    return ' '.join(f'{x:.10g}' for x in v)
 
 
 def box_inertia(m: float, x: float, y: float, z: float) -> tuple:

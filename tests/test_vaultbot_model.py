@@ -1,0 +1,206 @@
+"""VaultBot model and pure logic: URDF names, limits, DH geometry, FK (yourdfpy vs pybullet),
+the device table, the wrist sweep, joint history, the stitcher and the CLI's argument errors.
+No ROS master needed."""
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yourdfpy
+
+from vaultbot_sim import spec
+from vaultbot_sim.devices import CableWatch, Cable, DeviceError, DeviceTable
+from vaultbot_sim.kinematics import ROBOT_URDF, WORLDS, TreeModel, quat_from_matrix, matrix_from_quat
+from vaultbot_sim.motion import JointHistory, WristSweep
+from vaultbot_sim.scene import Scene
+from vaultbot_sim.stitcher import SweepStitcher
+
+SENSOR_FRAMES = ['d435_link', 'd435_optical_frame', 'hokuyo_link', 'sick_link', 'left_tool0', 'right_tool0']
+
+
+@pytest.fixture(scope='module')
+def urdf():
+    return yourdfpy.URDF.load(ROBOT_URDF, build_collision_scene_graph=False, load_meshes=False)
+
+
+@pytest.fixture(scope='module')
+def model():
+    return TreeModel(ROBOT_URDF)
+
+
+@pytest.fixture(scope='module')
+def scene():
+    s = Scene(ROBOT_URDF, WORLDS['test_wall'])
+    yield s
+    s.close()
+
+
+def test_names_and_inertials(urdf):
+    joints = set(urdf.joint_map)
+    for side in ('left', 'right'):
+        for j in spec.ARM_JOINTS:
+            assert f'{side}_{j}_joint' in joints
+    for link in SENSOR_FRAMES + ['base_link', 'base_footprint', 'chassis_link', 'arm_mount_link']:
+        assert link in urdf.link_map, link
+    for wheel in spec.WHEEL_JOINTS:
+        assert wheel in joints
+    assert [l.name for l in urdf.robot.links if l.inertial is None] == []
+    for world in WORLDS.values():
+        w = yourdfpy.URDF.load(world, build_collision_scene_graph=False, load_meshes=False)
+        assert [l.name for l in w.robot.links if l.inertial is None] == []
+        assert 'person_hand' in w.link_map and spec.PERSON_JOINT in w.joint_map
+
+
+def test_arm_joint_limits_match_datasheet(urdf):
+    for side in ('left', 'right'):
+        for j in spec.ARM_JOINTS:
+            lim = urdf.joint_map[f'{side}_{j}_joint'].limit
+            assert lim.lower == pytest.approx(-2 * math.pi, abs=1e-6)
+            assert lim.upper == pytest.approx(2 * math.pi, abs=1e-6)
+            assert lim.velocity == pytest.approx(math.pi, abs=1e-6)
+
+
+def _dh(theta, d, a, alpha):
+    ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
+    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st],
+                     [0, sa, ca, d], [0, 0, 0, 1]])
+
+
+def test_arm_matches_ur5_dh_table(model):
+    """tool0 relative to the arm base equals the product of the datasheet DH transforms."""
+    d = [0.089159, 0, 0, 0.10915, 0.09465, 0.0823]
+    a = [0, -0.425, -0.39225, 0, 0, 0]
+    alpha = [math.pi / 2, 0, 0, math.pi / 2, -math.pi / 2, 0]
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q = rng.uniform(-math.pi, math.pi, 6)
+        expect = np.eye(4)
+        for i in range(6):
+            expect = expect @ _dh(q[i], d[i], a[i], alpha[i])
+        for side in ('left', 'right'):
+            cfg = {f'{side}_{n}_joint': v for n, v in zip(spec.ARM_JOINTS, q)}
+            got = model.transform(f'{side}_tool0', f'{side}_base_link', cfg)
+            assert np.allclose(got, expect, atol=1e-9)
+
+
+def test_sensor_frames_fk_yourdfpy_vs_pybullet(urdf, model, scene):
+    rng = np.random.default_rng(7)
+    names = urdf.actuated_joint_names
+    configs = [spec.HOLD_POSE] + [dict(zip(names, rng.uniform(-math.pi, math.pi, len(names)))) for _ in range(4)]
+    for cfg in configs:
+        urdf.update_cfg(np.array([cfg[n] for n in names]))
+        scene.set_robot(cfg)
+        for frame in SENSOR_FRAMES:
+            ours = urdf.get_transform(frame, 'base_link')
+            bullet = scene.robot_link_pose(frame)
+            assert np.linalg.norm(ours[:3, 3] - bullet[:3, 3]) < 1e-3, frame
+            assert np.abs(ours[:3, :3] - bullet[:3, :3]).max() < 1e-3, frame
+            assert np.allclose(model.link_pose(frame, cfg), ours, atol=1e-6), frame
+
+
+def test_hold_pose_camera_looks_ahead(model):
+    t = model.link_pose('d435_optical_frame', spec.HOLD_POSE)
+    forward = t[:3, 2]
+    assert forward[0] > 0.95 and t[2, 3] > 0.9          # looks along +x, from above the mount
+    assert t[:3, 1][2] < -0.9                          # image "down" is world down
+    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)
+    assert h[0, 0] > 0.99                              # wrist_3 axis (scan x) points ahead
+
+
+def test_quaternion_roundtrip():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        back = np.array(quat_from_matrix(matrix_from_quat(q)))
+        assert np.allclose(back, q, atol=1e-9) or np.allclose(back, -q, atol=1e-9)
+
+
+def test_device_table_rejects_bad_input_without_change():
+    table = DeviceTable()
+    for args in (('kinect', 'unplugged', 'crash'), ('d435', 'pulled', 'crash'), ('d435', 'unplugged', 'explode')):
+        with pytest.raises(DeviceError) as e:
+            table.set(*args)
+        assert repr(args[0] if args[0] == 'kinect' else args[1] if args[1] == 'pulled' else args[2]) in str(e.value)
+    assert all(c.plugged for c in table.all())
+    assert table.set('sick', 'unplugged', 'stall') == Cable('sick', False, 'stall')
+    assert table.set('hokuyo', 'unplugged', '').mode == 'crash'
+
+
+def test_cable_watch_verdicts():
+    w = CableWatch('d435')
+    assert w.verdict is None
+    assert w.update([Cable('d435', True)]) == 'run'
+    assert w.update([Cable('d435', False, 'stall')]) == 'stall'
+    assert w.update([Cable('d435', True)]) == 'stall'   # a stalled driver stays stalled
+    assert CableWatch('sick').update([Cable('d435', True)]) == 'crash'   # device missing
+    assert CableWatch('hokuyo').update([Cable('hokuyo', False, 'crash')]) == 'crash'
+    with pytest.raises(DeviceError):
+        CableWatch('lidar')
+
+
+def test_wrist_sweep_stays_in_range_and_validates_speed():
+    s = WristSweep(0.5, amplitude=math.pi / 2, speed=math.pi)
+    seen = [s.advance(0.02) for _ in range(500)]
+    assert min(seen) >= 0.5 - math.pi / 2 - 1e-9 and max(seen) <= 0.5 + math.pi / 2 + 1e-9
+    assert max(seen) - min(seen) > math.pi - 0.1
+    for bad in (-1.0, 4.0, float('nan')):
+        with pytest.raises(ValueError):
+            s.set(True, bad)
+    assert s.speed == math.pi
+    s.set(False)
+    assert s.velocity == 0.0 and s.advance(1.0) == s.position
+
+
+def test_joint_history_extrapolates_from_latest_sample_before():
+    h = JointHistory(max_extrapolation=0.2)
+    h.add(1.0, ['a'], [0.0], [1.0])
+    h.add(2.0, ['a'], [5.0], [0.0])
+    assert h.cfg_at(1.1)['a'] == pytest.approx(0.1)
+    assert h.cfg_at(1.9)['a'] == pytest.approx(0.2)      # capped extrapolation
+    assert h.cfg_at(2.5)['a'] == pytest.approx(5.0)
+    assert h.cfg_at(0.5)['a'] == pytest.approx(0.0)
+
+
+def test_stitcher_emits_one_cloud_per_sweep_in_base_frame(model):
+    st = SweepStitcher(model, spec.SWEEP_JOINT, sweep_angle=math.pi, max_window=100.0)
+    ranges = np.full(spec.HOKUYO.beams, 2.0)
+    ranges[::2] = np.inf
+    centre = spec.HOLD_POSE[spec.SWEEP_JOINT]
+    clouds = []
+    for k in range(81):   # 0 .. pi in steps of pi/40, then one more
+        cfg = dict(spec.HOLD_POSE)
+        cfg[spec.SWEEP_JOINT] = centre - math.pi / 2 + k * math.pi / 40
+        out = st.add(k * 0.025, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+        if out is not None:
+            clouds.append((k, out))
+    assert [k for k, _ in clouds] == [40, 80]
+    cloud = clouds[0][1]
+    assert len(cloud) == 41 * (spec.HOKUYO.beams // 2)           # finite beams of 41 scans
+    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)[:3, 3]
+    dist = np.sqrt((cloud['x'] - h[0]) ** 2 + (cloud['y'] - h[1]) ** 2 + (cloud['z'] - h[2]) ** 2)
+    assert np.allclose(dist, 2.0, atol=1e-4)                       # points 2 m from the sensor, in base_link
+
+
+def test_cli_rejects_unknown_device_and_mode(capsys):
+    from vaultbot_sim.cli import main
+    for argv in (['unplug', 'kinect'], ['unplug', 'd435', '--mode', 'explode'], ['plug']):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'kinect'" in err and "invalid choice: 'explode'" in err
+
+
+def test_cli_reports_sim_not_running():
+    # no master on this port: a clear error and exit code 1, in a subprocess to keep our env clean
+    import socket
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    env = dict(__import__('os').environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+    r = subprocess.run([sys.executable, '-m', 'vaultbot_sim.cli', 'status'], env=env, capture_output=True,
+                       text=True, timeout=30)
+    assert r.returncode == 1
+    assert 'not running' in r.stderr
