@@ -1,0 +1,150 @@
+"""The ROS face of the action engine: parameters, topics and services around ActionEngine.
+
+Topics (``<ns>`` is the TeMoto namespace, param ``~temoto_namespace``, default ``temoto``):
+- ``/<ns>/human_chatter``          std_msgs/String, in: instructions (wake word if ``~wake_words``)
+- ``/<ns>/action_engine/feedback`` std_msgs/String, out: short sentences for the operator
+- ``/<ns>/action_engine/events``   std_msgs/String, out: one JSON object per state change
+Services:
+- ``/<ns>/action_engine/start_graph``  StartGraph (UMRF graph JSON, or text to ground)
+- ``/<ns>/action_engine/stop_graph``   StopGraph
+- ``/<ns>/action_engine/list_graphs``  ListGraphs
+- ``/<ns>/action_engine/list_actions`` ListActions (``reindex`` scans the folders again)
+"""
+from __future__ import annotations
+
+import json
+import signal
+import threading
+
+import rospy
+from std_msgs.msg import String
+
+from .engine import ActionEngine
+from .indexer import ActionIndex
+from .umrf import UmrfError
+
+MAX_TEXT = 2000            # characters of an instruction
+MAX_GRAPH_JSON = 1 << 20   # bytes of a graph
+
+
+def _list_param(value, name: str) -> list[str]:
+    """A list parameter that may also be given as one 'a:b' or 'a,b' string (from the command line)."""
+    if value in (None, ''):
+        return []
+    if isinstance(value, str):
+        sep = ':' if name == 'action_paths' else ','
+        return [v.strip() for v in value.split(sep) if v.strip()]
+    if isinstance(value, list) and all(isinstance(v, str) for v in value):
+        return value
+    raise ValueError('parameter ~%s must be a list of strings, got %r' % (name, value))
+
+
+class ActionEngineNode:
+    def __init__(self):
+        self.namespace = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
+        paths = _list_param(rospy.get_param('~action_paths', []), 'action_paths')
+        wake = _list_param(rospy.get_param('~wake_words', []), 'wake_words')
+        actions_cfg = rospy.get_param('~actions', {}) or {}
+        if not isinstance(actions_cfg, dict):
+            raise ValueError('parameter ~actions must map action names to their settings')
+        self.stop_timeout = float(rospy.get_param('~stop_timeout_s', 15.0))
+        base = '/%s/action_engine' % self.namespace
+        self.feedback_pub = rospy.Publisher(base + '/feedback', String, queue_size=50)
+        self.events_pub = rospy.Publisher(base + '/events', String, queue_size=200)
+        index = ActionIndex(paths, include_bundled=bool(rospy.get_param('~include_bundled_actions', True)))
+        self.engine = ActionEngine(index, namespace=self.namespace, wake_words=wake, action_config=actions_cfg,
+                                   publish_event=self._publish_event, publish_feedback=self._publish_feedback)
+        self.engine.reindex()
+        from .srv import ListActions, ListGraphs, StartGraph, StopGraph
+        self._services = [
+            rospy.Service(base + '/start_graph', StartGraph, self._start_graph),
+            rospy.Service(base + '/stop_graph', StopGraph, self._stop_graph),
+            rospy.Service(base + '/list_graphs', ListGraphs, self._list_graphs),
+            rospy.Service(base + '/list_actions', ListActions, self._list_actions),
+        ]
+        self._chatter = rospy.Subscriber('/%s/human_chatter' % self.namespace, String, self._on_chatter,
+                                         queue_size=20)
+        rospy.loginfo('action engine ready in /%s: %d action(s), %d plugin problem(s), wake words: %s'
+                      % (self.namespace, len(index), len(index.problems), ', '.join(wake) or 'none'))
+
+    # ------------------------------------------------------------------ outputs
+    def _publish_feedback(self, text: str) -> None:
+        self.feedback_pub.publish(String(data=text))
+
+    def _publish_event(self, ev: dict) -> None:
+        ev = dict(ev, stamp=rospy.get_time())
+        self.events_pub.publish(String(data=json.dumps(ev, sort_keys=True, default=str)))
+
+    # ------------------------------------------------------------------ inputs
+    def _on_chatter(self, msg) -> None:
+        text = msg.data
+        if not text.strip():
+            return
+        if len(text) > MAX_TEXT:
+            self._publish_feedback('ignored an instruction of %d characters (at most %d)' % (len(text), MAX_TEXT))
+            return
+        self.engine.say(text)
+
+    def _start_graph(self, req):
+        from .srv import StartGraphResponse
+        has_json, has_text = bool(req.graph_json.strip()), bool(req.text.strip())
+        if has_json == has_text:
+            return StartGraphResponse(code=1, message='give exactly one of graph_json and text')
+        if has_text:
+            if len(req.text) > MAX_TEXT:
+                return StartGraphResponse(code=1, message='text is longer than %d characters' % MAX_TEXT)
+            result, run = self.engine.say(req.text, use_wake_words=False)
+            if run is None:
+                return StartGraphResponse(code=1, message=result.message)
+            return StartGraphResponse(code=0, message=result.message, graph_name=run.name,
+                                      graph_json=json.dumps(run.spec.to_json(self.engine.index)))
+        if len(req.graph_json) > MAX_GRAPH_JSON:
+            return StartGraphResponse(code=1, message='graph_json is larger than %d bytes' % MAX_GRAPH_JSON)
+        try:
+            run = self.engine.start_graph(req.graph_json)
+        except (UmrfError, RuntimeError) as e:
+            return StartGraphResponse(code=1, message=str(e))
+        return StartGraphResponse(code=0, message='graph %s started' % run.name, graph_name=run.name,
+                                  graph_json=json.dumps(run.spec.to_json(self.engine.index)))
+
+    def _stop_graph(self, req):
+        from .srv import StopGraphResponse
+        if not req.graph_name.strip():
+            return StopGraphResponse(code=1, message='graph_name is empty')
+        ok, message = self.engine.stop_graph(req.graph_name.strip(), self.stop_timeout)
+        return StopGraphResponse(code=0 if ok else 1, message=message)
+
+    def _list_graphs(self, req):
+        from .srv import ListGraphsResponse
+        return ListGraphsResponse(json=json.dumps(self.engine.list_graphs(), default=str))
+
+    def _list_actions(self, req):
+        from .srv import ListActionsResponse
+        data = self.engine.reindex() if req.reindex else self.engine.index.to_json()
+        return ListActionsResponse(json=json.dumps(data, default=str))
+
+    # ------------------------------------------------------------------ lifetime
+    def shutdown(self) -> None:
+        """Stop every graph while rospy still works, so each action's registrar can unload remotely."""
+        self._chatter.unregister()
+        self.engine.shutdown(self.stop_timeout)
+        for s in self._services:
+            s.shutdown()
+
+
+def run_node(name: str = 'temoto_action_engine') -> None:
+    """Entry of the node script: signals stop the graphs first, then rospy."""
+    rospy.init_node(name, disable_signals=True)
+    node = ActionEngineNode()
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    while not stop.is_set() and not rospy.is_shutdown():
+        stop.wait(1.0)
+    rospy.loginfo('action engine shutting down: stopping running graphs')
+    node.shutdown()
+    rospy.signal_shutdown('action engine stopped')
