@@ -1,0 +1,273 @@
+"""The ER Manager node end to end: a real roscore, a real manager process, real children.
+
+Consumers are Resource Registrars in this test process (one hop away from the manager).
+"""
+import itertools
+import json
+import os
+import signal
+import time
+
+import pytest
+
+from temoto_core.errors import TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.testing import ProcessGroupLauncher, wait_for
+from temoto_er_manager import master as er_master
+
+SRV = 'load_process'
+MGR = 'temoto_er_manager'
+_names = itertools.count(1)
+
+
+def pid_gone(pid):
+    """Not running and reaped (a zombie still has a /proc entry)."""
+    return not os.path.exists('/proc/%d' % pid)
+
+
+def start_manager(launcher, tmp, name=MGR, **params):
+    base = {'sys_allowlist': '[echo]', 'registration_timeout': 8.0, 'sigint_grace': 2.0, 'sigterm_grace': 1.0,
+            'log_dir': str(tmp)}
+    base.update(params)
+    return launcher.node(MGR, MGR, name=name, params=base)
+
+
+@pytest.fixture(scope='module')
+def manager(ros_master, tmp_path_factory):
+    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path_factory.mktemp('er_manager')))
+    proc = start_manager(launcher, tmp_path_factory.mktemp('er_logs'))
+    yield proc
+    launcher.stop_all()
+
+
+class Consumer:
+    """A registrar in this process, with the status events it received."""
+
+    def __init__(self, namespace='temoto'):
+        from temoto_core.rr import ResourceRegistrar
+        self.rr = ResourceRegistrar('er_test_consumer_%d' % next(_names), namespace=namespace)
+        self.events = []
+
+    def load(self, executable, args='', package='temoto_er_manager', action='ros_execute', ns=''):
+        from temoto_er_manager.srv import LoadProcess
+        req = LoadProcess._request_class(action=action, package_name=package, executable=executable, args=args,
+                                         ros_namespace=ns)
+        return self.rr.call(MGR, SRV, req, status_cb=lambda ev: self.events.append((time.monotonic(), ev)))
+
+    def failed(self):
+        return [ev for _, ev in self.events if ev.code == ResourceStatus.FAILED]
+
+
+@pytest.fixture
+def consumers(rospy_client, manager):
+    made = []
+
+    def make():
+        c = Consumer()
+        made.append(c)
+        return c
+    yield make
+    for c in made:
+        c.rr.shutdown()
+
+
+def registry():
+    import rospy
+    from temoto_core.srv import GetRegistry
+    return json.loads(rospy.ServiceProxy('/temoto/%s/registry' % MGR, GetRegistry)().json)
+
+
+def master_uri():
+    return os.environ['ROS_MASTER_URI']
+
+
+def node_pid(name):
+    uri = er_master.lookup_node(master_uri(), name)
+    return er_master.node_pid(uri) if uri else None
+
+
+# ---------------------------------------------------------------------------------------------------
+
+def test_two_consumers_share_one_process_and_unload_reaps_it(consumers):
+    a, b = consumers(), consumers()
+    ra = a.load('er_test_node', '__name:=shared_node')
+    rb = b.load('er_test_node', '__name:=shared_node')
+    assert ra.pid == rb.pid > 0
+    assert node_pid('/shared_node') == ra.pid, 'the response comes after the node registered'
+    assert os.path.isfile(ra.log_path)
+    query = [q for q in registry()['server_queries'] if q['details'].get('pid') == ra.pid]
+    assert len(query) == 1 and len(query[0]['consumers']) == 2
+    a.rr.unload(ra.trr.resource_id)
+    assert not pid_gone(ra.pid), 'still held by the second consumer'
+    b.rr.unload(rb.trr.resource_id)
+    assert pid_gone(ra.pid), 'unload returns once the process is stopped and reaped'
+    assert not a.failed() and not b.failed(), 'an unload is never reported as a failure'
+
+
+@pytest.mark.parametrize('how, reason', [
+    ('sigkill', 'SIGKILL'), ('segv', 'SIGSEGV'), ('exit0', 'exited with code 0')])
+def test_death_while_held_is_failed_to_every_consumer(consumers, how, reason):
+    a, b = consumers(), consumers()
+    args = '__name:=victim_%s _on_usr1:=%s' % (how, 'exit0' if how == 'exit0' else 'segv')
+    ra, rb = a.load('er_test_node', args), b.load('er_test_node', args)
+    os.kill(ra.pid, signal.SIGKILL if how == 'sigkill' else signal.SIGUSR1)
+    wait_for(lambda: a.failed() and b.failed(), 10, 'FAILED at both consumers')
+    for c, r in ((a, ra), (b, rb)):
+        ev = c.failed()[0]
+        assert ev.resource_id == r.trr.resource_id
+        assert reason in ev.message and 'er_test_node' in ev.message, ev.message
+    assert pid_gone(ra.pid)
+    a.rr.unload(ra.trr.resource_id)
+    b.rr.unload(rb.trr.resource_id)
+
+
+def test_launch_file_with_a_dying_node_is_detected(consumers):
+    c = consumers()
+    r = c.load('er_two_nodes.launch', ns='/launched')
+    first, second = node_pid('/launched/first'), node_pid('/launched/inner/second')
+    assert first and second, 'both nodes registered before the response'
+    os.kill(second, signal.SIGKILL)
+    wait_for(c.failed, 10, 'FAILED for the launch file')
+    msg = c.failed()[0].message
+    assert 'second' in msg and 'SIGKILL' in msg, msg
+    wait_for(lambda: pid_gone(r.pid) and pid_gone(first), 10, 'the rest of the launch stopped')
+    c.rr.unload(r.trr.resource_id)
+
+
+def test_launch_file_unload_stops_its_nodes(consumers):
+    c = consumers()
+    r = c.load('er_two_nodes.launch', ns='/launched2')
+    nodes = [node_pid('/launched2/first'), node_pid('/launched2/inner/second')]
+    c.rr.unload(r.trr.resource_id)
+    assert pid_gone(r.pid)
+    wait_for(lambda: all(pid_gone(p) for p in nodes), 5, 'launch nodes gone')
+    assert not c.failed()
+
+
+@pytest.mark.parametrize('executable, args, words', [
+    ('no_such_node', '', 'no executable'),
+    ('er_not_executable', '', 'not an executable file'),
+    ('er_test_node', '_exit_at_start:=7', 'exited with code 7'),
+])
+def test_bad_loads_fail_clearly(consumers, executable, args, words):
+    with pytest.raises(TemotoError) as err:
+        consumers().load(executable, args)
+    assert words in str(err.value)
+
+
+def test_unknown_package(consumers):
+    with pytest.raises(TemotoError, match="package 'nope_pkg' not found"):
+        consumers().load('x', package='nope_pkg')
+
+
+def test_shell_injection_does_nothing(consumers, tmp_path):
+    c = consumers()
+    marks = [tmp_path / n for n in ('semi', 'dollar', 'tick')]
+    args = "__name:=inj ; touch %s $(touch %s) `touch %s`" % tuple(marks)
+    r = c.load('er_test_node', args)
+    assert node_pid('/inj') == r.pid
+    c.rr.unload(r.trr.resource_id)
+    # echo prints its arguments literally and exits at once, so this load fails as "exited before ready"
+    with pytest.raises(TemotoError) as err:
+        c.load('echo', args, package='', action='sys_execute')
+    assert 'exited with code 0' in str(err.value) and '\n__name:=inj ; touch' in str(err.value)
+    assert not any(m.exists() for m in marks)
+
+
+def test_sys_execute_refused_unless_allowlisted(consumers, tmp_path):
+    with pytest.raises(TemotoError, match='sys_allowlist'):
+        consumers().load('touch', str(tmp_path / 'x'), package='', action='sys_execute')
+    assert not (tmp_path / 'x').exists()
+
+
+def test_ps_lists_running_processes(consumers, capsys):
+    from temoto_er_manager.cli import ps_main
+    c = consumers()
+    r = c.load('er_test_node', '__name:=ps_node')
+    assert ps_main([]) == 0
+    out = capsys.readouterr().out
+    line = [ln for ln in out.splitlines() if str(r.pid) in ln]
+    assert line and 'er_test_node' in line[0] and '1' in line[0]
+    assert r.log_path in out
+    c.rr.unload(r.trr.resource_id)
+
+
+# -- manager lifetime: each test has its own manager -------------------------------------------------
+
+@pytest.fixture
+def own_manager(ros_master, rospy_client, tmp_path):
+    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
+    started = []
+
+    def start(**params):
+        # its own node name and TeMoto namespace: it must not collide with the module's manager
+        n = next(_names)
+        proc = start_manager(launcher, tmp_path / 'logs', name='er_manager_%d' % n, temoto_namespace='own%d' % n,
+                             **params)
+        started.append(proc)
+        return proc, Consumer('own%d' % n)
+    yield start
+    launcher.stop_all()
+
+
+def test_manager_sigint_leaves_no_process(own_manager, tmp_path):
+    mgr, c = own_manager()
+    try:
+        node = c.load('er_test_node', '__name:=stay_a')
+        launch = c.load('er_two_nodes.launch', ns='/stay_b')
+        nodes = [node.pid, launch.pid, node_pid('/stay_b/first'), node_pid('/stay_b/inner/second')]
+        os.killpg(mgr.pid, signal.SIGINT)
+        mgr.proc.wait(20)
+        wait_for(lambda: all(pid_gone(p) for p in nodes), 10, 'children gone after SIGINT')
+    finally:
+        c.rr.shutdown()
+
+
+def test_manager_sigkill_leaves_no_process(own_manager):
+    mgr, c = own_manager()
+    try:
+        node = c.load('er_test_node', '__name:=orphan_a')
+        launch = c.load('er_two_nodes.launch', ns='/orphan_b')
+        nodes = [node.pid, launch.pid, node_pid('/orphan_b/first'), node_pid('/orphan_b/inner/second')]
+        os.kill(mgr.pid, signal.SIGKILL)      # the manager only, not its group: PDEATHSIG must do it
+        mgr.proc.wait(5)
+        wait_for(lambda: all(pid_gone(p) or open('/proc/%d/stat' % p).read().split()[2] == 'Z' for p in nodes),
+                 10, 'children gone after SIGKILL of the manager')
+    finally:
+        c.rr.shutdown()
+
+
+def test_stop_while_a_load_is_starting_leaks_nothing(own_manager, tmp_path):
+    """The manager is stopped while a load waits for a node that never registers: nothing survives."""
+    import threading
+    mgr, c = own_manager(registration_timeout=30.0)
+    result = []
+    try:
+        t = threading.Thread(target=lambda: result.append(_try(lambda: c.load('er_test_node', '_register:=false'))))
+        t.start()
+        log_dir = tmp_path / 'logs'
+        log = wait_for(lambda: [p for p in log_dir.glob('*er_test_node.log') if 'not registering' in p.read_text()],
+                       15, 'child started')[0]
+        assert log
+        pid = _child_pid(mgr.pid)
+        os.killpg(mgr.pid, signal.SIGINT)
+        t.join(20)
+        assert not t.is_alive() and isinstance(result[0], TemotoError)
+        mgr.proc.wait(20)
+        wait_for(lambda: pid_gone(pid), 5, 'starting child gone')
+    finally:
+        c.rr.shutdown()
+
+
+def _try(fn):
+    try:
+        return fn()
+    except Exception as e:
+        return e
+
+
+def _child_pid(parent):
+    for entry in os.listdir('/proc'):
+        if entry.isdigit() and er_master.parent_pid(int(entry)) == parent:
+            return int(entry)
+    raise AssertionError('no child of %d' % parent)
