@@ -271,3 +271,35 @@ def _child_pid(parent):
         if entry.isdigit() and er_master.parent_pid(int(entry)) == parent:
             return int(entry)
     raise AssertionError('no child of %d' % parent)
+
+
+def test_interface_load_unload_and_update_callback(rospy_client, manager):
+    from temoto_er_manager.interface import ERManagerInterface
+    er = ERManagerInterface()
+    events = []
+    er.register_update_callback(events.append)
+    try:
+        r = er.load('temoto_er_manager', 'er_test_node', args='__name:=iface_node')
+        assert node_pid('/iface_node') == r.pid
+        os.kill(r.pid, signal.SIGKILL)
+        wait_for(lambda: events, 10, 'update callback')
+        assert events[0].code == ResourceStatus.FAILED and 'SIGKILL' in events[0].message
+        er.unload(r.trr.resource_id)
+        with pytest.raises(TemotoError):
+            er.unload(r.trr.resource_id)
+    finally:
+        er.shutdown()
+
+
+def test_interface_default_policy_restarts_the_process(rospy_client, manager):
+    from temoto_er_manager.interface import ERManagerInterface
+    er = ERManagerInterface()
+    try:
+        r = er.load('temoto_er_manager', 'er_test_node', args='__name:=restarted_node')
+        os.kill(r.pid, signal.SIGKILL)
+        new_id = wait_for(lambda: er.replacement_of(r.trr.resource_id), 15, 'reload')
+        new_pid = wait_for(lambda: node_pid('/restarted_node') if node_pid('/restarted_node') != r.pid else None,
+                           10, 'restarted node')
+        assert new_pid != r.pid and er.holds(new_id)
+    finally:
+        er.shutdown()

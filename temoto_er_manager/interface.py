@@ -1,0 +1,47 @@
+"""``ERManagerInterface``: how other managers and actions start processes.
+
+    er = ERManagerInterface()                     # or ERManagerInterface(rr=self.rr) inside a manager
+    resp = er.load('my_pkg', 'driver_node', args='_rate:=10')
+    ...                                           # resp.pid, resp.log_path, resp.trr.resource_id
+    er.unload(resp.trr.resource_id)
+
+Called inside another registrar's load callback (with that registrar passed as
+``rr``), the process becomes a linked sub-resource: it is unloaded in cascade and
+its FAILED is forwarded to that resource's consumers automatically.
+
+Failure policy: by default (the base class) a FAILED process is unloaded and the
+same request is loaded again, i.e. the process is restarted. Pass a callback to
+``register_update_callback`` to decide yourself (the original's
+``registerUpdateCallback``).
+"""
+from __future__ import annotations
+
+from temoto_core.errors import Subsystem
+from temoto_core.interface import ManagerInterface
+
+from .policy import ROS_EXECUTE, SYS_EXECUTE
+
+
+class ERManagerInterface(ManagerInterface):
+    MANAGER = 'temoto_er_manager'
+    SUBSYSTEM = Subsystem.ER_MANAGER
+    SERVER = 'load_process'
+
+    def load(self, package: str, executable: str, args: str = '', ros_namespace: str = ''):
+        """Start a node or a ``*.launch`` file of ``package`` (``ros_execute``); returns the LoadProcess response
+        once the process runs and its node(s) registered. Raises TemotoError otherwise."""
+        return self._load(self.SERVER, self._request(ROS_EXECUTE, package, executable, args, ros_namespace))
+
+    def load_command(self, executable: str, args: str = '', ros_namespace: str = ''):
+        """``sys_execute`` of a command the manager's ``sys_allowlist`` names."""
+        return self._load(self.SERVER, self._request(SYS_EXECUTE, '', executable, args, ros_namespace))
+
+    def unload(self, resource_id: int) -> None:
+        """Release this interface's reference; the process stops when its last consumer leaves."""
+        self._unload(resource_id)
+
+    @staticmethod
+    def _request(action, package, executable, args, ros_namespace):
+        from temoto_er_manager.srv import LoadProcess
+        return LoadProcess._request_class(action=action, package_name=package, executable=executable, args=args,
+                                          ros_namespace=ros_namespace)
