@@ -1,0 +1,227 @@
+"""ROS face of the RViz host: services, the display-event topic, start-up and shutdown.
+
+Service handlers run in rospy threads. They validate what they can without
+RViz (class name, topic name and type at the master, YAML), then hand the
+RViz part to the Qt main thread through :class:`MainThreadCaller` and wait.
+
+Services (private names of the host node, e.g. /temoto/rviz_host/add_display):
+add_display, remove_display, configure_display, set_view, screenshot,
+list_displays. Events: /<ns>/temoto_output_manager/display_events.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from typing import Optional
+
+import rospy
+from std_msgs.msg import Header
+
+from temoto_output_manager.msg import DisplayEvent, DisplayInfo
+from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, ConfigureDisplay, ConfigureDisplayResponse,
+                                       ListDisplays, ListDisplaysResponse, RemoveDisplay, RemoveDisplayResponse,
+                                       Screenshot, ScreenshotResponse, SetView, SetViewResponse)
+
+from . import display_config
+from .display_types import MESSAGE_TYPE, UnknownDisplayType, check_rviz_class, check_topic_name, needs_topic
+from .rviz_host import HostError, HostSettings, MainThreadCaller, RvizHost
+
+SERVICE_NAMES = ('add_display', 'remove_display', 'configure_display', 'set_view', 'screenshot', 'list_displays')
+
+
+def events_topic(temoto_namespace: str) -> str:
+    return '/%s/temoto_output_manager/display_events' % temoto_namespace.strip('/')
+
+
+class RvizHostNode:
+    """Binds an :class:`RvizHost` to ROS services and the event topic."""
+
+    def __init__(self, host: RvizHost, caller: MainThreadCaller, temoto_namespace: str = 'temoto',
+                 call_timeout: float = 10.0):
+        self.host = host
+        self.caller = caller
+        self.call_timeout = call_timeout
+        self.events = rospy.Publisher(events_topic(temoto_namespace), DisplayEvent, queue_size=100)
+        self._services = [
+            rospy.Service('~add_display', AddDisplay, self._add),
+            rospy.Service('~remove_display', RemoveDisplay, self._remove),
+            rospy.Service('~configure_display', ConfigureDisplay, self._configure),
+            rospy.Service('~set_view', SetView, self._set_view),
+            rospy.Service('~screenshot', Screenshot, self._screenshot),
+            rospy.Service('~list_displays', ListDisplays, self._list),
+        ]
+
+    def publish_event(self, event: str, name: str, cls: str, topic: str, frame_count: int, seconds: float) -> None:
+        msg = DisplayEvent(header=Header(stamp=rospy.Time.now()), event=event, display_name=name,
+                           display_class=cls, topic=topic, frame_count=frame_count, seconds_since_added=seconds)
+        if not rospy.is_shutdown():
+            self.events.publish(msg)
+        if event == 'first_frame':
+            rospy.loginfo("display '%s' drew its first frame of %s %.3f s after it was added (frame %d)",
+                          name, topic, seconds, frame_count)
+        else:
+            rospy.loginfo("display %s: '%s' (%s %s)", event, name, cls, topic)
+
+    def shutdown(self) -> None:
+        for s in self._services:
+            s.shutdown('rviz host stopping')
+
+    # ------------------------------------------------------------ validation without RViz
+    def _check_topic_type(self, cls: str, topic: str) -> None:
+        """Refuse a topic that carries another message type than the display reads."""
+        expected = MESSAGE_TYPE.get(cls)
+        if not expected:
+            return
+        resolved = rospy.resolve_name(topic)
+        try:
+            published = dict(rospy.get_published_topics())
+        except Exception as e:   # master unreachable: RViz would not get data either
+            raise HostError('cannot check topic %s at the master: %s' % (resolved, e)) from None
+        actual = published.get(resolved)
+        if actual and actual != expected:
+            raise HostError('topic %s carries %s but %s displays %s' % (resolved, actual, cls, expected))
+
+    def _run(self, fn):
+        return self.caller.call(fn, timeout=self.call_timeout)
+
+    # ------------------------------------------------------------ handlers
+    def _add(self, req):
+        try:
+            cls = check_rviz_class(req.display_class.strip(), self.host.known_classes)
+            topic = req.topic.strip()
+            if needs_topic(cls):
+                if not topic:
+                    raise HostError('%s needs a topic; none was given' % cls)
+                topic = rospy.resolve_name(check_topic_name(topic))
+                self._check_topic_type(cls, topic)
+            config = display_config.parse_config(req.config)
+            name = self._run(lambda: self.host.add_display(cls, req.name.strip(), topic, config))
+            return AddDisplayResponse(ok=True, message='', name=name)
+        except (HostError, UnknownDisplayType, display_config.DisplayConfigError, ValueError) as e:
+            rospy.logwarn('add_display refused: %s', e)
+            return AddDisplayResponse(ok=False, message=str(e), name='')
+
+    def _remove(self, req):
+        try:
+            self._run(lambda: self.host.remove_display(req.name))
+            return RemoveDisplayResponse(ok=True, message='')
+        except HostError as e:
+            return RemoveDisplayResponse(ok=False, message=str(e))
+
+    def _configure(self, req):
+        try:
+            topic = req.topic.strip()
+            if topic:
+                topic = rospy.resolve_name(check_topic_name(topic))
+            config = display_config.parse_config(req.config)
+            cls = self._run(lambda: self.host._get(req.name).cls)
+            if topic:
+                self._check_topic_type(cls, topic)
+            changed = self._run(lambda: self.host.configure_display(req.name, topic, config))
+            return ConfigureDisplayResponse(ok=True, message='changed: %s' % ', '.join(changed) if changed else '')
+        except (HostError, display_config.DisplayConfigError, ValueError) as e:
+            return ConfigureDisplayResponse(ok=False, message=str(e))
+
+    def _set_view(self, req):
+        try:
+            config = display_config.parse_config(req.config)
+
+            def apply():
+                if req.frame_robot:
+                    self.host.frame_robot()
+                return self.host.apply_view(config)
+            self._run(apply)
+            return SetViewResponse(ok=True, message='')
+        except (HostError, display_config.DisplayConfigError, ValueError) as e:
+            return SetViewResponse(ok=False, message=str(e))
+
+    def _screenshot(self, req):
+        try:
+            png, w, h = self._run(lambda: self.host.screenshot(req.what.strip()))
+            fc = self._run(self.host.frame_count)
+            if req.path:
+                with open(req.path, 'wb') as f:
+                    f.write(png)
+            return ScreenshotResponse(ok=True, message=req.path, png=png, width=w, height=h, frame_count=fc)
+        except (HostError, OSError) as e:
+            return ScreenshotResponse(ok=False, message=str(e))
+
+    def _list(self, req):
+        def snapshot():
+            return self.host.list_displays(), self.host.frame_count(), str(self.host.manager.getFixedFrame())
+        displays, fc, fixed = self._run(snapshot)
+        infos = [DisplayInfo(name=d['name'], display_class=d['display_class'], topic=d['topic'],
+                             enabled=d['enabled'], drawn=d['drawn'], status=d['status']) for d in displays]
+        return ListDisplaysResponse(displays=infos, fixed_frame=fixed, frame_count=fc,
+                                    frame_rate=float(self.host.settings.frame_rate))
+
+
+def _get_urdf(param: str):
+    def read() -> Optional[str]:
+        try:
+            return rospy.get_param(param if param.startswith('/') else '/' + param, None)
+        except Exception:
+            return None
+    return read
+
+
+def _probe(topic: str, on_message):
+    """A subscriber that only notes that data arrived (no deserialisation)."""
+    return rospy.Subscriber(topic, rospy.AnyMsg, lambda _msg: on_message(), queue_size=1)
+
+
+def main(argv=None) -> int:
+    """Entry point of nodes/rviz_host: headless by default, RViz on the Qt main thread."""
+    from .xvfb import ensure_display
+    xvfb = ensure_display()              # before Qt: a private X server when there is no DISPLAY
+    rc = 1
+    try:
+        from python_qt_binding import QtCore, QtWidgets
+        app = QtWidgets.QApplication([sys.argv[0]])
+        rospy.init_node('rviz_host', argv=argv, disable_signals=True)
+        settings = HostSettings(
+            fixed_frame=str(rospy.get_param('~fixed_frame', 'base_link')),
+            frame_rate=int(rospy.get_param('~frame_rate', 15)),
+            width=int(rospy.get_param('~width', 960)),
+            height=int(rospy.get_param('~height', 600)),
+            robot_description=str(rospy.get_param('~robot_description', 'robot_description')),
+            show_robot=bool(rospy.get_param('~show_robot', True)),
+            show_grid=bool(rospy.get_param('~show_grid', True)))
+        namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
+        if settings.frame_rate < 1 or settings.frame_rate > 60:
+            raise SystemExit('~frame_rate must be 1..60, got %d' % settings.frame_rate)
+        caller = MainThreadCaller()
+        node: Optional[RvizHostNode] = None
+
+        def on_event(*args):
+            if node is not None:
+                node.publish_event(*args)
+        host = RvizHost(app, settings, on_event, get_urdf=_get_urdf(settings.robot_description),
+                        probe_factory=_probe)
+        host.start()
+        node = RvizHostNode(host, caller, namespace)
+        # Python runs signal handlers only between bytecodes; the tick gives it a chance while Qt waits.
+        signal.signal(signal.SIGINT, lambda *_: app.quit())
+        signal.signal(signal.SIGTERM, lambda *_: app.quit())
+        tick = QtCore.QTimer()
+        tick.timeout.connect(lambda: None)
+        tick.start(100)
+        rospy.on_shutdown(app.quit)
+        node.publish_event('host_started', '', '', '', host.frame_count(), 0.0)
+        rospy.loginfo('rviz host ready on DISPLAY=%s (%s), fixed frame %s, %d fps cap',
+                      os.environ.get('DISPLAY'), 'private Xvfb' if xvfb else 'given', settings.fixed_frame,
+                      settings.frame_rate)
+        app.exec_()
+        node.publish_event('host_stopping', '', '', '', host.frame_count(), 0.0)
+        node.shutdown()
+        host.shutdown()
+        rospy.signal_shutdown('rviz host stopped')
+        rc = 0
+    finally:
+        if xvfb is not None:
+            xvfb.stop()
+        sys.stdout.flush()
+        sys.stderr.flush()
+    # Skip interpreter teardown: librviz/Ogre globals are destroyed in an order that can crash at exit.
+    os._exit(rc)

@@ -1,0 +1,162 @@
+"""The RViz host on its own: real librviz under the host's private Xvfb.
+
+One host serves the module (it takes ~1.5 s to start and renders on the shared
+2 cores); the crash test starts its own.
+"""
+import io
+import os
+import signal
+import xmlrpc.client
+
+import numpy as np
+import psutil
+import pytest
+from PIL import Image as PILImage
+
+from temoto_core.testing import wait_for
+from temoto_output_manager import sample_data as sd
+from temoto_output_manager.host_client import RvizHostClient, RvizHostError
+from temoto_output_manager.msg import DisplayEvent
+
+NS = 'temoto'
+
+
+@pytest.fixture(scope='module')
+def host(module_procs, rospy_client):
+    proc = module_procs.node('temoto_output_manager', 'rviz_host', name='rviz_host', namespace=NS,
+                             params={'show_robot': 'false'})
+    client = RvizHostClient('/%s/rviz_host' % NS)
+    client.wait_ready(20)
+    return proc, client
+
+
+@pytest.fixture(scope='module')
+def events(host, rospy_client):
+    got = []
+    sub = rospy_client.Subscriber('/%s/temoto_output_manager/display_events' % NS, DisplayEvent, got.append)
+    wait_for(lambda: sub.get_num_connections() > 0, 10, 'event topic connection')
+    yield got
+    sub.unregister()
+
+
+def png_pixels(resp):
+    return np.asarray(PILImage.open(io.BytesIO(bytes(resp.png))).convert('RGB'))
+
+
+def colour_fraction(pixels, rgb, tol=40):
+    diff = np.abs(pixels.astype(int) - np.array(rgb)).max(axis=2)
+    return float((diff <= tol).mean())
+
+
+def master_subscriptions(topic):
+    import rosgraph
+    master = rosgraph.Master('/pytest')
+    for name, nodes in master.getSystemState()[1]:
+        if name == topic:
+            return nodes
+    return []
+
+
+def first_frame(events, name):
+    for e in events:
+        if e.event == DisplayEvent.FIRST_FRAME and e.display_name == name:
+            return e
+    return None
+
+
+def test_point_cloud_is_drawn_in_its_colours_and_unsubscribes_on_remove(host, events, rospy_client):
+    _, client = host
+    pub = sd.RepeatingPublisher('/om_test/cloud', sd.cloud_msg(rgb=(255, 0, 255)), 15).start()
+    try:
+        before = client.screenshot('view')
+        assert colour_fraction(png_pixels(before), (255, 0, 255)) < 0.001
+        name = client.add_display('rviz/PointCloud2', '/om_test/cloud', name='cloud',
+                                  config='{Size (Pixels): 3, Color Transformer: RGB8}')
+        assert name == 'cloud'
+        ev = wait_for(lambda: first_frame(events, 'cloud'), 15, 'first frame of the cloud display')
+        added = next(e for e in events if e.event == DisplayEvent.ADDED and e.display_name == 'cloud')
+        assert ev.frame_count > added.frame_count and 0 < ev.seconds_since_added < 15
+        shot = client.screenshot('view')
+        assert shot.width > 300 and shot.height > 300
+        assert colour_fraction(png_pixels(shot), (255, 0, 255)) > 0.01, 'the magenta cloud is not on screen'
+        assert [d for d in client.list_displays().displays if d.name == 'cloud'][0].drawn
+        wait_for(lambda: master_subscriptions('/om_test/cloud'), 5, 'RViz subscription to the cloud')
+        client.remove_display('cloud')
+        wait_for(lambda: not master_subscriptions('/om_test/cloud'), 10, 'subscription gone at the master')
+        assert 'cloud' not in client.display_names()
+        assert any(e.event == DisplayEvent.REMOVED and e.display_name == 'cloud' for e in events)
+    finally:
+        pub.stop()
+
+
+def test_laser_scan_and_image_displays(host, events, rospy_client):
+    _, client = host
+    scan = sd.RepeatingPublisher('/om_test/scan', sd.scan_msg(), 15).start()
+    image = sd.RepeatingPublisher('/om_test/image', sd.image_msg(rgb=(0, 255, 0)), 15).start()
+    try:
+        client.add_display('rviz/LaserScan', '/om_test/scan', name='scan',
+                           config='{Color Transformer: FlatColor, Color: [255, 255, 0], Size (m): 0.05}')
+        client.add_display('rviz/Image', '/om_test/image', name='image')
+        wait_for(lambda: first_frame(events, 'scan') and first_frame(events, 'image'), 15, 'scan and image drawn')
+        window = png_pixels(client.screenshot('window'))
+        view = png_pixels(client.screenshot('view'))
+        assert colour_fraction(window, (0, 255, 0)) > 0.02, 'the green image pane is missing'
+        assert colour_fraction(view, (0, 255, 0)) < 0.001, 'the 3D view must not contain the image pane'
+        assert colour_fraction(view, (255, 255, 0)) > 0.0005, 'the yellow scan is not drawn'
+        client.remove_display('scan')
+        client.remove_display('image')
+        wait_for(lambda: not master_subscriptions('/om_test/image'), 10, 'image subscription gone')
+    finally:
+        scan.stop()
+        image.stop()
+
+
+def test_bad_requests_get_clear_errors_and_change_nothing(host):
+    _, client = host
+    before = client.display_names()
+    cases = [
+        (dict(display_class='rviz/NoSuchDisplay', topic='/x'), 'unknown RViz display class'),
+        (dict(display_class='rviz/PointCloud2', topic=''), 'needs a topic'),
+        (dict(display_class='rviz/PointCloud2', topic='/c', config='{Size (Pixels): [1,'), 'not valid YAML'),
+        (dict(display_class='rviz/PointCloud2', topic='/c', config='{Colour: [1, 2, 3]}'), "unknown property 'Colour'"),
+        (dict(display_class='rviz/PointCloud2', topic='/c', config='{Size (Pixels): big}'), 'expects a number'),
+        (dict(display_class='rviz/PointCloud2', topic='/c', config='[1, 2]'), 'YAML mapping'),
+        (dict(display_class='rviz/Image', topic='/c', config='{Nope: 1}'), "unknown property 'Nope'"),
+    ]
+    for kwargs, expected in cases:
+        with pytest.raises(RvizHostError) as err:
+            client.add_display(**kwargs)
+        assert expected in str(err.value), (kwargs, str(err.value))
+        assert client.display_names() == before
+    with pytest.raises(RvizHostError, match="no display named 'ghost'"):
+        client.remove_display('ghost')
+    with pytest.raises(RvizHostError, match="unknown property 'Zoom'"):
+        client.set_view('{Zoom: 3}')
+    client.set_view('{Distance: 5.0, Focal Point: [1, 0, 0.5]}', frame_robot=True)
+
+
+def test_add_remove_cycles_keep_memory_flat(host, rospy_client):
+    proc, client = host
+    rss = lambda: psutil.Process(proc.pid).memory_info().rss / 1e6
+    for cls, topic in (('rviz/PointCloud2', '/om_test/c'), ('rviz/Image', '/om_test/i')):   # warm up both kinds
+        client.remove_display(client.add_display(cls, topic, name='warm'))
+    start = rss()
+    for i in range(50):
+        cls, topic = (('rviz/Image', '/om_test/i%d' % i) if i % 2 else ('rviz/PointCloud2', '/om_test/c%d' % i))
+        client.remove_display(client.add_display(cls, topic, name='cycle'))
+    grown = rss() - start
+    assert grown < 30, 'host RSS grew by %.1f MB over 50 add/remove cycles' % grown
+
+
+def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
+    proc = procs.node('temoto_output_manager', 'rviz_host', name='rviz_host_crash', namespace=NS,
+                      params={'show_robot': 'false', 'show_grid': 'false'})
+    RvizHostClient('/%s/rviz_host_crash' % NS).wait_ready(20)
+    children = psutil.Process(proc.pid).children()
+    xvfb = [c for c in children if c.name() == 'Xvfb']
+    assert len(xvfb) == 1, 'headless host must run its own Xvfb: %s' % children
+    assert '-nolisten' in xvfb[0].cmdline() and 'tcp' in xvfb[0].cmdline()
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.proc.wait(timeout=10)
+    wait_for(lambda: not xvfb[0].is_running() or xvfb[0].status() == psutil.STATUS_ZOMBIE, 10,
+             'Xvfb to stop after its host was killed')
