@@ -56,6 +56,8 @@ class ActionContext:
     publish_event: Callable[[dict], None] = lambda ev: None
     publish_feedback: Callable[[str], None] = lambda text: None
     engine: Any = None                              # facade for actions that manage others (stop)
+    # attr -> factory(rr): replaces the import of MANAGER_INTERFACES[attr] (tests, other deployments)
+    interface_factories: dict = field(default_factory=dict)
 
 
 def default_rr_factory(namespace: str) -> Callable[[str], Any]:
@@ -186,12 +188,14 @@ class ActionBase:
         with self._res_lock:
             if attr in self._interfaces:
                 return self._interfaces[attr]
-            module_name, cls_name = MANAGER_INTERFACES[attr]
-            try:
-                cls = getattr(importlib.import_module(module_name), cls_name)
-            except (ImportError, AttributeError) as e:
-                raise ActionError('%s needs %s.%s, which is not available: %s'
-                                  % (self.name, module_name, cls_name, e)) from None
+            cls = self.context.interface_factories.get(attr)
+            if cls is None:
+                module_name, cls_name = MANAGER_INTERFACES[attr]
+                try:
+                    cls = getattr(importlib.import_module(module_name), cls_name)
+                except (ImportError, AttributeError) as e:
+                    raise ActionError('%s needs %s.%s, which is not available: %s'
+                                      % (self.name, module_name, cls_name, e)) from None
             self._interfaces[attr] = cls(self.rr)
             return self._interfaces[attr]
 

@@ -27,7 +27,8 @@ class ActionEngine:
     def __init__(self, index: ActionIndex, namespace: str = 'temoto', wake_words=(),
                  action_config: dict | None = None, rr_factory: Callable[[str], Any] | None = None,
                  publish_event: Callable[[dict], None] | None = None,
-                 publish_feedback: Callable[[str], None] | None = None, history: int = 20):
+                 publish_feedback: Callable[[str], None] | None = None, history: int = 20,
+                 interface_factories: dict | None = None):
         self.index = index
         self.namespace = namespace
         self.wake_words = [w for w in wake_words if w]
@@ -39,6 +40,7 @@ class ActionEngine:
         self._graphs: dict[str, GraphRun] = {}
         self._finished: collections.OrderedDict = collections.OrderedDict()
         self._history = history
+        self.interface_factories = dict(interface_factories or {})
         self._uids = itertools.count(1)
         self._grounder = None
         self._closed = False
@@ -122,7 +124,7 @@ class ActionEngine:
             inputs=dict(node.inputs), uid='%d_%d' % (os.getpid(), next(self._uids)),
             config=dict(self.action_config.get(node.spec.name, {}) or {}), namespace=self.namespace,
             rr_factory=self.rr_factory, publish_event=self._publish_event,
-            publish_feedback=self.feedback, engine=self)
+            publish_feedback=self.feedback, engine=self, interface_factories=self.interface_factories)
 
     def _graph_finished(self, run: GraphRun) -> None:
         with self._lock:

@@ -1,0 +1,196 @@
+"""show_environment's failover policy against stand-in sensor and output managers (in-process).
+
+The managers here follow the interface contract the action is written against:
+SensorManagerInterface(rr).start_sensor(type, output_topics={key: ''}) -> .sensor_name/.output_topics/
+.resource_id, .stop_sensor(id), .register_update_callback(cb); OutputManagerInterface(rr).show_in_rviz(
+type, topic, name='') -> id, .hide(id). The end-to-end run against the real managers and simulation
+belongs to the integration suite.
+"""
+import itertools
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+from temoto_action_engine.engine import ActionEngine
+from temoto_action_engine.indexer import ActionIndex
+from temoto_action_engine.testing import FakeRegistrarFactory
+from temoto_core.testing.wait import wait_for
+
+VAULTBOT = [  # name, type, topics
+    ('d435', 'depth camera', {'camera_data': '/d435/points', 'camera_info': '/d435/info'}),
+    ('hokuyo', 'lidar', {'lidar_data': '/hokuyo/scan', 'cloud_data': '/stitcher/cloud'}),
+    ('sick', 'lidar', {'lidar_data': '/sick/scan'}),
+]
+
+
+class Devices:
+    """The 'cables' and what both fake managers did."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.plugged = {name for name, _, _ in VAULTBOT}
+        self.active = {}             # resource id -> sensor name
+        self.shown = {}              # display id -> (type, topic)
+        self.log = []
+        self.ids = itertools.count(1)
+        self.callbacks = []
+
+    def unplug(self, name):
+        with self.lock:
+            self.plugged.discard(name)
+            victims = [rid for rid, n in self.active.items() if n == name]
+            cbs = list(self.callbacks)
+        for rid in victims:
+            for cb in cbs:
+                cb(SimpleNamespace(resource_id=rid, code=1, message='%s unplugged' % name))
+
+    def plug(self, name):
+        with self.lock:
+            self.plugged.add(name)
+
+
+class FakeSensorManager:
+    def __init__(self, devices, rr):
+        self.d = devices
+
+    def register_update_callback(self, cb):
+        with self.d.lock:
+            self.d.callbacks.append(cb)
+
+    def start_sensor(self, sensor_type, output_topics):
+        with self.d.lock:
+            for name, stype, topics in VAULTBOT:
+                if stype == sensor_type and name in self.d.plugged and set(output_topics) <= set(topics):
+                    rid = next(self.d.ids)
+                    self.d.active[rid] = name
+                    self.d.log.append(('start', name))
+                    return SimpleNamespace(sensor_name=name, resource_id=rid,
+                                           output_topics={k: topics[k] for k in output_topics})
+        raise RuntimeError('no %s with %s available' % (sensor_type, sorted(output_topics)))
+
+    def stop_sensor(self, rid):
+        with self.d.lock:
+            self.d.log.append(('stop', self.d.active.pop(rid)))
+
+    def shutdown(self):
+        with self.d.lock:
+            for rid in list(self.d.active):
+                self.d.log.append(('stop at shutdown', self.d.active.pop(rid)))
+
+
+class FakeOutputManager:
+    def __init__(self, devices, rr):
+        self.d = devices
+
+    def show_in_rviz(self, display_type, topic, name=''):
+        with self.d.lock:
+            did = 1000 + next(self.d.ids)
+            self.d.shown[did] = (display_type, topic)
+            self.d.log.append(('show', display_type, topic))
+            return did
+
+    def hide(self, did):
+        with self.d.lock:
+            self.d.log.append(('hide',) + self.d.shown.pop(did))
+
+
+@pytest.fixture
+def setup():
+    devices = Devices()
+    events, feedback = [], []
+    idx = ActionIndex([]).reindex()
+    engine = ActionEngine(
+        idx, rr_factory=FakeRegistrarFactory(), publish_event=events.append, publish_feedback=feedback.append,
+        action_config={'show_environment': {'retry_initial_s': 0.05, 'retry_max_s': 0.2}},
+        interface_factories={'sensor_manager': lambda rr: FakeSensorManager(devices, rr),
+                             'output_manager': lambda rr: FakeOutputManager(devices, rr)})
+    yield engine, devices, events, feedback
+    engine.shutdown(10)
+
+
+def of(events, kind):
+    return [e for e in events if e.get('event') == kind]
+
+
+def displayed(devices):
+    with devices.lock:
+        return sorted(devices.shown.values())
+
+
+def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setup):
+    engine, devices, events, feedback = setup
+    result, run = engine.say('show the environment')
+    assert run is not None, result.message
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    assert displayed(devices) == [('point cloud', '/d435/points')]
+    assert run.nodes['show_environment_0'].action.outputs == {'topic': '/d435/points'}
+
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    failed = of(events, 'sensor_failed')[0]
+    assert failed['sensor_name'] == 'd435' and failed['message'] == 'd435 unplugged'
+    assert of(events, 'sensor_active')[1]['sensor_name'] == 'hokuyo'
+
+    devices.unplug('hokuyo')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 3, 10, 'sick active')
+    assert displayed(devices) == [('laser scan', '/sick/scan')]
+
+    devices.unplug('sick')
+    wait_for(lambda: len(of(events, 'retry')) >= 3, 10, 'retries while everything is unplugged')
+    assert displayed(devices) == []
+    assert any('every sensor failed' in f for f in feedback)
+    backoffs = [e['retry_in_s'] for e in of(events, 'all_failed')]
+    assert backoffs[:4] == [0.05, 0.1, 0.2, 0.2]                     # bounded exponential backoff
+
+    devices.plug('hokuyo')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 4, 10, 'a sensor back after retry')
+    assert of(events, 'sensor_active')[3]['sensor_name'] == 'hokuyo'
+    assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    assert any('a sensor is back' in f for f in feedback)
+
+    # every failed sensor and its display were released, and each only once
+    log = devices.log
+    assert log.count(('stop', 'd435')) == 1 and log.count(('hide', 'point cloud', '/d435/points')) == 1
+    assert log.count(('stop', 'sick')) == 1 and log.count(('hide', 'laser scan', '/sick/scan')) == 1
+    assert run.nodes['show_environment_0'].state == 'RUNNING'
+
+    ok, msg = engine.stop_graph(run.name)
+    assert ok, msg
+    assert displayed(devices) == [] and devices.active == {}
+    assert log[-2:] == [('hide', 'point cloud', '/stitcher/cloud'), ('stop', 'hokuyo')]
+
+
+def test_starts_lower_in_the_list_when_the_best_sensor_is_already_gone(setup):
+    engine, devices, events, _ = setup
+    devices.plugged.discard('d435')
+    _, run = engine.say('show me the surroundings')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'a sensor active')
+    assert [e['sensor_type'] for e in of(events, 'sensor_unavailable')] == ['depth camera']
+    assert of(events, 'sensor_active')[0]['sensor_name'] == 'hokuyo'
+
+
+def test_a_status_for_a_released_resource_is_ignored(setup):
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    action = run.nodes['show_environment_0'].action
+    action.post(SimpleNamespace(resource_id=424242, code=1, message='stale'))
+    action.post(SimpleNamespace(resource_id=action.active.resource_id, code=2, message='just an update'))
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    assert len(of(events, 'sensor_failed')) == 1
+
+
+def test_bad_priority_parameter_fails_the_action_clearly(setup):
+    engine, devices, events, feedback = setup
+    engine.action_config['show_environment'] = {'sensor_priority': [{'sensor_type': 'lidar',
+                                                                     'output_topics': ['lidar_data'],
+                                                                     'display_type': 'laser scan',
+                                                                     'display_key': 'cloud_data'}]}
+    _, run = engine.say('show the environment')
+    assert run.wait(10) == []
+    node = run.nodes['show_environment_0']
+    assert node.state == 'ERROR' and "display_key 'cloud_data'" in node.message
+    assert devices.log == []
