@@ -114,6 +114,8 @@ def graphs(argv: list[str]) -> int:
 
 
 COMMANDS = {'say': say, 'actions': actions, 'graphs': graphs}
+# The names temoto_core/cli.py dispatches to.
+say_main, actions_main, graphs_main = say, actions, graphs
 
 
 def main(argv: list[str]) -> int:
