@@ -155,3 +155,15 @@ def test_cli_lists_actions_with_broken_plugins_and_graphs(engine, rospy_client, 
     assert "'juggle'" in capsys.readouterr().out
     assert cli.graphs(['--ns', NS, 'stop', 'hold']) == 0
     assert 'graph hold stopped' in capsys.readouterr().out
+
+
+def test_launch_file_loads_the_config(procs, rospy_client):
+    from temoto_action_engine.srv import ListActions
+    procs.launch('temoto_action_engine', 'action_engine.launch', args=['temoto_namespace:=aelaunch'])
+    rospy_client.wait_for_service('/aelaunch/action_engine/list_actions', timeout=20)
+    data = json.loads(rospy_client.ServiceProxy('/aelaunch/action_engine/list_actions', ListActions)(reindex=False).json)
+    assert sorted(a['name'] for a in data['actions']) == ['show', 'show_environment', 'stop', 'track_object']
+    assert data['errors'] == []
+    priority = rospy_client.get_param('/temoto_action_engine/actions/show_environment/sensor_priority')
+    assert [p['sensor_type'] for p in priority] == ['depth camera', 'lidar', 'lidar']
+    assert [p['display_key'] for p in priority] == ['camera_data', 'cloud_data', 'lidar_data']
