@@ -1,0 +1,34 @@
+"""``OutputManagerInterface``: how actions put things on the operator's screen.
+
+    om = OutputManagerInterface()                       # or OutputManagerInterface(rr=self.rr) inside a manager
+    shown = om.show_in_rviz('point cloud', '/d435/points', config='{Size (Pixels): 3}')
+    ...
+    om.hide(shown)
+
+Like the original's ``showInRviz``; ``hide`` takes the id ``show_in_rviz``
+returned. A display whose RViz host crashes gets FAILED; by default (base class)
+it is unloaded and requested again, which starts a new host.
+"""
+from __future__ import annotations
+
+from temoto_core.errors import Subsystem
+from temoto_core.interface import ManagerInterface
+
+
+class OutputManagerInterface(ManagerInterface):
+    MANAGER = 'temoto_output_manager'
+    SUBSYSTEM = Subsystem.OUTPUT_MANAGER
+    SERVER = 'load_rviz_plugin'
+
+    def show_in_rviz(self, type: str, topic: str = '', name: str = '', config: str = '') -> int:
+        """Show ``topic`` as a display of abstract ``type``; returns this interface's resource id."""
+        return self.show(type, topic, name, config).trr.resource_id
+
+    def show(self, type: str, topic: str = '', name: str = '', config: str = ''):
+        """Like show_in_rviz, returning the whole response (``display_name`` included)."""
+        from temoto_output_manager.srv import LoadRvizPlugin
+        req = LoadRvizPlugin._request_class(type=type, name=name, topic=topic, config=config)
+        return self._load(self.SERVER, req)
+
+    def hide(self, resource_id: int) -> None:
+        self._unload(resource_id)

@@ -1,0 +1,141 @@
+"""The Output Manager: displays in the operator's RViz as Resource Registrar resources.
+
+Architecture kept from the original (temoto_original.md §4.2): RViz is a
+process started through the ER Manager, and every display resource holds a
+reference to it. Concretely, ``load_rviz_plugin``'s load callback
+
+1. maps the abstract type to an RViz class (unknown types are refused with the
+   list of known ones) and checks topic and config before starting anything;
+2. makes a nested ``load_process`` call (temoto_er_manager, package
+   temoto_output_manager, executable rviz_host). The RR links it to the display
+   resource: equal requests share one host, the host is unloaded in cascade
+   when the last display goes, and the host's FAILED (a crash) is forwarded to
+   every display resource automatically;
+3. asks the host to add the display.
+
+A crashed host is remembered as dead, so that unloading a display of the dead
+host never removes a same-named display of the next host.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable, Dict, Optional, Tuple
+
+import rospy
+
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr import ResourceRegistrar, StatusEvent
+
+from . import display_config
+from .display_types import UnknownDisplayType, check_topic_name, needs_topic, rviz_class_for
+from .host_client import RvizHostClient, RvizHostError
+
+MANAGER_NAME = 'temoto_output_manager'
+SERVER_NAME = 'load_rviz_plugin'
+HOST_PACKAGE = 'temoto_output_manager'
+HOST_EXECUTABLE = 'rviz_host'
+HOST_NODE = 'rviz_host'
+
+
+def _error(code: ErrorCode, message: str) -> TemotoError:
+    return TemotoError(code, Subsystem.OUTPUT_MANAGER, message)
+
+
+class OutputManager:
+    """Serves ``/<ns>/temoto_output_manager/load_rviz_plugin``."""
+
+    def __init__(self, rr: ResourceRegistrar, host_params: Optional[Dict[str, object]] = None,
+                 host_ready_timeout: float = 20.0,
+                 client_factory: Callable[[str], RvizHostClient] = RvizHostClient) -> None:
+        self.rr = rr
+        self.namespace = rr.namespace
+        self.host_params = dict(host_params or {})
+        self.host_ready_timeout = host_ready_timeout
+        self.host_node = '/%s/%s' % (self.namespace, HOST_NODE)
+        self.client = client_factory(self.host_node)
+        self._lock = threading.Lock()
+        self._displays: Dict[int, Tuple[str, int]] = {}   # internal id -> (display name, host pid)
+        self._dead_hosts: set = set()                     # pids of hosts that failed
+        self._host_pid_by_local: Dict[int, int] = {}
+        rr.add_server(SERVER_NAME, _srv_type(), self.load_cb, self.unload_cb)
+
+    # ------------------------------------------------------------------ the host process
+    def _host_request(self):
+        from temoto_er_manager.srv import LoadProcess
+        args = ['__name:=%s' % HOST_NODE, '_temoto_namespace:=%s' % self.namespace]
+        args += ['_%s:=%s' % (k, v) for k, v in sorted(self.host_params.items())]
+        return LoadProcess._request_class(action='ros_execute', ros_namespace='/' + self.namespace,
+                                          package_name=HOST_PACKAGE, executable=HOST_EXECUTABLE,
+                                          args=' '.join(args))
+
+    def _on_host_status(self, ev: StatusEvent) -> None:
+        # The RR forwards a FAILED to the display resources by itself; here only remember the host is gone.
+        if ev.code == ResourceStatus.FAILED:
+            with self._lock:
+                pid = self._host_pid_by_local.get(ev.resource_id)
+                if pid is not None:
+                    self._dead_hosts.add(pid)
+            rospy.logwarn('%s: the RViz host failed: %s', self.rr.prefix, ev.message)
+
+    def _start_or_share_host(self) -> int:
+        resp = self.rr.call('temoto_er_manager', 'load_process', self._host_request(), status_cb=self._on_host_status)
+        with self._lock:
+            self._host_pid_by_local[resp.trr.resource_id] = resp.pid
+        try:
+            self.client.wait_ready(self.host_ready_timeout)
+        except RvizHostError as e:
+            raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
+        return resp.pid
+
+    # ------------------------------------------------------------------ RR callbacks
+    def load_cb(self, req, resp) -> None:
+        try:
+            cls = rviz_class_for(req.type)
+        except UnknownDisplayType as e:
+            raise _error(ErrorCode.BAD_REQUEST, str(e)) from None
+        topic = req.topic.strip()
+        if needs_topic(cls) and not topic:
+            raise _error(ErrorCode.BAD_REQUEST, "display type '%s' needs a topic; none was given" % req.type)
+        try:
+            if topic:
+                check_topic_name(topic)
+            display_config.parse_config(req.config)
+        except ValueError as e:
+            raise _error(ErrorCode.BAD_REQUEST, str(e)) from None
+        pid = self._start_or_share_host()
+        name = req.name.strip() or ('%s %s' % (req.type.strip(), topic)).strip()
+        try:
+            try:
+                shown = self.client.add_display(cls, topic, name=name, config=req.config)
+            except RvizHostError as e:
+                if 'already exists' not in str(e) or req.name.strip():
+                    raise
+                shown = self.client.add_display(cls, topic, name='%s #%d' % (name, resp.trr.resource_id),
+                                                config=req.config)
+        except RvizHostError as e:
+            raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
+        with self._lock:
+            self._displays[resp.trr.resource_id] = (shown, pid)
+        resp.display_name = shown
+        rospy.loginfo("%s: showing %s on %s as '%s'", self.rr.prefix, req.type, topic or '-', shown)
+
+    def unload_cb(self, req, resp) -> None:
+        with self._lock:
+            name, pid = self._displays.pop(resp.trr.resource_id, (resp.display_name, None))
+            dead = pid in self._dead_hosts
+        if dead:
+            return      # its host is gone, and with it the display
+        try:
+            self.client.remove_display(name)
+        except RvizHostError as e:
+            rospy.logwarn("%s: could not remove display '%s': %s", self.rr.prefix, name, e)
+
+    def displays(self) -> Dict[int, str]:
+        with self._lock:
+            return {rid: name for rid, (name, _) in self._displays.items()}
+
+
+def _srv_type():
+    from temoto_output_manager.srv import LoadRvizPlugin
+    return LoadRvizPlugin
