@@ -234,6 +234,7 @@ class GraphRun:
     def _run_node(self, node: NodeRun) -> None:
         error = None
         action = None
+        entered = False
         try:
             ctx = self._make_context(node, self)
             action = node.indexed.cls(ctx)
@@ -241,6 +242,9 @@ class GraphRun:
                 node.action = action
                 if node.state == STOP_REQUESTED:
                     action.request_stop()
+            if not action.action_ok():
+                return          # stopped before it began (the finally block records it)
+            entered = True
             action.on_start()
             asynchronous = node.indexed.descriptor.asynchronous
             if asynchronous and action.action_ok():
@@ -256,11 +260,12 @@ class GraphRun:
                 action.log_err('failed: %s\n%s' % (error, traceback.format_exc()))
         finally:
             if action is not None:
-                try:
-                    action.on_stop()
-                except Exception as e:
-                    action.log_err('on_stop failed: %s' % e)
-                    error = error or 'on_stop failed: %s' % e
+                if entered:
+                    try:
+                        action.on_stop()
+                    except Exception as e:
+                        action.log_err('on_stop failed: %s' % e)
+                        error = error or 'on_stop failed: %s' % e
                 problems = action.release_resources()
                 if problems and not error:
                     error = 'releasing resources: ' + '; '.join(problems)

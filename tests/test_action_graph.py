@@ -50,6 +50,15 @@ class Fail(ActionBase):
         self.rr.held.append('x')
         raise ActionError('boom: the device is gone')
 '''
+SLOW = '''
+from temoto_action_engine.action_base import ActionBase
+
+class Slow(ActionBase):
+    def on_start(self):
+        self.config['log'].append(('slow', 'entered'))
+        self.wait(60.0)                      # woken by the stop request
+        self.set_output('value', 'late')
+'''
 STR = {'pvf_type': 'string'}
 OPT = {'pvf_type': 'string', 'pvf_required': False}
 
@@ -62,6 +71,7 @@ def plugins(tmp_path):
     write_plugin(str(tmp_path), 'hold', HOLD, effect='asynchronous', outputs={'value': STR},
                  grounding={'verbs': ['hold']})
     write_plugin(str(tmp_path), 'fail', FAIL, outputs={'value': STR})
+    write_plugin(str(tmp_path), 'slow', SLOW, effect='asynchronous', outputs={'value': STR})
     return str(tmp_path)
 
 
@@ -71,7 +81,7 @@ def env(plugins):
     rrs = FakeRegistrarFactory()
     feedback = []
     events = []
-    cfg = {name: {'log': log, 'barrier': threading.Barrier(2, timeout=10)} for name in ('emit', 'meet', 'hold', 'fail')}
+    cfg = {name: {'log': log, 'barrier': threading.Barrier(2, timeout=10)} for name in ('emit', 'meet', 'hold', 'fail', 'slow')}
     idx = ActionIndex([plugins]).reindex()
     assert idx.problems == []
     engine = ActionEngine(idx, action_config=cfg, rr_factory=rrs, publish_feedback=feedback.append,
@@ -237,3 +247,14 @@ def test_stop_action_from_the_bundled_plugins(tmp_path, plugins):
         assert 'nothing running matches' in again.nodes['stop_0'].message
     finally:
         engine.shutdown(10)
+
+
+def test_stop_during_on_start_ends_the_node_and_cancels_its_children(env):
+    engine, log, _, _, _ = env
+    run = engine.start_graph({'graph_name': 'slow', 'actions': [node('slow', 0, children=[('emit', 1)]),
+                                                                node('emit', 1, {'tag': 'never'})]})
+    wait_for(lambda: log == [('slow', 'entered')], 10, 'on_start entered')
+    ok, msg = engine.stop_graph('slow', timeout=10)
+    assert ok, msg
+    assert states(run) == {'slow_0': 'FINISHED', 'emit_1': 'CANCELLED'}
+    assert log == [('slow', 'entered')]
