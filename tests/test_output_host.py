@@ -160,3 +160,16 @@ def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
     proc.proc.wait(timeout=10)
     wait_for(lambda: not xvfb[0].is_running() or xvfb[0].status() == psutil.STATUS_ZOMBIE, 10,
              'Xvfb to stop after its host was killed')
+
+
+def test_cli_screenshot_and_displays(host, tmp_path, capsys):
+    from temoto_output_manager.cli import displays_main, screenshot_main
+    out = tmp_path / 'shot.png'
+    assert screenshot_main([str(out), '--window']) == 0
+    img = PILImage.open(out)
+    assert img.size[0] >= 900 and img.format == 'PNG'
+    assert displays_main([]) == 0
+    text = capsys.readouterr().out
+    assert 'shot.png' in text and 'Grid' in text and 'rviz/Grid' in text and 'fixed frame base_link' in text
+    assert displays_main(['--namespace', 'nowhere', '--timeout', '0.5']) == 1
+    assert 'did not come up' in capsys.readouterr().err
