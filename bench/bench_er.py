@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""ER Manager benchmark: failure-detection latency and load latency.
+
+1. Detection latency: a node held by a consumer one hop away (a Resource
+   Registrar in this process) is SIGKILLed; measured from the kill to the FAILED
+   status callback at the consumer. Goal: median <= 20 ms (the original polled
+   every 1 s).
+2. Load latency of a trivial rospy node until it is registered at the master:
+   through the ER Manager (load_process call until its response, which returns
+   only after registration) against a bare ``rosrun`` of the same node polled
+   at the master with the manager's own period (20 ms).
+
+Prints a markdown table and writes bench/results/er.json.
+Usage: python bench/bench_er.py [--kills N] [--loads N]
+"""
+import argparse
+import itertools
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import xmlrpc.client
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+
+POLL = 0.02
+
+
+def pct(values, p):
+    s = sorted(values)
+    return s[min(len(s) - 1, int(round(p / 100.0 * (len(s) - 1))))]
+
+
+def summary(values):
+    return {'n': len(values), 'median_ms': statistics.median(values) * 1e3, 'p90_ms': pct(values, 90) * 1e3,
+            'min_ms': min(values) * 1e3, 'max_ms': max(values) * 1e3}
+
+
+def wait_registered(master, name, proc, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError('rosrun exited with %s' % proc.returncode)
+        if master.lookupNode('/bench', name)[0] == 1:
+            return
+        time.sleep(POLL)
+    raise TimeoutError(name)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('--kills', type=int, default=20)
+    ap.add_argument('--loads', type=int, default=10)
+    opts = ap.parse_args(argv)
+    work = tempfile.mkdtemp(prefix='bench_er_')
+    ros = RosMaster(work).start()
+    for k in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
+        os.environ[k] = ros.env[k]
+    launcher = ProcessGroupLauncher(ros.env, work)
+    try:
+        launcher.node('temoto_er_manager', 'temoto_er_manager', name='temoto_er_manager',
+                      params={'log_dir': os.path.join(work, 'er_logs')})
+        import rospy
+        from temoto_core.msg import ResourceStatus
+        from temoto_core.rr import ResourceRegistrar
+        from temoto_er_manager.srv import LoadProcess
+        rospy.init_node('bench_er', disable_signals=True)
+        rr = ResourceRegistrar('bench_consumer')
+        master = xmlrpc.client.ServerProxy(ros.uri)
+        names = itertools.count(1)
+
+        # -- 1. detection latency ---------------------------------------------------------------
+        detect = []
+        for i in range(opts.kills):
+            got = threading.Event()
+            stamp = {}
+
+            def on_status(ev, got=got, stamp=stamp):
+                if ev.code == ResourceStatus.FAILED and not got.is_set():
+                    stamp['t'] = time.monotonic()
+                    got.set()
+            req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
+                                             executable='er_minimal_node', args='__name:=victim_%d' % next(names))
+            resp = rr.call('temoto_er_manager', 'load_process', req, status_cb=on_status)
+            t0 = time.monotonic()
+            os.kill(resp.pid, signal.SIGKILL)
+            if not got.wait(5.0):
+                raise RuntimeError('no FAILED within 5 s')
+            detect.append(stamp['t'] - t0)
+            rr.unload(resp.trr.resource_id)
+            print('  detection %2d/%d: %.1f ms' % (i + 1, opts.kills, detect[-1] * 1e3), flush=True)
+
+        # -- 2. load latency ---------------------------------------------------------------------
+        via_er, bare = [], []
+        for i in range(opts.loads):
+            name = 'loaded_%d' % next(names)
+            req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
+                                             executable='er_minimal_node', args='__name:=' + name)
+            t0 = time.monotonic()
+            resp = rr.call('temoto_er_manager', 'load_process', req)
+            via_er.append(time.monotonic() - t0)
+            rr.unload(resp.trr.resource_id)
+
+            name = 'bare_%d' % next(names)
+            t0 = time.monotonic()
+            proc = subprocess.Popen(['rosrun', 'temoto_er_manager', 'er_minimal_node', '__name:=' + name],
+                                    env=ros.env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+            try:
+                wait_registered(master, '/' + name, proc)
+                bare.append(time.monotonic() - t0)
+            finally:
+                os.killpg(proc.pid, signal.SIGINT)
+                try:
+                    proc.wait(10)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait(5)
+            print('  load %2d/%d: ER %.0f ms, rosrun %.0f ms' % (i + 1, opts.loads, via_er[-1] * 1e3,
+                                                               bare[-1] * 1e3), flush=True)
+        rr.shutdown()
+    finally:
+        launcher.stop_all()
+        ros.stop()
+
+    results = {'detection_latency': summary(detect), 'load_via_er_manager': summary(via_er),
+               'load_bare_rosrun': summary(bare), 'goal_detection_median_ms': 20.0,
+               'machine': {'cpus': os.cpu_count()}, 'time': time.time()}
+    d, e, b = results['detection_latency'], results['load_via_er_manager'], results['load_bare_rosrun']
+    print()
+    print('| figure | value | goal |')
+    print('| --- | --- | --- |')
+    print('| detection latency, SIGKILL to FAILED at a consumer one hop away (n=%d) | median %.1f ms, p90 %.1f ms, '
+          'max %.1f ms | median <= 20 ms |' % (d['n'], d['median_ms'], d['p90_ms'], d['max_ms']))
+    print('| load of a trivial rospy node until registered, via the ER Manager (n=%d) | median %.0f ms, p90 %.0f ms '
+          '| close to bare rosrun |' % (e['n'], e['median_ms'], e['p90_ms']))
+    print('| same node, bare `rosrun`, registration polled every 20 ms (n=%d) | median %.0f ms, p90 %.0f ms | '
+          'reference |' % (b['n'], b['median_ms'], b['p90_ms']))
+    os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
+    with open(os.path.join(ROOT, 'bench', 'results', 'er.json'), 'w') as f:
+        json.dump(results, f, indent=2, sort_keys=True)
+    return 0 if d['median_ms'] <= 20.0 else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
