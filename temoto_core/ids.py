@@ -2,10 +2,10 @@
 
 The original seeded a counter with the clock and still saw collisions after
 restarts ("made temoto_id more random"). Here every id is at least the current
-time in microseconds and strictly greater than the previous one, so a restarted
+time in nanoseconds and strictly greater than the previous one, so a restarted
 node starts above every id its previous incarnation handed out, unless that
-incarnation allocated more than one id per microsecond for its whole life or
-the wall clock was set back. Ids fit in the wire's int64 until the year 294000.
+incarnation allocated more than one id per nanosecond (a Python call takes
+hundreds) or the wall clock was set back. Ids fit in the wire's int64 until 2262.
 """
 import threading
 import time
@@ -20,5 +20,5 @@ class IdGenerator:
 
     def next(self) -> int:
         with self._lock:
-            self._last = max(self._last + 1, time.time_ns() // 1000)
+            self._last = max(self._last + 1, time.time_ns())
             return self._last

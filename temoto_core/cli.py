@@ -1,0 +1,52 @@
+"""``temoto``: one command, subcommands from every package.
+
+Subcommands are named here as ``module:function`` strings and imported only
+when used, so ``temoto registry`` does not pay for pybullet or RViz, and the
+core package does not import the packages built on top of it.
+"""
+import importlib
+import sys
+from typing import List, Optional
+
+COMMANDS = {
+    'registry': ('temoto_core.registry_cli:main', 'show a registrar\'s registry (all registrars without an argument)'),
+    'ps': ('temoto_er_manager.cli:ps_main', 'list the processes the ER Manager runs'),
+    'sim': ('vaultbot_sim.cli:main', 'plug or unplug a simulated device, or show their states'),
+    'screenshot': ('temoto_output_manager.cli:screenshot_main', 'save a PNG of the operator\'s RViz view'),
+    'displays': ('temoto_output_manager.cli:displays_main', 'list the displays shown in RViz'),
+    'say': ('temoto_action_engine.cli:say_main', 'give the action engine an instruction in words'),
+    'actions': ('temoto_action_engine.cli:actions_main', 'list the indexed actions'),
+    'graphs': ('temoto_action_engine.cli:graphs_main', 'list or stop running action graphs'),
+    'demo': ('temoto_action_engine.demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration'),
+    'record': ('temoto_action_engine.demo.cli:record_main', 'record the failover topic set to a bag'),
+    'report': ('temoto_action_engine.demo.cli:report_main', 'make the report of a recorded run from its bag'),
+}
+
+
+def usage() -> str:
+    width = max(len(name) for name in COMMANDS)
+    lines = ['usage: temoto COMMAND [ARGS...]', '', 'commands:']
+    lines += ['  %-*s  %s' % (width, name, help_text) for name, (_, help_text) in COMMANDS.items()]
+    return '\n'.join(lines)
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ('-h', '--help', 'help'):
+        print(usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print('temoto: unknown command %r\n\n%s' % (name, usage()), file=sys.stderr)
+        return 2
+    module_name, func_name = COMMANDS[name][0].split(':')
+    try:
+        func = getattr(importlib.import_module(module_name), func_name)
+    except (ImportError, AttributeError) as err:
+        print('temoto %s: not available (%s)' % (name, err), file=sys.stderr)
+        return 2
+    return int(func(rest) or 0)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
