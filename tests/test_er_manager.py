@@ -303,3 +303,48 @@ def test_interface_default_policy_restarts_the_process(rospy_client, manager):
         assert new_pid != r.pid and er.holds(new_id)
     finally:
         er.shutdown()
+
+
+CONSUMER_SCRIPT = '''
+import sys, rospy
+from temoto_core.rr import ResourceRegistrar
+from temoto_er_manager.srv import LoadProcess
+rospy.init_node("dying_consumer")
+rr = ResourceRegistrar("dying_consumer")
+print("calling", flush=True)
+rr.call("temoto_er_manager", "load_process", LoadProcess._request_class(
+    action="ros_execute", package_name="temoto_er_manager", executable="er_test_node",
+    args="__name:=slow_node _start_delay:=1.5"))
+print("loaded", flush=True)
+rospy.spin()
+'''
+
+
+def test_consumer_dying_while_its_load_starts_leaks_nothing(manager, ros_master, tmp_path):
+    """The consumer is SIGKILLed while the manager still waits for the node: once the load completes,
+    the registrar finds the consumer dead and releases it, and the process is stopped."""
+    import subprocess
+    import sys
+    log = open(tmp_path / 'consumer.log', 'wb')
+    consumer = subprocess.Popen([sys.executable, '-c', CONSUMER_SCRIPT], env=ros_master.env, stdout=log,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        wait_for(lambda: any('__name:=slow_node' in t and 'er_test_node: starting' in t
+                             for t in (p.read_text() for p in _er_logs(manager))), 20, 'slow node spawned')
+        assert node_pid('/slow_node') is None, 'the consumer dies while the load is still starting'
+        os.killpg(consumer.pid, signal.SIGKILL)
+        consumer.wait(5)
+        pid = wait_for(lambda: node_pid('/slow_node'), 10, 'slow node registered')
+        wait_for(lambda: pid_gone(pid), 20, 'process of the dead consumer stopped')
+    finally:
+        if consumer.poll() is None:
+            os.killpg(consumer.pid, signal.SIGKILL)
+            consumer.wait(5)
+        log.close()
+
+
+def _er_logs(manager_proc):
+    import glob
+    argv = manager_proc.argv
+    log_dir = [a.split(':=', 1)[1] for a in argv if a.startswith('_log_dir:=')][0]
+    return [__import__('pathlib').Path(p) for p in glob.glob(os.path.join(log_dir, '*er_test_node.log'))]
