@@ -51,15 +51,20 @@ class DriverBase:
                       f'after {self.startup_timeout:.0f} s (is vaultbot_sim running?)')
         if self.cable.verdict == 'stall':
             rospy.logwarn('%s: device not responding (unplugged, stall): publishing nothing', self.device)
-        robot_urdf = self._param(self.sim_ns + '/robot_urdf')
-        world_urdf = self._param(self.sim_ns + '/world_urdf')
-        self.scene = Scene(robot_urdf, world_urdf, renderer=rospy.get_param('~renderer', 'tiny'))
+        self.robot_urdf = self._param(self.sim_ns + '/robot_urdf')
+        self.world_urdf = self._param(self.sim_ns + '/world_urdf')
+        self.renderer = rospy.get_param('~renderer', 'tiny')
+        self.scene = self.make_scene()
+        self.cfg: tuple[dict, dict] = ({}, {})
         rospy.Subscriber('/joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
                          tcp_nodelay=True)
         rospy.Subscriber(self.sim_ns + '/world_joint_states', JointState, self._on_js, self.world_hist,
                          queue_size=20, tcp_nodelay=True)
         if not self._js_seen.wait(self.startup_timeout):
             self.fail(f'{self.device}: no /joint_states after {self.startup_timeout:.0f} s')
+
+    def make_scene(self) -> Scene | None:
+        return Scene(self.robot_urdf, self.world_urdf, renderer=self.renderer)
 
     def _param(self, name: str) -> str:
         deadline = time.monotonic() + self.startup_timeout
@@ -73,7 +78,7 @@ class DriverBase:
         """Exit the way a driver does when it cannot reach its device."""
         rospy.logerr(text)
         sys.stderr.flush()
-        time.sleep(0.02)  # give the rosout publisher a moment; still well inside 100 ms
+        time.sleep(0.005)  # give the rosout publisher a moment; still well inside 100 ms
         os._exit(EXIT_DEVICE_LOST)
 
     def _on_states(self, msg: DeviceStates) -> None:
@@ -91,11 +96,11 @@ class DriverBase:
 
     def pose_scene(self, t: float) -> None:
         with self.lock:
-            robot = self.robot_hist.cfg_at(t)
-            world = self.world_hist.cfg_at(t)
-        if robot:
+            robot = self.robot_hist.cfg_at(t) or {}
+            world = self.world_hist.cfg_at(t) or {}
+        self.cfg = (robot, world)
+        if self.scene is not None:
             self.scene.set_robot(robot)
-        if world:
             self.scene.set_world(world)
 
     def publish(self, stamp: rospy.Time) -> None:
@@ -115,4 +120,8 @@ class DriverBase:
                 time.sleep(delay)
             elif delay < -period:
                 next_t = time.monotonic()  # running late: drop frames rather than burst
-        self.scene.close()
+        self.close()
+
+    def close(self) -> None:
+        if self.scene is not None:
+            self.scene.close()

@@ -7,6 +7,7 @@ from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 from std_msgs.msg import Header
 
 from vaultbot_sim.driver import DriverBase
+from vaultbot_sim.render_worker import RenderWorker
 from vaultbot_sim.rosmsgs import DepthProjector, camera_info, cloud_message, image_message, scan_message
 from vaultbot_sim.scene import Intrinsics
 from vaultbot_sim.spec import D435, HOKUYO, SICK, LaserSpec
@@ -46,17 +47,32 @@ class D435Driver(DriverBase):
     default_rate = D435.rate_hz
 
     def __init__(self):
-        super().__init__()
         self.intr = Intrinsics.from_hfov(D435.width, D435.height, D435.hfov_deg)
+        super().__init__()
         self.projector = DepthProjector(self.intr, D435.range_min, D435.range_max)
         self.pub_points = rospy.Publisher('d435/depth_registered/points', PointCloud2, queue_size=2, tcp_nodelay=True)
         self.pub_image = rospy.Publisher('d435/color/image_raw', Image, queue_size=2, tcp_nodelay=True)
         self.pub_info = rospy.Publisher('d435/color/camera_info', CameraInfo, queue_size=2, tcp_nodelay=True)
 
+    def make_scene(self):
+        # rendering runs in a child process; see render_worker.py for why
+        self.worker = RenderWorker(self.robot_urdf, self.world_urdf, self.renderer, D435.frame, self.intr,
+                                   D435.range_min, D435.range_max + 0.5)
+        return None
+
+    def close(self) -> None:
+        self.worker.close()
+
     def publish(self, stamp: rospy.Time) -> None:
-        pose = self.scene.robot_link_pose(D435.frame)
-        rgb, z, _ = self.scene.render(pose, self.intr, D435.range_min, D435.range_max + 0.5)
-        header = Header(stamp=stamp, frame_id=D435.frame)
+        # Pipelined: the child renders this tick's frame while we project and publish the previous
+        # one. Each frame keeps the stamp of the joint state it was rendered from.
+        pending, self.pending = getattr(self, 'pending', None), stamp
+        if pending is not None:
+            rgb, z = self.worker.result()
+        self.worker.request(*self.cfg)
+        if pending is None:
+            return
+        header = Header(stamp=pending, frame_id=D435.frame)
         # Build only what someone listens to; the cloud is the expensive part.
         if self.pub_points.get_num_connections():
             pts = self.projector.project(z, rgb)
