@@ -1,0 +1,123 @@
+"""SensorManagerInterface: how actions (and other managers) ask for sensors.
+
+The default failure policy is the original's reload: on FAILED, unload the
+failed sensor and ask for the same type again *with its topics pinned* to the
+names it had, so the ranking (where the failed device has dropped) picks
+another device and the consumer keeps listening on the same topics.
+``register_update_callback(cb)`` replaces that policy.
+"""
+import copy
+import dataclasses
+from typing import Dict, List, Mapping, Optional, Sequence, Union
+
+import rospy
+from diagnostic_msgs.msg import KeyValue
+
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.interface import ManagerInterface
+from temoto_sensor_manager.manager import NAME, SERVER
+from temoto_sensor_manager.srv import LoadSensor
+
+TopicsArg = Union[None, Mapping[str, str], Sequence[str]]
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorResult:
+    resource_id: int              # this interface's id: pass it to stop_sensor
+    sensor_name: str
+    package_name: str
+    executable: str
+    output_topics: Dict[str, str]  # topic type -> absolute topic name
+
+    def topic(self, key: str) -> str:
+        """The topic of type ``key`` (the original's ``getOutputTopic``)."""
+        try:
+            return self.output_topics[key]
+        except KeyError:
+            raise KeyError('sensor %s has no output topic of type %r (it has %s)'
+                           % (self.sensor_name, key, ', '.join(self.output_topics))) from None
+
+
+def _key_values(topics: TopicsArg, what: str) -> List[KeyValue]:
+    if topics is None:
+        return []
+    if isinstance(topics, str):
+        raise TypeError('%s must be a dict of type -> name or a list of types, not a string' % what)
+    if isinstance(topics, Mapping):
+        return [KeyValue(str(k), str(v or '')) for k, v in topics.items()]
+    return [KeyValue(str(k), '') for k in topics]
+
+
+def _result(response) -> SensorResult:
+    return SensorResult(response.trr.resource_id, response.sensor_name, response.package_name, response.executable,
+                        {kv.key: kv.value for kv in response.output_topics})
+
+
+class SensorManagerInterface(ManagerInterface):
+    """Client of ``/<ns>/temoto_sensor_manager/start_sensor``."""
+
+    MANAGER = NAME
+    SUBSYSTEM = Subsystem.SENSOR_MANAGER
+
+    def __init__(self, rr=None, namespace: Optional[str] = None) -> None:
+        super().__init__(rr=rr, namespace=namespace)
+        # request object (alive while remembered) -> topics it was granted, for pinning on reload
+        self._granted: Dict[int, Dict[str, str]] = {}
+        self.reload_errors: Dict[int, TemotoError] = {}   # failed id -> why its reload gave up
+        self._results: Dict[int, SensorResult] = {}
+
+    def start_sensor(self, sensor_type: str, output_topics: TopicsArg = None, package_name: str = '',
+                     executable: str = '', input_topics: TopicsArg = None) -> SensorResult:
+        """Start the best sensor of ``sensor_type``; return once its data flows.
+
+        ``output_topics``: a list of topic types (any names), or a dict type -> wanted name ('' for any).
+        Raises TemotoError (e.g. SENSOR_NOT_FOUND with the known types) on failure.
+        """
+        request = LoadSensor._request_class(sensor_type=sensor_type, package_name=package_name,
+                                            executable=executable,
+                                            output_topics=_key_values(output_topics, 'output_topics'),
+                                            input_topics=_key_values(input_topics, 'input_topics'))
+        return _result(self._load(SERVER, request))
+
+    def stop_sensor(self, resource_id: int) -> None:
+        """Release a sensor started by this interface (its driver stops when nobody else holds it)."""
+        with self._lock:
+            entry = self._requests.get(resource_id)
+            if entry is not None:
+                self._granted.pop(id(entry[1]), None)
+        self._unload(resource_id)
+
+    def _load(self, server: str, request):
+        response = super()._load(server, request)
+        with self._lock:
+            self._granted[id(request)] = {kv.key: kv.value for kv in response.output_topics}
+            self._results[response.trr.resource_id] = _result(response)
+        return response
+
+    def _unload(self, resource_id: int) -> None:
+        super()._unload(resource_id)
+        with self._lock:
+            self._results.pop(resource_id, None)
+
+    def pinned_request(self, request):
+        """The same request, every topic pinned to the name the failed sensor had."""
+        with self._lock:
+            granted = self._granted.pop(id(request), None)
+        if not granted:
+            return request
+        pinned = copy.deepcopy(request)
+        pinned.output_topics = [KeyValue(k, v) for k, v in granted.items()]
+        return pinned
+
+    def reload(self, resource_id: int):
+        try:
+            return super().reload(resource_id)
+        except TemotoError as err:
+            with self._lock:
+                self.reload_errors[resource_id] = err
+            raise
+
+    def result_of(self, resource_id: int) -> Optional[SensorResult]:
+        """What a sensor id held by this interface serves (e.g. the replacement after a reload)."""
+        with self._lock:
+            return self._results.get(resource_id)

@@ -1,0 +1,287 @@
+"""The Sensor Manager's logic: the ``start_sensor`` server over a catalogue, the ER Manager and a watchdog.
+
+Load: rank the matching catalogue entries, and for each in turn start its
+driver through a *nested* ``load_process`` call (so the process is linked to
+the sensor query: unloaded with it, its FAILED forwarded by the registrar),
+then wait for the first message on every output topic. The first candidate
+whose data flows wins; a candidate that fails to start, crashes, or stays
+silent is rolled back and the next is tried. Reliability goes up on success
+and down on a load failure, a crash, or a stall.
+
+While a sensor is held, its topics are watched (``watchdog.Watchdog``); a
+topic silent for longer than its limit makes this manager send FAILED for the
+sensor, exactly as the registrar forwards a crash reported by the ER Manager.
+The stalled driver is stopped when the consumer unloads the failed sensor
+(the registrar's cascade).
+"""
+import json
+import threading
+import time
+from typing import Dict, List, Optional, Set
+
+import rospy
+from diagnostic_msgs.msg import KeyValue
+
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr import ResourceRegistrar, StatusEvent
+from temoto_core.srv import GetRegistry, GetRegistryResponse
+from temoto_er_manager.srv import LoadProcess
+from temoto_sensor_manager.catalogue import Catalogue, SensorEntry
+from temoto_sensor_manager.selection import LaunchPlan, SensorQuery, candidates, plan, validate
+from temoto_sensor_manager.srv import LoadSensor
+from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
+
+NAME = 'temoto_sensor_manager'
+SERVER = 'start_sensor'
+ER_MANAGER = 'temoto_er_manager'
+ER_SERVER = 'load_process'
+SUB = Subsystem.SENSOR_MANAGER
+
+
+def sensor_key(request) -> tuple:
+    """Equality of sensor requests, as the original: type, package, executable, output topics (a multiset).
+
+    Input topics are left out: they do not change which device runs.
+    """
+    return (request.sensor_type.strip(), request.package_name.strip(), request.executable.strip(),
+            tuple(sorted((kv.key, kv.value) for kv in request.output_topics)))
+
+
+class _Attempt:
+    """One candidate being started: woken by a first message or by its process failing."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.failure = ''
+
+    def wake(self) -> None:
+        with self.cond:
+            self.cond.notify_all()
+
+    def fail(self, message: str) -> None:
+        with self.cond:
+            self.failure = message or 'the driver process failed'
+            self.cond.notify_all()
+
+
+class _Held:
+    """An active sensor query: what runs it and what watches it."""
+
+    def __init__(self, internal_id: int, entry: SensorEntry, process_id: int, probes: List[TopicProbe]) -> None:
+        self.internal_id = internal_id
+        self.entry = entry
+        self.process_id = process_id
+        self.probes = probes
+        self.failed = False
+        for probe in probes:
+            probe.owner = self
+
+
+class SensorManager:
+    """Serves ``/<ns>/temoto_sensor_manager/start_sensor`` and ``.../catalogue`` (JSON)."""
+
+    def __init__(self, catalogue: Catalogue, rr: Optional[ResourceRegistrar] = None, namespace: Optional[str] = None,
+                 first_data_timeout: float = 20.0, er_manager: str = ER_MANAGER) -> None:
+        self.catalogue = catalogue
+        self.first_data_timeout = first_data_timeout
+        self.er_manager = er_manager
+        self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB)
+        self._lock = threading.Lock()
+        self._held: Dict[int, _Held] = {}            # sensor internal id -> held sensor
+        self._by_process: Dict[int, _Held] = {}      # load_process local id -> held sensor
+        self._attempts: Dict[int, _Attempt] = {}     # load_process local id -> candidate being started
+        self._early_failures: Dict[int, str] = {}    # FAILED that overtook our bookkeeping
+        self.watchdog = Watchdog(self._on_stall)
+        for problem in catalogue.problems:
+            rospy.logerr('%s: catalogue: %s', NAME, problem)
+        self.rr.add_server(SERVER, LoadSensor, self._load, self._unload, key=sensor_key)
+        self._catalogue_srv = rospy.Service('/%s/%s/catalogue' % (self.rr.namespace, NAME), GetRegistry,
+                                            lambda _req: GetRegistryResponse(json=self.catalogue_json()))
+        rospy.loginfo('%s: ready with %d sensor(s) of type(s) %s', NAME, len(catalogue.entries),
+                      ', '.join(catalogue.types()) or 'none')
+
+    # -- load ----------------------------------------------------------------------------------
+    def _load(self, req, res) -> None:
+        query = validate(req.sensor_type, req.package_name, req.executable,
+                         [(kv.key, kv.value) for kv in req.output_topics])
+        tried = []
+        for entry in candidates(self.catalogue, query):
+            launch = plan(entry, query)
+            try:
+                held = self._start(entry, launch, res.trr.resource_id)
+            except TemotoError as err:
+                if err.code != ErrorCode.SERVICE_REQ_FAIL:   # the ER Manager being away says nothing of the device
+                    entry.reliability.failure()
+                rospy.logwarn('%s: candidate %s for %r failed (reliability now %.3f): %s', NAME, entry.name,
+                              query.sensor_type, entry.reliability.value, err)
+                tried.append('%s: %s' % (entry.name, err))
+                continue
+            entry.reliability.success()
+            self.watchdog.arm(held.probes)
+            res.sensor_name = entry.name
+            res.package_name = entry.package
+            res.executable = entry.executable
+            res.output_topics = [KeyValue(k, v) for k, v in launch.topics.items()]
+            res.input_topics = [KeyValue(k, v) for k, v in sorted(entry.input_topics.items())]
+            rospy.loginfo('%s: %r served by %s (%s), data flowing on %s', NAME, query.sensor_type, entry.name,
+                          entry.executable, ', '.join(launch.topics.values()))
+            return
+        raise TemotoError(ErrorCode.SENSOR_NOT_FOUND, SUB, 'no candidate left for a %r sensor: every match failed '
+                          '(%s)' % (query.sensor_type, '; '.join(tried)))
+
+    def _start(self, entry: SensorEntry, launch: LaunchPlan, internal_id: int) -> _Held:
+        """Start one candidate's driver and wait for its first data; then link the process to the sensor.
+
+        The trial start is made *unlinked* (from a helper thread, which has no load
+        in progress): a candidate that crashes during the wait must not fail the
+        whole sensor load, as a linked sub-resource failing mid-load would. Once
+        data flows, an equal call from the load thread shares the same process
+        (no second start) and links it; then the trial reference is dropped.
+        """
+        request = LoadProcess._request_class(action='ros_execute', package_name=entry.package,
+                                             executable=entry.executable, args=launch.args)
+        attempt = _Attempt()
+        trial = self._call_unlinked(request)
+        trial_id = trial.trr.resource_id
+        with self._lock:
+            self._attempts[trial_id] = attempt
+            early = self._early_failures.pop(trial_id, None)
+        if early is not None:
+            attempt.fail(early)
+        probes = []
+        linked_id = None
+        try:
+            probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
+                      for key, topic in launch.topics.items()]
+            deadline = time.monotonic() + self.first_data_timeout
+            with attempt.cond:
+                while not attempt.failure and not all(p.first.is_set() for p in probes):
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        break
+                    attempt.cond.wait(remaining)
+            if attempt.failure:
+                raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed before '
+                                  'data arrived: %s' % (entry.name, trial.pid, attempt.failure))
+            silent = [p.topic for p in probes if not p.first.is_set()]
+            if silent:
+                raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
+                                  '(pid %d) started' % (entry.name, ', '.join(silent), self.first_data_timeout,
+                                                        trial.pid))
+            linked = self.rr.call(self.er_manager, ER_SERVER, request, status_cb=self._on_process_status)
+            linked_id = linked.trr.resource_id
+            if linked.pid != trial.pid or attempt.failure:
+                raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed just as '
+                                  'its data arrived: %s' % (entry.name, trial.pid, attempt.failure or 'restarted'))
+        except BaseException:
+            for probe in probes:
+                probe.close()
+            with self._lock:
+                self._attempts.pop(trial_id, None)
+            for local_id in (linked_id, trial_id):
+                if local_id is not None:
+                    self._release(local_id, 'stopping failed candidate %s' % entry.name)
+            raise
+        held = _Held(internal_id, entry, linked_id, probes)
+        with self._lock:
+            # in one step, so a FAILED of the process finds either the attempt or the held sensor
+            self._attempts.pop(trial_id, None)
+            self._held[internal_id] = held
+            self._by_process[linked_id] = held
+        self._release(trial_id, 'dropping the trial reference of %s' % entry.name)
+        return held
+
+    def _call_unlinked(self, request):
+        """``rr.call`` from a thread with no load in progress, so the process is not linked (yet)."""
+        box = {}
+
+        def run() -> None:
+            try:
+                box['response'] = self.rr.call(self.er_manager, ER_SERVER, request,
+                                               status_cb=self._on_process_status)
+            except BaseException as err:      # re-raised in the load thread
+                box['error'] = err
+        thread = threading.Thread(target=run, name='sensor-trial-start', daemon=True)
+        thread.start()
+        thread.join()
+        if 'error' in box:
+            raise box['error']
+        return box['response']
+
+    def _release(self, local_id: int, why: str) -> None:
+        try:
+            self.rr.unload(local_id)
+        except TemotoError as err:
+            rospy.logwarn('%s: %s: %s', NAME, why, err)
+
+    # -- unload --------------------------------------------------------------------------------
+    def _unload(self, req, res) -> None:
+        with self._lock:
+            held = self._held.pop(res.trr.resource_id, None)
+            if held is not None:
+                self._by_process.pop(held.process_id, None)
+        if held is None:
+            return
+        for probe in held.probes:
+            probe.close()
+        rospy.loginfo('%s: released %s (its driver goes with it)', NAME, held.entry.name)
+
+    # -- failures ------------------------------------------------------------------------------
+    def _on_process_status(self, event: StatusEvent) -> None:
+        """Owner callback for a driver process; the registrar forwards the FAILED to our consumers itself."""
+        if event.code != ResourceStatus.FAILED:
+            return
+        with self._lock:
+            attempt = self._attempts.get(event.resource_id)
+            held = self._by_process.get(event.resource_id)
+            if attempt is None and held is None:
+                self._early_failures[event.resource_id] = event.message
+        if attempt is not None:
+            attempt.fail(event.message)
+        if held is not None:
+            self._mark_failed(held, 'crashed: %s' % event.message, report=False)
+
+    def _on_stall(self, probe: TopicProbe, silence: float) -> None:
+        held = probe.owner
+        if held is None:
+            return
+        message = ('sensor %s stalled: no message on %s for %.3f s (limit %.3f s)'
+                   % (held.entry.name, probe.topic, silence, probe.limit))
+        self._mark_failed(held, message, report=True)
+
+    def _mark_failed(self, held: _Held, message: str, report: bool) -> None:
+        with self._lock:
+            if held.failed:
+                return
+            held.failed = True
+        for probe in held.probes:
+            probe.close()
+        value = held.entry.reliability.failure()
+        rospy.logerr('%s: sensor %s %s (reliability now %.3f)', NAME, held.entry.name, message, value)
+        if report:
+            err = TemotoError(ErrorCode.TIMEOUT, SUB, message)
+            try:
+                self.rr.send_status(held.internal_id, ResourceStatus.FAILED, message, error_stack=err.stack)
+            except TemotoError as e:        # unloaded meanwhile: nobody left to tell
+                rospy.logwarn('%s: could not report the stall of %s: %s', NAME, held.entry.name, e)
+
+    # -- introspection and shutdown --------------------------------------------------------------
+    def catalogue_json(self) -> str:
+        with self._lock:
+            active = {h.entry.name: h.internal_id for h in self._held.values() if not h.failed}
+        rows = [{'name': e.name, 'type': e.type, 'package': e.package, 'executable': e.executable,
+                 'reliability': round(e.reliability.value, 6), 'source': e.source, 'active': e.name in active,
+                 'output_topics': {k: {'topic': t.topic, 'rate': t.rate, 'stall_limit': t.silence_limit()}
+                                   for k, t in e.output_topics.items()}}
+                for e in self.catalogue.entries]
+        return json.dumps({'manager': NAME, 'sensors': rows,
+                           'problems': [str(p) for p in self.catalogue.problems]}, sort_keys=True)
+
+    def shutdown(self) -> None:
+        self.watchdog.stop()
+        try:
+            self.rr.shutdown()
+        except Exception as err:
+            rospy.logwarn('%s: registrar shutdown: %s', NAME, err)
+        self._catalogue_srv.shutdown()

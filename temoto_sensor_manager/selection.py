@@ -1,0 +1,118 @@
+"""Choosing sensors for a request, and the arguments that give them the requested topic names.
+
+Selection follows the original ``findSensors``: filter by type, then by package
+and executable when given, then keep sensors that provide every requested topic
+type; sort by reliability, highest first (a stable sort: catalogue order breaks
+ties). Unlike the original, the filtered-out entries are really gone.
+"""
+import dataclasses
+import shlex
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import rosgraph.names
+
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_sensor_manager.catalogue import Catalogue, SensorEntry
+
+SUB = Subsystem.SENSOR_MANAGER
+
+
+def _bad(message: str) -> TemotoError:
+    return TemotoError(ErrorCode.BAD_REQUEST, SUB, message)
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorQuery:
+    """A validated ``LoadSensor`` request."""
+    sensor_type: str
+    package_name: str
+    executable: str
+    topics: Tuple[Tuple[str, str], ...]     # (type, wanted absolute name or '') in request order
+
+    @property
+    def topic_types(self) -> List[str]:
+        return [k for k, _ in self.topics]
+
+
+def validate(sensor_type: str, package_name: str, executable: str,
+             output_topics: Sequence[Tuple[str, str]]) -> SensorQuery:
+    """Check every field arriving over the wire; raise BAD_REQUEST naming the field."""
+    if not isinstance(sensor_type, str) or not sensor_type.strip():
+        raise _bad('sensor_type is empty: name a sensor type, e.g. "depth camera" or "lidar"')
+    for label, value in (('package_name', package_name), ('executable', executable)):
+        if len(value) > 256 or '\x00' in value:
+            raise _bad('%s %r is not a plausible name' % (label, value[:40]))
+    seen = set()
+    topics = []
+    for key, value in output_topics:
+        if not key or not rosgraph.names.is_legal_base_name(key):
+            raise _bad('output topic type %r is not a plain name (e.g. camera_data)' % key)
+        if key in seen:
+            raise _bad('output topic type %r is requested twice' % key)
+        seen.add(key)
+        if value:
+            if not rosgraph.names.is_legal_name(value) or value.startswith('~'):
+                raise _bad('output topic %s: %r is not a legal ROS topic name' % (key, value))
+            value = value if value.startswith('/') else '/' + value
+            value = rosgraph.names.canonicalize_name(value)
+        topics.append((key, value))
+    return SensorQuery(sensor_type.strip(), package_name.strip(), executable.strip(), tuple(topics))
+
+
+def candidates(catalogue: Catalogue, query: SensorQuery) -> List[SensorEntry]:
+    """Matching entries, best first; raises SENSOR_NOT_FOUND explaining what did not match."""
+    of_type = [e for e in catalogue.entries if e.type == query.sensor_type]
+    if not of_type:
+        raise TemotoError(ErrorCode.SENSOR_NOT_FOUND, SUB, 'unknown sensor type %r (known types: %s)'
+                          % (query.sensor_type, ', '.join(repr(t) for t in catalogue.types()) or 'none: the '
+                             'catalogue is empty'))
+    found = of_type
+    if query.package_name:
+        found = [e for e in found if e.package == query.package_name]
+    if query.executable:
+        found = [e for e in found if e.executable == query.executable]
+    wanted = set(query.topic_types)
+    found = [e for e in found if wanted <= set(e.output_topics)]
+    if not found:
+        described = '; '.join('%s (%s/%s: %s)' % (e.name, e.package, e.executable, ', '.join(e.output_topics))
+                              for e in of_type)
+        asked = []
+        if query.package_name:
+            asked.append('package %r' % query.package_name)
+        if query.executable:
+            asked.append('executable %r' % query.executable)
+        if wanted:
+            asked.append('topic types %s' % ', '.join(query.topic_types))
+        raise TemotoError(ErrorCode.SENSOR_NOT_FOUND, SUB, 'no %r sensor matches %s; the %r sensors are: %s'
+                          % (query.sensor_type, ' and '.join(asked), query.sensor_type, described))
+    return sorted(found, key=lambda e: -e.reliability.value)
+
+
+@dataclasses.dataclass
+class LaunchPlan:
+    """What to ask the ER Manager for, and which topics will carry data."""
+    args: str                       # LoadProcess.args
+    topics: Dict[str, str]          # type -> absolute topic, in response order
+
+
+def plan(entry: SensorEntry, query: SensorQuery) -> LaunchPlan:
+    """Remapping for the requested names: launch files get ``arg:=name``, nodes ``default:=name``.
+
+    With no topic requested the response lists every topic of the sensor.
+    """
+    requested = dict(query.topics)
+    keys = query.topic_types or list(entry.output_topics)
+    args = shlex.split(entry.args)
+    topics = {}
+    for key in keys:
+        spec = entry.output_topics[key]
+        name = requested.get(key) or spec.topic
+        topics[key] = name
+        if entry.is_launch_file:
+            if spec.arg:
+                args.append('%s:=%s' % (spec.arg, name))
+            elif name != spec.topic:
+                args.append('%s:=%s' % (key, name))      # the original's rule: an arg named after the type
+        elif name != spec.topic or spec.remap:
+            args.append('%s:=%s' % (spec.remap or spec.topic, name))
+    return LaunchPlan(' '.join(shlex.quote(a) for a in args), topics)

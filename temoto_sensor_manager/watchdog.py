@@ -1,0 +1,102 @@
+"""Data watchdog: first-message detection and stall detection for held sensors.
+
+A driver whose cable is pulled may stay alive and publish nothing; the ER
+Manager cannot see that. Each watched topic records the arrival time of its
+last message (one float store per message, nothing else on the hot path). One
+thread keeps a heap of deadlines and sleeps until the earliest: if a message
+arrived meanwhile the entry is pushed again to ``last + limit``, otherwise the
+topic has been silent for its whole limit and the stall callback runs. So the
+thread wakes about once per limit per topic, and a stall is reported at most a
+scheduling delay after the limit, never a poll period later.
+"""
+import heapq
+import itertools
+import threading
+import time
+from typing import Callable, List, Optional
+
+import rospy
+
+
+class TopicProbe:
+    """An ``AnyMsg`` subscription that remembers when its topic last carried a message."""
+
+    def __init__(self, topic: str, limit: float, on_first: Optional[Callable[[], None]] = None) -> None:
+        self.topic = topic
+        self.limit = limit                   # seconds of silence that count as a stall; 0: not watched
+        self.last = 0.0                      # time.monotonic() of the last message
+        self.count = 0
+        self.first = threading.Event()
+        self.armed = False
+        self.owner = None                    # set by the watchdog user (what stalled)
+        self._on_first = on_first
+        self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
+
+    def _on_msg(self, _msg) -> None:
+        self.last = time.monotonic()
+        self.count += 1
+        if not self.first.is_set():
+            self.first.set()
+            if self._on_first is not None:
+                self._on_first()
+
+    def close(self) -> None:
+        """Stop watching and unsubscribe; safe to call more than once (a failure, then the unload)."""
+        self.armed = False
+        sub, self._sub = self._sub, None
+        if sub is not None:
+            sub.unregister()
+
+
+class Watchdog:
+    """One thread, a heap of deadlines; ``on_stall(probe, silence)`` runs on that thread."""
+
+    def __init__(self, on_stall: Callable[[TopicProbe, float], None]) -> None:
+        self._on_stall = on_stall
+        self._heap: List[tuple] = []
+        self._seq = itertools.count()
+        self._cond = threading.Condition()
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
+        self._thread.start()
+
+    def arm(self, probes: List[TopicProbe]) -> None:
+        """Start watching ``probes`` (with a limit > 0) from their last message."""
+        now = time.monotonic()
+        with self._cond:
+            for probe in probes:
+                if probe.limit <= 0:
+                    continue
+                probe.armed = True
+                heapq.heappush(self._heap, (max(probe.last, now - probe.limit) + probe.limit, next(self._seq), probe))
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._stopped and not self._heap:
+                    self._cond.wait()
+                if self._stopped:
+                    return
+                deadline, _, probe = self._heap[0]
+                now = time.monotonic()
+                if deadline > now:
+                    self._cond.wait(deadline - now)
+                    continue
+                heapq.heappop(self._heap)
+                if not probe.armed:
+                    continue
+                due = probe.last + probe.limit
+                if due > now:
+                    heapq.heappush(self._heap, (due, next(self._seq), probe))
+                    continue
+                probe.armed = False
+            try:
+                self._on_stall(probe, now - probe.last)
+            except Exception as err:     # a reporting error must not stop the watchdog
+                rospy.logerr('sensor watchdog: stall callback for %s raised %r', probe.topic, err)
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()

@@ -1,0 +1,87 @@
+"""Shared helpers of the sensor and context manager tests: managers as processes, introspection."""
+import json
+import os
+import time
+
+import rospy
+from std_msgs.msg import String
+
+from temoto_core.srv import GetRegistry
+from temoto_core.testing import wait_for
+
+NS = 'temoto'
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FAKE_CATALOGUE = os.path.join(ROOT, 'temoto_sensor_manager', 'test_nodes', 'fake_sensors.yaml')
+ER_PARAMS = {'registration_timeout': 15.0, 'sigint_grace': 2.0, 'sigterm_grace': 1.0}
+
+
+def start_er_manager(launcher, log_dir):
+    return launcher.node('temoto_er_manager', 'temoto_er_manager', params=dict(ER_PARAMS, log_dir=str(log_dir)))
+
+
+def start_sensor_manager(launcher, first_data_timeout=20.0, extra=FAKE_CATALOGUE, name='temoto_sensor_manager'):
+    proc = launcher.node('temoto_sensor_manager', 'temoto_sensor_manager', name=name,
+                         params={'extra_catalogues': extra, 'first_data_timeout': first_data_timeout})
+    rospy.wait_for_service('/%s/temoto_sensor_manager/start_sensor' % NS, timeout=20)
+    return proc
+
+
+def _json(service):
+    return json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+
+
+def er_processes(alive_only=True):
+    rows = _json('/%s/temoto_er_manager/processes' % NS)['processes']
+    return [r for r in rows if not alive_only or r['state'] != 'exited']
+
+
+def catalogue():
+    return {s['name']: s for s in _json('/%s/temoto_sensor_manager/catalogue' % NS)['sensors']}
+
+
+def catalogue_problems():
+    return _json('/%s/temoto_sensor_manager/catalogue' % NS)['problems']
+
+
+def registry(rr='temoto_sensor_manager'):
+    return _json('/%s/%s/registry' % (NS, rr))
+
+
+def pid_gone(pid):
+    return not os.path.exists('/proc/%d' % pid)
+
+
+def managers_idle(rrs=('temoto_sensor_manager', 'temoto_er_manager'), timeout=15.0):
+    def idle():
+        return all(not registry(rr)['server_queries'] and not registry(rr)['client_queries'] for rr in rrs)
+    wait_for(idle, timeout, 'empty registries at %s' % ', '.join(rrs))
+    wait_for(lambda: not er_processes(), timeout, 'every driver process to be stopped')
+
+
+class FakeCables:
+    """Pull the cable of a fake_sensor driver (test_nodes/fake_sensor)."""
+
+    def __init__(self):
+        self.pub = rospy.Publisher('/fake_sensors/control', String, queue_size=10, latch=False)
+
+    def send(self, command, device):
+        # wait until every fake driver currently running is connected, so the command is not lost
+        wait_for(lambda: self.pub.get_num_connections() >= 1, 10, 'a fake driver listening for cable commands')
+        self.pub.publish(String('%s %s' % (command, device)))
+        return time.monotonic()
+
+
+class TopicWatch:
+    """Counts messages on a topic (any type) in this process."""
+
+    def __init__(self, topic):
+        self.count = 0
+        self.last = 0.0
+        self.sub = rospy.Subscriber(topic, rospy.AnyMsg, self._cb, queue_size=5)
+
+    def _cb(self, _msg):
+        self.count += 1
+        self.last = time.monotonic()
+
+    def close(self):
+        self.sub.unregister()
