@@ -15,8 +15,9 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.srv import LoadSensor
-from sensor_helpers import (FakeCables, TopicWatch, catalogue, catalogue_problems, er_processes, managers_idle,
-                            pid_gone, registry, start_er_manager, start_sensor_manager)
+from temoto_sensor_manager.testing import (FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue, catalogue_problems,
+                                           er_processes, managers_idle, pid_gone, registry, start_er_manager,
+                                           start_sensor_manager)
 
 
 @pytest.fixture(scope='module')
@@ -187,7 +188,7 @@ def test_malformed_catalogue_entries_are_reported_with_file_and_line_and_skipped
     assert any("'bad_topic'" in p and 'not a legal ROS topic name' in p for p in problems)
     names = catalogue()
     assert 'bad_no_type' not in names and 'bad_topic' not in names and 'fake_lidar_a' in names
-    with open(__import__('sensor_helpers').FAKE_CATALOGUE) as f:
+    with open(FAKE_CATALOGUE) as f:
         lines = f.read().splitlines()
     where = next(p for p in problems if "'bad_no_type'" in p).split(': ')[0]
     line = int(where.rsplit(':', 1)[1])

@@ -1,4 +1,4 @@
-"""Shared helpers of the sensor and context manager tests: managers as processes, introspection."""
+"""Helpers for tests of the sensor and context managers: managers as processes, introspection, fake cables."""
 import json
 import os
 import time
