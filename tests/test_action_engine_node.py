@@ -77,7 +77,9 @@ def engine(procs, rospy_client, tmp_path):
                  outputs={'value': STR}, grounding={'verbs': ['emit'], 'parameters': {'tag': {'any': True}}})
     write_plugin(str(plugins), 'broken', 'import does_not_exist\n')
     listener = Listener(rospy_client)
-    procs.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
+    if rospy_client.has_param('/ae_node_engine'):
+        rospy_client.delete_param('/ae_node_engine')   # private params outlive a node on the shared master
+    procs.node('temoto_action_engine', 'temoto_action_engine', name='ae_node_engine',
                params={'temoto_namespace': NS, 'action_paths': str(plugins), 'wake_words': 'robot'})
     rospy_client.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=20)
     wait_for(listener.connected, 20, 'engine topics connected')

@@ -12,6 +12,7 @@ from temoto_action_engine.testing import write_plugin
 from temoto_core.testing.wait import wait_for
 
 NS = 'aeres'
+ENGINE = 'ae_resources_engine'
 SERVER = '''
 import sys
 import rospy
@@ -73,7 +74,9 @@ def world(procs, rospy_client, tmp_path):
     server.write_text(SERVER)
     srv_proc = procs.command([sys.executable, str(server), NS], 'rr_test_server')
     procs.wait_registered(srv_proc, ['/rr_test_server'], 20)
-    engine = procs.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
+    if rospy_client.has_param('/' + ENGINE):
+        rospy_client.delete_param('/' + ENGINE)      # private params outlive a node on the shared master
+    engine = procs.node('temoto_action_engine', 'temoto_action_engine', name=ENGINE,
                         params={'temoto_namespace': NS, 'action_paths': str(plugins)})
     rospy_client.wait_for_service('/%s/test_server/load_test' % NS, timeout=20)
     rospy_client.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=20)
@@ -129,7 +132,7 @@ def grab_and_check(rospy, world, text='grab the cake', thing='cake'):
     held = registry(rospy, rr_name)['client_queries']
     assert sorted(q['summary']['name'] for q in held) == [thing, thing + '_extra']
     consumers = [c['client_name'] for q in registry(rospy, 'test_server')['server_queries'] for c in q['consumers']]
-    assert consumers == ['/temoto_action_engine', '/temoto_action_engine']
+    assert consumers == ['/' + ENGINE, '/' + ENGINE]
     return rr_name
 
 

@@ -129,6 +129,7 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
     devices.unplug('d435')
     wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
     assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    assert run.nodes['show_environment_0'].action.outputs == {'topic': '/stitcher/cloud'}
     failed = of(events, 'sensor_failed')[0]
     assert failed['sensor_name'] == 'd435' and failed['message'] == 'd435 unplugged'
     assert of(events, 'sensor_active')[1]['sensor_name'] == 'hokuyo'

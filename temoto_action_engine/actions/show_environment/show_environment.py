@@ -84,9 +84,7 @@ class ShowEnvironment(ActionBase):
         self.omi = self.output_manager
         # Replaces the interface's default policy (reload the same request), as ShowEnv did.
         self.smi.register_update_callback(self.post)
-        self.activate_from(0)
-        if self.active:
-            self.set_output('topic', self.active.topic)
+        self.activate_from(0)     # sets the output 'topic' when a sensor is up (children start after this)
 
     def execute(self):
         while self.action_ok():
@@ -149,6 +147,7 @@ class ShowEnvironment(ActionBase):
                 self._stop_sensor(result.resource_id)
                 continue
             self.active = Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
+            self.set_output('topic', topic)       # the topic shown now (list_graphs reports it)
             recovered = self.retry_at is not None
             self.retry_at = None
             self.backoff = self.retry_initial

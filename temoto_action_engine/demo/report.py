@@ -1,0 +1,416 @@
+"""The report of a failover run, computed from its bag alone.
+
+Reading uses the pip ``rosbags`` library (``AnyReader`` registers every type from the definitions
+stored in the bag, the custom TeMoto ones included), so a bag recorded on any machine, with or
+without this project's generated messages, gives the same report.
+
+Times are the publishers' header stamps (the ``stamp`` field of the action engine's JSON events);
+a message without one falls back to the recorder's receive time.
+
+Definitions, per unplug of a device (from ``/vaultbot_sim/device_states``):
+- detection latency: unplug -> the first FAILED ``ResourceStatus`` on any registrar's status topic
+  (the ER Manager's for a crash, the Sensor Manager's watchdog for a stall);
+- propagation latency: that FAILED -> the action's ``sensor_failed`` event (FAILED received by the
+  action and acted upon);
+- display gap: the last frame of the failed sensor's displayed stream (relay ticks) -> the
+  ``first_frame`` display event of the substitute's stream;
+- switch time: unplug -> that first frame.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+from . import topics as T
+
+FAILED = 1
+
+
+# ============================================================================ what the bag holds
+@dataclass
+class Status:
+    t: float
+    topic: str
+    manager: str
+    server: str
+    resource_id: int
+    code: int
+    message: str
+
+
+@dataclass
+class DisplayEv:
+    t: float
+    event: str
+    name: str
+    topic: str
+    seconds_since_added: float
+
+
+@dataclass
+class Unplug:
+    t: float
+    device: str
+    mode: str
+
+
+@dataclass
+class Run:
+    bag: str
+    start: float = 0.0
+    end: float = 0.0
+    chatter: List[Tuple[float, str]] = field(default_factory=list)
+    unplugs: List[Unplug] = field(default_factory=list)
+    replugs: List[Tuple[float, str]] = field(default_factory=list)
+    statuses: List[Status] = field(default_factory=list)
+    display: List[DisplayEv] = field(default_factory=list)
+    actions: List[dict] = field(default_factory=list)
+    ticks: Dict[str, List[float]] = field(default_factory=dict)
+    throttled: Dict[str, int] = field(default_factory=dict)
+    screenshots: List[Tuple[float, str, bytes]] = field(default_factory=list)
+    stages: List[dict] = field(default_factory=list)
+    topics: Dict[str, Tuple[str, int]] = field(default_factory=dict)
+
+
+def _stamp(msg, bag_t: float) -> float:
+    header = getattr(msg, 'header', None)
+    if header is not None:
+        s = header.stamp.sec + header.stamp.nanosec * 1e-9
+        if s > 0:
+            return s
+    return bag_t
+
+
+def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
+    """Everything the report needs, read from the bag with ``rosbags``."""
+    from rosbags.highlevel import AnyReader
+    run = Run(bag=os.path.abspath(bag_path))
+    status_re = re.compile('^%s$' % T.status_regex(namespace))
+    plugged: Dict[str, bool] = {}
+    with AnyReader([Path(bag_path)]) as reader:
+        run.start, run.end = reader.start_time * 1e-9, reader.end_time * 1e-9
+        for c in reader.connections:
+            kind, n = run.topics.get(c.topic, (c.msgtype, 0))
+            run.topics[c.topic] = (kind, n + c.msgcount)
+        for conn, bag_ns, raw in reader.messages():
+            topic, bag_t = conn.topic, bag_ns * 1e-9
+            if topic.startswith(T.THROTTLED_PREFIX + '/'):
+                src = topic[len(T.THROTTLED_PREFIX):]
+                run.throttled[src] = run.throttled.get(src, 0) + 1
+                continue
+            msg = reader.deserialize(raw, conn.msgtype)
+            if topic == T.TICKS:
+                run.ticks.setdefault(msg.frame_id, []).append(_stamp(msg, bag_t))
+            elif status_re.match(topic):
+                run.statuses.append(Status(_stamp(msg, bag_t), topic, msg.manager_name, msg.server_name,
+                                           int(msg.resource_id), int(msg.status_code), msg.message))
+            elif topic == T.display_events(namespace):
+                run.display.append(DisplayEv(_stamp(msg, bag_t), msg.event, msg.display_name, msg.topic,
+                                             float(msg.seconds_since_added)))
+            elif topic == T.action_events(namespace):
+                try:
+                    ev = json.loads(msg.data)
+                except ValueError:
+                    continue
+                if isinstance(ev, dict):
+                    ev['t'] = float(ev.get('stamp') or bag_t)
+                    run.actions.append(ev)
+            elif topic == T.DEVICE_STATES:
+                t = _stamp(msg, bag_t)
+                for d in msg.devices:
+                    was = plugged.get(d.name)
+                    if was is not None and was and not d.plugged:
+                        run.unplugs.append(Unplug(t, d.name, d.mode or 'crash'))
+                    elif was is not None and not was and d.plugged:
+                        run.replugs.append((t, d.name))
+                    plugged[d.name] = bool(d.plugged)
+            elif topic == T.chatter(namespace):
+                run.chatter.append((bag_t, msg.data))
+            elif topic == T.SCREENSHOTS:
+                run.screenshots.append((_stamp(msg, bag_t), msg.header.frame_id, bytes(msg.data)))
+            elif topic == T.STAGES:
+                try:
+                    run.stages.append(json.loads(msg.data))
+                except ValueError:
+                    pass
+    for lst in (run.statuses, run.display, run.unplugs):
+        lst.sort(key=lambda x: x.t)
+    run.actions.sort(key=lambda e: e['t'])
+    for v in run.ticks.values():
+        v.sort()
+    return run
+
+
+# ============================================================================ what it means
+@dataclass
+class Stage:
+    index: int              # priority index in the action's list
+    label: str
+    sensor: str
+    topic: str
+    active_t: float         # the action's sensor_active event
+    first_frame_t: Optional[float]
+
+
+@dataclass
+class Failure:
+    device: str
+    mode: str
+    unplug_t: float
+    failed_sensor: str = ''
+    failed_topic: str = ''
+    failed_t: Optional[float] = None          # first FAILED status anywhere
+    failed_by: str = ''                       # which registrar raised it
+    action_t: Optional[float] = None          # the action's sensor_failed event
+    last_frame_t: Optional[float] = None      # failed stream's last frame
+    substitute: str = ''
+    substitute_topic: str = ''
+    first_frame_t: Optional[float] = None     # substitute's first frame
+
+    @staticmethod
+    def _d(a, b):
+        return None if a is None or b is None else b - a
+
+    @property
+    def detection(self) -> Optional[float]:
+        return self._d(self.unplug_t, self.failed_t)
+
+    @property
+    def propagation(self) -> Optional[float]:
+        return self._d(self.failed_t, self.action_t)
+
+    @property
+    def display_gap(self) -> Optional[float]:
+        return self._d(self.last_frame_t, self.first_frame_t)
+
+    @property
+    def switch(self) -> Optional[float]:
+        return self._d(self.unplug_t, self.first_frame_t)
+
+    def as_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d.update(detection_s=self.detection, propagation_s=self.propagation, display_gap_s=self.display_gap,
+                 switch_s=self.switch)
+        return d
+
+
+@dataclass
+class Analysis:
+    t0: float
+    stages: List[Stage]
+    failures: List[Failure]
+    labels: Dict[str, str]      # topic -> sensor label
+
+
+def _first(items, pred):
+    return next((x for x in items if pred(x)), None)
+
+
+def _first_frame(run: Run, topic: str, after: float) -> Optional[float]:
+    ev = _first(run.display, lambda e: e.event == 'first_frame' and e.topic == topic and e.t >= after - 0.5)
+    return ev.t if ev else None
+
+
+def analyse(run: Run) -> Analysis:
+    t0 = run.chatter[0][0] if run.chatter else run.start
+    actives = [e for e in run.actions if e.get('event') == 'sensor_active']
+    stages, labels = [], {}
+    for e in actives:
+        topic = str(e.get('topic', ''))
+        labels.setdefault(topic, str(e.get('label', topic)))
+        stages.append(Stage(int(e.get('priority_index', -1)), str(e.get('label', '')), str(e.get('sensor_name', '')),
+                            topic, e['t'], _first_frame(run, topic, e['t'])))
+    failures = []
+    for i, u in enumerate(run.unplugs):
+        nxt = run.unplugs[i + 1].t if i + 1 < len(run.unplugs) else float('inf')
+        f = Failure(u.device, u.mode, u.t)
+        before = [s for s in stages if s.active_t <= u.t]
+        if before:
+            f.failed_sensor, f.failed_topic = before[-1].label, before[-1].topic
+        st = _first(run.statuses, lambda s: s.code == FAILED and u.t <= s.t < nxt)
+        if st:
+            f.failed_t, f.failed_by = st.t, '%s (%s)' % (st.manager, st.server)
+        act = _first(run.actions, lambda e: e.get('event') == 'sensor_failed' and u.t <= e['t'] < nxt)
+        if act:
+            f.action_t = act['t']
+            sub = _first(stages, lambda s: s.active_t >= act['t'])
+            if sub:
+                f.substitute, f.substitute_topic, f.first_frame_t = sub.label, sub.topic, sub.first_frame_t
+        if f.failed_topic:
+            end = f.first_frame_t if f.first_frame_t is not None else nxt
+            frames = [t for t in run.ticks.get(f.failed_topic, []) if t < end]
+            if frames:
+                f.last_frame_t = frames[-1]
+        failures.append(f)
+    return Analysis(t0, stages, failures, labels)
+
+
+# ============================================================================ the pictures
+def plot_timeline(run: Run, an: Analysis, path: str) -> str:
+    """Which sensor's data reached the display, over time, with unplug / FAILED / switch marked."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    rows = [s.topic for s in an.stages]
+    rows = list(dict.fromkeys(rows + [t for t in run.ticks if t not in rows]))
+    fig, ax = plt.subplots(figsize=(11, 1.4 + 0.75 * max(1, len(rows))))
+    colors = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    # Displayed intervals of each topic: from its first frame to the display's removal.
+    for y, topic in enumerate(rows):
+        color = colors[y % len(colors)]
+        shown = []
+        start = None
+        for e in run.display:
+            if e.topic != topic:
+                continue
+            if e.event == 'first_frame' and start is None:
+                start = e.t
+            elif e.event in ('removed', 'host_stopping') and start is not None:
+                shown.append((start, e.t))
+                start = None
+        if start is not None:
+            shown.append((start, run.end))
+        ax.broken_barh([(a - an.t0, b - a) for a, b in shown], (y - 0.3, 0.6), facecolors=color, alpha=0.25)
+        ticks = [t - an.t0 for t in run.ticks.get(topic, [])]
+        if ticks:
+            ax.plot(ticks, [y] * len(ticks), '|', color=color, markersize=14, alpha=0.8)
+    ax.set_yticks(range(len(rows)))
+    ax.set_yticklabels(['%s\n%s' % (an.labels.get(t, ''), t) for t in rows], fontsize=8)
+    ax.set_ylim(-0.7, len(rows) - 0.3)
+    top = len(rows) - 0.35
+    marks = [(u.t, 'unplug %s (%s)' % (u.device, u.mode), 'tab:red', '--') for u in run.unplugs]
+    marks += [(f.failed_t, 'FAILED', 'tab:orange', ':') for f in an.failures if f.failed_t]
+    marks += [(f.action_t, 'action got FAILED', 'tab:purple', ':') for f in an.failures if f.action_t]
+    marks += [(s.first_frame_t, 'on screen: %s' % s.label, 'tab:green', '-') for s in an.stages if s.first_frame_t]
+    for t, text, color, style in marks:
+        ax.axvline(t - an.t0, color=color, linestyle=style, linewidth=1.2)
+    seen = set()
+    for t, text, color, style in sorted(marks, key=lambda m: m[0]):
+        if text in seen:
+            continue
+        seen.add(text)
+        ax.annotate(text, (t - an.t0, top), rotation=90, fontsize=7, color=color, va='top', ha='right',
+                    xytext=(-2, 0), textcoords='offset points')
+    ax.set_xlabel('seconds since "%s"' % (run.chatter[0][1] if run.chatter else 'start'))
+    ax.set_title('Sensor data reaching the operator\'s display (ticks: frames; bars: displayed)', fontsize=10)
+    ax.grid(axis='x', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def non_background_fraction(png: bytes) -> float:
+    """Share of pixels that differ from the image's most common colour (an empty view is ~0)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+    img = np.asarray(Image.open(io.BytesIO(png)).convert('RGB')).reshape(-1, 3).astype(np.int16)
+    colours, counts = np.unique(img, axis=0, return_counts=True)
+    bg = colours[counts.argmax()]
+    return float((np.abs(img - bg).sum(axis=1) > 24).mean())
+
+
+# ============================================================================ the document
+def _fmt(x: Optional[float]) -> str:
+    return '—' if x is None else '%.3f s' % x
+
+
+@dataclass
+class Report:
+    path: str
+    timeline: str
+    screenshots: List[str]
+    analysis: Analysis
+    run: Run
+
+    def summary(self) -> dict:
+        return {'bag': self.run.bag, 'report': self.path, 'timeline': self.timeline, 'screenshots': self.screenshots,
+                'stages': [s.__dict__ for s in self.analysis.stages],
+                'failures': [f.as_dict() for f in self.analysis.failures]}
+
+
+def _screenshots(run: Run, bag_dir: str, out_dir: str) -> List[Tuple[str, str]]:
+    """(file name in out_dir, stage) for each screenshot: from the bag, else PNGs beside the bag."""
+    found = []
+    if run.screenshots:
+        for i, (_, stage, data) in enumerate(run.screenshots, 1):
+            name = 'screenshot_%d_%s.png' % (i, re.sub(r'[^A-Za-z0-9_-]+', '_', stage) or 'stage')
+            with open(os.path.join(out_dir, name), 'wb') as f:
+                f.write(data)
+            found.append((name, stage))
+        return found
+    for name in sorted(os.listdir(bag_dir)):
+        if name.startswith('screenshot_') and name.endswith('.png'):
+            if os.path.abspath(bag_dir) != os.path.abspath(out_dir):
+                with open(os.path.join(bag_dir, name), 'rb') as src, open(os.path.join(out_dir, name), 'wb') as dst:
+                    dst.write(src.read())
+            found.append((name, name[len('screenshot_'):-4]))
+    return found
+
+
+def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = T.DEFAULT_NS) -> Report:
+    bag_dir = os.path.dirname(os.path.abspath(bag_path))
+    out_dir = out_dir or bag_dir
+    os.makedirs(out_dir, exist_ok=True)
+    run = load_run(bag_path, namespace)
+    an = analyse(run)
+    timeline = plot_timeline(run, an, os.path.join(out_dir, 'timeline.png'))
+    shots = _screenshots(run, bag_dir, out_dir)
+
+    L = ['# TeMoto sensor failover: run report', '',
+         'Bag: `%s` (%.1f s, %d topics). The paper\'s section 4: "show the environment", then the RGB-D camera '
+         'and the arm LIDAR are unplugged; the view fails over down the sensor priority list.'
+         % (os.path.basename(bag_path), run.end - run.start, len(run.topics)), '']
+    L += ['## What the operator saw', '']
+    if shots:
+        for name, stage in shots:
+            try:
+                with open(os.path.join(out_dir, name), 'rb') as f:
+                    frac = non_background_fraction(f.read())
+            except Exception:
+                frac = float('nan')
+            L += ['**%s** (%.0f%% of pixels not background)' % (stage, 100 * frac), '', '![%s](%s)' % (stage, name), '']
+    else:
+        L += ['No screenshots in the bag or beside it.', '']
+    L += ['## Timeline', '', '![timeline](%s)' % os.path.basename(timeline), '',
+          'Ticks: frames of each stream arriving (relay); bars: the stream displayed in RViz (first frame drawn to '
+          'display removed); red: unplug; orange: first FAILED status; purple: the action received FAILED; '
+          'green: the new stream\'s first frame on screen.', '']
+    L += ['## Stages', '', '| # | sensor | topic | action chose it at | first frame on screen at | chose → drawn |',
+          '| --- | --- | --- | --- | --- | --- |']
+    for s in an.stages:
+        ff = s.first_frame_t
+        L.append('| %d | %s (%s) | `%s` | %.3f s | %s | %s |' % (
+            s.index, s.label, s.sensor, s.topic, s.active_t - an.t0,
+            '—' if ff is None else '%.3f s' % (ff - an.t0), _fmt(None if ff is None else ff - s.active_t)))
+    L += ['', '## Failures', '']
+    if not an.failures:
+        L += ['No device was unplugged in this run.', '']
+    for n, f in enumerate(an.failures, 1):
+        L += ['### %d. %s unplugged (%s) at %.3f s' % (n, f.device, f.mode, f.unplug_t - an.t0), '',
+              'Showing before: %s (`%s`); after: %s (`%s`). FAILED first raised by %s.'
+              % (f.failed_sensor or '?', f.failed_topic or '?', f.substitute or 'nothing', f.substitute_topic or '-',
+                 f.failed_by or 'nobody'), '',
+              '| figure | value | from → to |', '| --- | --- | --- |',
+              '| detection latency | %s | unplug → first FAILED status |' % _fmt(f.detection),
+              '| propagation latency | %s | FAILED → the action\'s sensor_failed event |' % _fmt(f.propagation),
+              '| display gap | %s | last frame of the failed stream → first frame of the substitute |'
+              % _fmt(f.display_gap),
+              '| switch time | %s | unplug → first frame of the substitute |' % _fmt(f.switch), '']
+    L += ['## Recorded topics', '', '| topic | type | messages |', '| --- | --- | --- |']
+    L += ['| `%s` | %s | %d |' % (t, k, n) for t, (k, n) in sorted(run.topics.items())]
+    L.append('')
+    path = os.path.join(out_dir, 'report.md')
+    with open(path, 'w') as f:
+        f.write('\n'.join(L))
+    report = Report(path, timeline, [os.path.join(out_dir, n) for n, _ in shots], an, run)
+    with open(os.path.join(out_dir, 'report.json'), 'w') as f:
+        json.dump(report.summary(), f, indent=2, default=str)
+    return report

@@ -1,0 +1,79 @@
+"""Every name the demo subscribes to, records, or reads back from a bag.
+
+Recording, the live run and the report all import these, so a bag recorded by
+``temoto record`` on another machine is read with exactly the names it was
+written with.
+"""
+from __future__ import annotations
+
+from typing import Dict, List
+
+DEFAULT_NS = 'temoto'
+SIM_NS = '/vaultbot_sim'
+DEVICE_STATES = SIM_NS + '/device_states'
+SET_DEVICE_STATE = SIM_NS + '/set_device_state'
+
+# Published by the demo's own relay / orchestrator (not by any TeMoto subsystem).
+DEMO_NS = '/temoto_demo'
+TICKS = DEMO_NS + '/ticks'                  # std_msgs/Header per frame: frame_id = source topic, stamp = arrival
+THROTTLED_PREFIX = DEMO_NS + '/throttled'   # THROTTLED_PREFIX + source topic: the stream at a low rate
+SCREENSHOTS = DEMO_NS + '/screenshots'      # sensor_msgs/CompressedImage (png); frame_id = stage name
+STAGES = DEMO_NS + '/stages'                # std_msgs/String JSON: what the orchestrator did and when
+
+# The VaultBot's displayed streams (temoto_sensor_manager/config/vaultbot.yaml); the relay also follows
+# whatever the Output Manager displays, so other sensors are covered as they appear.
+DEFAULT_STREAMS = ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan']
+# Throttle rates (Hz) by message type: clouds are MBs, scans a few kB.
+THROTTLE_HZ = {'sensor_msgs/PointCloud2': 1.0, 'sensor_msgs/LaserScan': 5.0}
+DEFAULT_THROTTLE_HZ = 2.0
+
+
+def chatter(ns: str = DEFAULT_NS) -> str:
+    return '/%s/human_chatter' % ns.strip('/')
+
+
+def display_events(ns: str = DEFAULT_NS) -> str:
+    return '/%s/temoto_output_manager/display_events' % ns.strip('/')
+
+
+def action_events(ns: str = DEFAULT_NS) -> str:
+    return '/%s/action_engine/events' % ns.strip('/')
+
+
+def action_feedback(ns: str = DEFAULT_NS) -> str:
+    return '/%s/action_engine/feedback' % ns.strip('/')
+
+
+def status_regex(ns: str = DEFAULT_NS) -> str:
+    """Every Resource Registrar's status topic, the action's interfaces' included."""
+    return '/%s/[^/]+/status' % ns.strip('/')
+
+
+def fixed_topics(ns: str = DEFAULT_NS) -> Dict[str, str]:
+    """Topics recorded by name, with their types (the relay announces them so the recorder subscribes early)."""
+    return {
+        chatter(ns): 'std_msgs/String',
+        DEVICE_STATES: 'vaultbot_sim/DeviceStates',
+        display_events(ns): 'temoto_output_manager/DisplayEvent',
+        action_events(ns): 'std_msgs/String',
+        action_feedback(ns): 'std_msgs/String',
+        TICKS: 'std_msgs/Header',
+        SCREENSHOTS: 'sensor_msgs/CompressedImage',
+        STAGES: 'std_msgs/String',
+    }
+
+
+def record_regexes(ns: str = DEFAULT_NS) -> List[str]:
+    """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``)."""
+    exact = ['^%s$' % t.replace('.', r'\.') for t in fixed_topics(ns)]
+    return exact + ['^%s$' % status_regex(ns), '^%s/.*' % THROTTLED_PREFIX]
+
+
+# Managers' services the demo waits for before it speaks (the wire contract's names).
+def manager_services(ns: str = DEFAULT_NS) -> List[str]:
+    ns = ns.strip('/')
+    return ['/%s/temoto_er_manager/load_process' % ns,
+            '/%s/temoto_sensor_manager/start_sensor' % ns,
+            '/%s/temoto_output_manager/load_rviz_plugin' % ns,
+            '/%s/action_engine/list_actions' % ns,
+            SET_DEVICE_STATE]
