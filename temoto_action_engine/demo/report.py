@@ -104,7 +104,8 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
                 continue
             msg = reader.deserialize(raw, conn.msgtype)
             if topic == T.TICKS:
-                run.ticks.setdefault(msg.frame_id, []).append(_stamp(msg, bag_t))
+                st = msg.stamp.sec + msg.stamp.nanosec * 1e-9
+                run.ticks.setdefault(msg.frame_id, []).append(st if st > 0 else bag_t)
             elif status_re.match(topic):
                 run.statuses.append(Status(_stamp(msg, bag_t), topic, msg.manager_name, msg.server_name,
                                            int(msg.resource_id), int(msg.status_code), msg.message))
@@ -283,19 +284,30 @@ def plot_timeline(run: Run, an: Analysis, path: str) -> str:
     ax.set_yticklabels(['%s\n%s' % (an.labels.get(t, ''), t) for t in rows], fontsize=8)
     ax.set_ylim(-0.7, len(rows) - 0.3)
     top = len(rows) - 0.35
-    marks = [(u.t, 'unplug %s (%s)' % (u.device, u.mode), 'tab:red', '--') for u in run.unplugs]
-    marks += [(f.failed_t, 'FAILED', 'tab:orange', ':') for f in an.failures if f.failed_t]
-    marks += [(f.action_t, 'action got FAILED', 'tab:purple', ':') for f in an.failures if f.action_t]
-    marks += [(s.first_frame_t, 'on screen: %s' % s.label, 'tab:green', '-') for s in an.stages if s.first_frame_t]
-    for t, text, color, style in marks:
+    lines = [(u.t, 'tab:red', '--') for u in run.unplugs]
+    lines += [(f.failed_t, 'tab:orange', ':') for f in an.failures if f.failed_t]
+    lines += [(f.action_t, 'tab:purple', ':') for f in an.failures if f.action_t]
+    lines += [(s.first_frame_t, 'tab:green', '-') for s in an.stages if s.first_frame_t]
+    for t, color, style in lines:
         ax.axvline(t - an.t0, color=color, linestyle=style, linewidth=1.2)
-    seen = set()
-    for t, text, color, style in sorted(marks, key=lambda m: m[0]):
-        if text in seen:
-            continue
-        seen.add(text)
-        ax.annotate(text, (t - an.t0, top), rotation=90, fontsize=7, color=color, va='top', ha='right',
-                    xytext=(-2, 0), textcoords='offset points')
+    # One label per failure (its three lines are milliseconds apart) and one per stage.
+    for f in an.failures:
+        parts = ['unplug %s (%s)' % (f.device, f.mode)]
+        if f.detection is not None:
+            parts.append('FAILED +%.3f s' % f.detection)
+        if f.action_t is not None:
+            parts.append('action +%.3f s' % (f.action_t - f.unplug_t))
+        ax.annotate('\n'.join(parts), (f.unplug_t - an.t0, top), rotation=90, fontsize=7, color='tab:red',
+                    va='top', ha='right', xytext=(-2, 0), textcoords='offset points')
+    for s in an.stages:
+        if s.first_frame_t:
+            ax.annotate('on screen: %s' % s.label, (s.first_frame_t - an.t0, top), rotation=90, fontsize=7,
+                        color='tab:green', va='top', ha='left', xytext=(2, 0), textcoords='offset points')
+    from matplotlib.lines import Line2D
+    ax.legend([Line2D([], [], color=c, linestyle=st) for c, st in
+               (('tab:red', '--'), ('tab:orange', ':'), ('tab:purple', ':'), ('tab:green', '-'))],
+              ['unplug', 'first FAILED status', 'action received FAILED', 'first frame on screen'],
+              loc='upper center', bbox_to_anchor=(0.5, -0.22), ncol=4, fontsize=8, frameon=False)
     ax.set_xlabel('seconds since "%s"' % (run.chatter[0][1] if run.chatter else 'start'))
     ax.set_title('Sensor data reaching the operator\'s display (ticks: frames; bars: displayed)', fontsize=10)
     ax.grid(axis='x', alpha=0.3)

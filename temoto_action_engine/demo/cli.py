@@ -1,0 +1,109 @@
+"""``temoto demo``, ``temoto record``, ``temoto report``.
+
+    temoto demo [--live] [--stage-timeout S] [--d435-mode crash|stall] [--hokuyo-mode crash|stall]
+                [--priority rgbd,arm_cloud,base_scan] [--out runs/<timestamp>]
+    temoto record [--out PATH] [--ns NS]      (against the running master, until Ctrl-C)
+    temoto report BAG [--out DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from typing import List, Optional
+
+from . import topics as T
+
+
+def _print_report(rep) -> None:
+    for f in rep.analysis.failures:
+        def s(x):
+            return '-' if x is None else '%.3f s' % x
+        print('  %s (%s): detection %s, propagation %s, display gap %s, switch %s'
+              % (f.device, f.mode, s(f.detection), s(f.propagation), s(f.display_gap), s(f.switch)))
+    print('report: %s' % rep.path)
+
+
+def report_main(argv: Optional[List[str]] = None) -> int:
+    p = argparse.ArgumentParser(prog='temoto report', description='Make the report of a recorded run from its bag.')
+    p.add_argument('bag', help='a bag recorded by temoto demo or temoto record')
+    p.add_argument('--out', default='', help='folder for report.md and its images (default: beside the bag)')
+    p.add_argument('--ns', default=T.DEFAULT_NS, help='TeMoto namespace of the run (default: %(default)s)')
+    args = p.parse_args(argv)
+    if not os.path.isfile(args.bag):
+        print('temoto report: no bag file at %s' % args.bag, file=sys.stderr)
+        return 1
+    from .report import write_report
+    try:
+        rep = write_report(args.bag, args.out or None, args.ns)
+    except Exception as e:          # a corrupt or foreign bag: say which and why
+        print('temoto report: cannot read %s: %s: %s' % (args.bag, type(e).__name__, e), file=sys.stderr)
+        return 1
+    _print_report(rep)
+    return 0
+
+
+def record_main(argv: Optional[List[str]] = None) -> int:
+    p = argparse.ArgumentParser(prog='temoto record', description='Record the failover topic set until Ctrl-C.')
+    p.add_argument('--out', default='', help='bag path (default: runs/<timestamp>/failover.bag)')
+    p.add_argument('--ns', default=T.DEFAULT_NS, help='TeMoto namespace (default: %(default)s)')
+    args = p.parse_args(argv)
+    out = args.out or os.path.join('runs', time.strftime('%Y%m%d_%H%M%S'), 'failover.bag')
+    if os.path.isdir(out):
+        out = os.path.join(out, 'failover.bag')
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    import signal
+    import threading
+    from .recording import Recording
+    env = dict(os.environ)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    rec = Recording(out, env, args.ns)
+    try:
+        rec.start()
+        print('recording to %s (Ctrl-C to stop)' % out, flush=True)
+        while not stop.wait(1.0):
+            if rec.recorder is None or not rec.recorder.alive():
+                print('temoto record: the recorder exited:\n%s' % rec.recorder.log(), file=sys.stderr)
+                return 1
+    except (RuntimeError, TimeoutError, OSError) as e:
+        print('temoto record: %s' % e, file=sys.stderr)
+        return 1
+    finally:
+        try:
+            path = rec.stop()
+            print('bag closed: %s' % path)
+        except RuntimeError as e:
+            print('temoto record: %s' % e, file=sys.stderr)
+    return 0
+
+
+def demo_main(argv: Optional[List[str]] = None) -> int:
+    from .scenario import DemoOptions, PRIORITY_ENTRIES, run_demo
+    p = argparse.ArgumentParser(prog='temoto demo', description='The paper\'s section 4: sensor failover, recorded.')
+    p.add_argument('--live', action='store_true', help='show RViz on $DISPLAY (default: headless under Xvfb)')
+    p.add_argument('--stage-timeout', type=float, default=30.0, help='seconds each stage may take (default 30)')
+    p.add_argument('--d435-mode', choices=('crash', 'stall'), default='crash')
+    p.add_argument('--hokuyo-mode', choices=('crash', 'stall'), default='stall')
+    p.add_argument('--priority', default=','.join(PRIORITY_ENTRIES),
+                   help='the view\'s sensor priority, best first, from: %s (default: %%(default)s)'
+                   % ', '.join(PRIORITY_ENTRIES))
+    p.add_argument('--out', default='', help='run folder (default: runs/<timestamp>)')
+    p.add_argument('--no-report', action='store_true', help='skip the report')
+    args = p.parse_args(argv)
+    priority = [x.strip() for x in args.priority.split(',') if x.strip()]
+    bad = [x for x in priority if x not in PRIORITY_ENTRIES]
+    if bad or len(priority) < 2 or len(set(priority)) != len(priority):
+        p.error('--priority must name 2 or 3 different entries from %s, got %r'
+                % (', '.join(PRIORITY_ENTRIES), args.priority))
+    if args.stage_timeout <= 0:
+        p.error('--stage-timeout must be positive')
+    if args.live and not os.environ.get('DISPLAY'):
+        p.error('--live needs a DISPLAY')
+    out = args.out or os.path.join('runs', time.strftime('%Y%m%d_%H%M%S'))
+    opts = DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
+                       modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
+                       priority=priority, report=not args.no_report)
+    return run_demo(opts)
