@@ -227,7 +227,7 @@ def test_unplug_stall_keeps_driver_alive_and_silent(procs, rospy_client, collect
     scans = collect('/hokuyo/scan', LaserScan)
     start_sim(procs)
     drv = procs.node('vaultbot_sim', 'hokuyo_driver')
-    wait_for(lambda: scans.msgs, 20, 'hokuyo scans')
+    wait_for(lambda: scans.msgs, 40, 'hokuyo scans')
     set_device(rospy_client, 'hokuyo', 'unplugged', 'stall')
     t_quiet = time.monotonic() + 0.2     # messages already in flight may still land
     deadline = t_quiet + 1.5

@@ -546,6 +546,9 @@ class ResourceRegistrar:
 
     def unload(self, resource_id: int) -> None:
         """Release this registrar's local id; the remote resource goes when its last holder leaves."""
+        self._unload(resource_id, send=True)
+
+    def _unload(self, resource_id: int, send: bool) -> Optional[_ClientQuery]:
         with self._lock:
             query = self._client_by_local.pop(resource_id, None)
             if query is None:
@@ -562,14 +565,16 @@ class ResourceRegistrar:
             self._client_by_external.pop((query.target, query.external_id), None)
             query.state = GONE
             self._changed.notify_all()
-        self._send_unload(query)
+        if send:
+            self._send_unload(query)
+        return query
 
     def _send_unload(self, query: _ClientQuery) -> None:
         ns, rr_name, server_name = query.target
         service = '/%s/%s/unload' % (ns, rr_name)
         request = UnloadResource._request_class(server_name=server_name, resource_id=query.external_id)
         try:
-            response = self._invoke(service, query, request, 3.0)
+            response = self._invoke(service, query, request, 1.0)
         except TemotoError as err:
             raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, self.subsystem,
                                'could not unload %s resource %d' % (_target_name(query.target), query.external_id),
@@ -759,9 +764,20 @@ class ResourceRegistrar:
                     self._release_consumer(query.server.name, external_id)
                 except TemotoError as err:
                     rospy.logwarn('%s: shutdown: %s', self.prefix, err)
+        unreachable = set()   # registrars that did not answer: drop what they hold without waiting again
         for local_id in local_ids:
-            if local_id in self._client_by_local:
-                self._release_quietly(local_id, 'shutdown')
+            query = self._client_by_local.get(local_id)
+            if query is None:
+                continue
+            if query.target[:2] in unreachable:
+                self._unload(local_id, send=False)
+                continue
+            try:
+                self.unload(local_id)
+            except TemotoError as err:
+                rospy.logwarn('%s: shutdown: %s', self.prefix, err)
+                if any(f.code == ErrorCode.SERVICE_REQ_FAIL for f in err.stack):
+                    unreachable.add(query.target[:2])
         for server in self._servers.values():
             if server.service is not None:
                 server.service.shutdown('registrar shutdown')

@@ -1,0 +1,52 @@
+#!/usr/bin/env python3
+"""``make bench``: run every ``bench/bench_*.py`` one after another and write one
+results file, ``BENCHMARKS.md``, from the markdown tables they print (each
+table carries the goal beside each figure).
+
+Benchmarks run one at a time because these machines have 2 cores: two at once
+would measure each other.
+"""
+import datetime
+import glob
+import os
+import platform
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ORDER = ['rr', 'er', 'sim', 'sensor', 'output', 'demo']
+
+
+def scripts():
+    found = {os.path.basename(p)[len('bench_'):-3]: p for p in glob.glob(os.path.join(ROOT, 'bench', 'bench_*.py'))}
+    return [found[k] for k in ORDER if k in found] + [p for k, p in sorted(found.items()) if k not in ORDER]
+
+
+def main(argv):
+    only = set(argv)
+    sections = []
+    for path in scripts():
+        name = os.path.basename(path)
+        if only and name[len('bench_'):-3] not in only:
+            continue
+        print('bench: %s ...' % name, flush=True)
+        t0 = time.monotonic()
+        out = subprocess.run([sys.executable, path], cwd=ROOT, capture_output=True, text=True, timeout=1800)
+        took = time.monotonic() - t0
+        table = [line for line in out.stdout.splitlines() if line.startswith('|')]
+        status = 'ok' if out.returncode == 0 else 'FAILED (rc %d)' % out.returncode
+        print('bench: %s %s in %.0f s' % (name, status, took), flush=True)
+        body = '\n'.join(table) if table else '```\n%s\n```' % (out.stdout[-2000:] + out.stderr[-2000:])
+        sections.append('## %s (%s, %.0f s)\n\n%s\n' % (name, status, took, body))
+    header = ('# Benchmarks\n\nWritten by `make bench` (bench/run_all.py) on %s, %s, %d cores. '
+              'Each table puts the goal beside the figure; the scripts in bench/ say how each is measured.\n\n'
+              % (datetime.date.today().isoformat(), platform.platform(), os.cpu_count()))
+    with open(os.path.join(ROOT, 'BENCHMARKS.md'), 'w') as f:
+        f.write(header + '\n'.join(sections))
+    print('bench: wrote BENCHMARKS.md')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1:]))
