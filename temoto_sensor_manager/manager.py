@@ -240,7 +240,7 @@ class SensorManager:
         if attempt is not None:
             attempt.fail(event.message)
         if held is not None:
-            self._mark_failed(held, 'crashed: %s' % event.message, report=False)
+            self._mark_failed(held, 'sensor %s crashed: %s' % (held.entry.name, event.message), report=False)
 
     def _on_stall(self, probe: TopicProbe, silence: float) -> None:
         held = probe.owner
@@ -258,7 +258,7 @@ class SensorManager:
         for probe in held.probes:
             probe.close()
         value = held.entry.reliability.failure()
-        rospy.logerr('%s: sensor %s %s (reliability now %.3f)', NAME, held.entry.name, message, value)
+        rospy.logerr('%s: %s (reliability now %.3f)', NAME, message, value)
         if report:
             err = TemotoError(ErrorCode.TIMEOUT, SUB, message)
             try:

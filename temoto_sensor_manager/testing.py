@@ -85,3 +85,31 @@ class TopicWatch:
 
     def close(self):
         self.sub.unregister()
+
+
+def start_sim(launcher, **params):
+    """The simulated VaultBot (world, joint states, cables); the hand waves, the wrist does not sweep."""
+    base = {'world': 'lab', 'sweep': False, 'hand_motion': True}
+    base.update(params)
+    proc = launcher.node('vaultbot_sim', 'vaultbot_sim', params=base)
+    rospy.wait_for_service('/vaultbot_sim/set_device_state', timeout=20)
+    return proc
+
+
+def set_cable(device, state, mode=''):
+    """Plug or unplug a simulated device (what `temoto sim unplug DEVICE --mode MODE` does)."""
+    from vaultbot_sim.srv import SetDeviceState
+    resp = rospy.ServiceProxy('/vaultbot_sim/set_device_state', SetDeviceState)(device, state, mode)
+    if not resp.success:
+        raise RuntimeError('set_device_state %s %s %s: %s' % (device, state, mode, resp.message))
+    return time.monotonic()
+
+
+def start_context_manager(launcher):
+    proc = launcher.node('temoto_context_manager', 'temoto_context_manager')
+    rospy.wait_for_service('/%s/temoto_context_manager/track_object' % NS, timeout=20)
+    return proc
+
+
+def tracker_info():
+    return _json('/%s/temoto_context_manager/trackers' % NS)

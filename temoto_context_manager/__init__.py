@@ -1,0 +1,1 @@
+"""TeMoto Context Manager: trackers and tracked objects as ranked, failing-over resources (issue 6)."""

@@ -1,0 +1,58 @@
+"""ContextManagerInterface: trackers and tracked objects for actions, with the sensor interface's policy hooks.
+
+Default failure policy (``ManagerInterface``): unload the failed resource and ask
+again with the same request; the ranking then prefers another tracker or
+detection method. ``register_update_callback(cb)`` replaces it.
+"""
+import dataclasses
+from typing import Dict, Optional, Sequence
+
+from diagnostic_msgs.msg import KeyValue
+
+from temoto_core.errors import Subsystem
+from temoto_core.interface import ManagerInterface
+from temoto_context_manager.manager import NAME
+from temoto_context_manager.srv import LoadTracker, TrackObject
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerResult:
+    resource_id: int
+    tracker_name: str
+    pipe_id: str
+    output_topics: Dict[str, str]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackedObject:
+    resource_id: int
+    object_name: str
+    topic: str                 # geometry_msgs/PoseStamped
+    detection_method: str
+    tracker_name: str
+    pipe_id: str
+
+
+class ContextManagerInterface(ManagerInterface):
+    MANAGER = NAME
+    SUBSYSTEM = Subsystem.CONTEXT_MANAGER
+
+    def load_tracker(self, category: str, output_types: Sequence[str] = ()) -> TrackerResult:
+        resp = self._load('load_tracker', LoadTracker._request_class(
+            tracker_category=category, output_topics=[KeyValue(t, '') for t in output_types]))
+        return TrackerResult(resp.trr.resource_id, resp.tracker_name, resp.pipe_id,
+                             {kv.key: kv.value for kv in resp.output_topics})
+
+    def track_object(self, object_name: str) -> TrackedObject:
+        """Start tracking a known object; returns once poses flow on ``topic``."""
+        resp = self._load('track_object', TrackObject._request_class(object_name=object_name))
+        return TrackedObject(resp.trr.resource_id, resp.object_name, resp.object_topic, resp.detection_method,
+                             resp.tracker_name, resp.pipe_id)
+
+    def stop(self, resource_id: int) -> None:
+        """Release a tracker or a tracked object loaded through this interface."""
+        self._unload(resource_id)
+
+    def holds_ids(self) -> Optional[list]:
+        with self._lock:
+            return list(self._requests)

@@ -1,0 +1,105 @@
+"""The Sensor Manager end to end with the simulated VaultBot's real drivers.
+
+Shared by the module: roscore, vaultbot_sim, the ER Manager and the Sensor Manager
+(with the VaultBot catalogue plus the fake one, which holds a second depth camera).
+"""
+import time
+
+import pytest
+
+from temoto_core.errors import TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.testing import wait_for
+from temoto_sensor_manager.interface import SensorManagerInterface
+from temoto_sensor_manager.testing import (TopicWatch, catalogue, er_processes, managers_idle, pid_gone, set_cable,
+                                           start_er_manager, start_sensor_manager, start_sim)
+
+D435_TOPICS = {'camera_data': '/d435/depth_registered/points', 'camera_info': '/d435/color/camera_info'}
+
+
+@pytest.fixture(scope='module')
+def stack(rospy_client, module_procs, tmp_path_factory):
+    start_sim(module_procs)
+    start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
+    start_sensor_manager(module_procs, first_data_timeout=20.0)
+    return module_procs
+
+
+@pytest.fixture
+def smi(stack):
+    made = []
+
+    def make():
+        iface = SensorManagerInterface()
+        made.append(iface)
+        return iface
+    yield make
+    for iface in made:
+        iface.shutdown()
+    set_cable('d435', 'plugged')
+    managers_idle(timeout=20)
+
+
+def failed(events, resource_id):
+    return [e for e in events if e.code == ResourceStatus.FAILED and e.resource_id == resource_id]
+
+
+def test_depth_camera_starts_the_d435_and_answers_with_data_flowing(smi):
+    sm = smi()
+    res = sm.start_sensor('depth camera', ['camera_data', 'camera_info'])
+    assert (res.sensor_name, res.package_name, res.executable) == ('realsense_d435', 'vaultbot_sim', 'd435.launch')
+    assert res.output_topics == D435_TOPICS
+    procs = er_processes()
+    assert [p['label'] for p in procs] == ['vaultbot_sim/d435.launch']
+    watch = TopicWatch(D435_TOPICS['camera_info'])
+    wait_for(lambda: watch.count >= 3, 5, 'camera_info flowing right after the response')
+    watch.close()
+
+
+def test_crash_unplug_fails_the_client_and_the_reload_gets_the_other_depth_camera(smi):
+    sm = smi()
+    events = []
+    sm.rr.register_status_callback(events.append)
+    res = sm.start_sensor('depth camera', ['camera_data'])
+    assert res.sensor_name == 'realsense_d435'
+    set_cable('d435', 'unplugged', 'crash')
+    wait_for(lambda: failed(events, res.resource_id), 10, 'FAILED at the client')
+    # the default policy reloads with the topic pinned; the D435 (still unplugged) is tried while it still
+    # ranks first and fails, then the fake depth camera serves the same topic
+    new_id = wait_for(lambda: sm.replacement_of(res.resource_id) or sm.reload_errors.get(res.resource_id), 60,
+                      'the default reload')
+    assert not isinstance(new_id, TemotoError), new_id
+    replacement = sm.result_of(new_id)
+    assert replacement.sensor_name == 'fake_depth_camera'
+    assert replacement.output_topics == {'camera_data': D435_TOPICS['camera_data']}
+    assert catalogue()['realsense_d435']['reliability'] < 0.8
+    watch = TopicWatch(D435_TOPICS['camera_data'])
+    wait_for(lambda: watch.count >= 1, 5, 'data from the substitute on the pinned topic')
+    watch.close()
+
+
+def test_an_unplugged_camera_alone_gives_no_candidate_left(smi):
+    sm = smi()
+    set_cable('d435', 'unplugged', 'crash')
+    with pytest.raises(TemotoError) as info:
+        sm.start_sensor('depth camera', ['camera_data'], executable='d435.launch')
+    assert 'no candidate left' in str(info.value) and 'realsense_d435' in str(info.value)
+    assert not er_processes()
+
+
+def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stopped(smi):
+    sm = smi()
+    events = []
+    sm.register_update_callback(events.append)                 # keep the failed sensor to look at it
+    # the cheap topic (no cloud is rendered); the D435 by name, since earlier failures may rank it below the fake
+    res = sm.start_sensor('depth camera', ['camera_info'], executable='d435.launch')
+    limit = catalogue()['realsense_d435']['output_topics']['camera_info']['stall_limit']
+    pid = er_processes()[0]['pid']
+    sent = set_cable('d435', 'unplugged', 'stall')
+    wait_for(lambda: failed(events, res.resource_id), 10, 'the watchdog FAILED at the client')
+    delay = time.monotonic() - sent
+    assert limit - 0.1 <= delay < limit + 3.0, (delay, limit)   # generous bound; the bench measures it
+    assert 'stalled' in events[0].message
+    assert not pid_gone(pid)
+    sm.stop_sensor(res.resource_id)
+    wait_for(lambda: pid_gone(pid), 15, 'the stalled driver to be stopped with its sensor')
