@@ -105,8 +105,9 @@ def set_cable(device, state, mode=''):
     return time.monotonic()
 
 
-def start_context_manager(launcher):
-    proc = launcher.node('temoto_context_manager', 'temoto_context_manager')
+def start_context_manager(launcher, trackers=''):
+    params = {'trackers': trackers} if trackers else {}
+    proc = launcher.node('temoto_context_manager', 'temoto_context_manager', params=params)
     rospy.wait_for_service('/%s/temoto_context_manager/track_object' % NS, timeout=20)
     return proc
 
