@@ -329,6 +329,22 @@ def non_background_fraction(png: bytes) -> float:
     return float((np.abs(img - bg).sum(axis=1) > 24).mean())
 
 
+def diff_fraction(png_a: bytes, png_b: bytes, threshold: int = 48) -> float:
+    """Share of pixels whose colour differs (sum of |dRGB| > threshold) between two same-size images."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+    a = np.asarray(Image.open(io.BytesIO(png_a)).convert('RGB')).astype(np.int16)
+    b = np.asarray(Image.open(io.BytesIO(png_b)).convert('RGB')).astype(np.int16)
+    if a.shape != b.shape:
+        return 1.0
+    return float((np.abs(a - b).sum(axis=2) > threshold).mean())
+
+
+EMPTY_VIEW = 'empty_view'
+
+
 # ============================================================================ the document
 def _fmt(x: Optional[float]) -> str:
     return '—' if x is None else '%.3f s' % x
@@ -382,13 +398,23 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
          % (os.path.basename(bag_path), run.end - run.start, len(run.topics)), '']
     L += ['## What the operator saw', '']
     if shots:
+        def png(name):
+            with open(os.path.join(out_dir, name), 'rb') as f:
+                return f.read()
+        baseline = next((png(n) for n, st in shots if st == EMPTY_VIEW), None)
         for name, stage in shots:
-            try:
-                with open(os.path.join(out_dir, name), 'rb') as f:
-                    frac = non_background_fraction(f.read())
-            except Exception:
-                frac = float('nan')
-            L += ['**%s** (%.0f%% of pixels not background)' % (stage, 100 * frac), '', '![%s](%s)' % (stage, name), '']
+            if stage == EMPTY_VIEW:
+                continue
+            data = png(name)
+            if baseline is not None:
+                note = '%.1f%% of pixels differ from the empty view' % (100 * diff_fraction(data, baseline))
+            else:
+                note = '%.0f%% of pixels not background' % (100 * non_background_fraction(data))
+            L += ['**%s** (%s)' % (stage, note), '', '![%s](%s)' % (stage, name), '']
+        if baseline is not None:
+            name = next(n for n, st in shots if st == EMPTY_VIEW)
+            L += ['The empty view (the action stopped, nothing displayed), the baseline above:', '',
+                  '![empty view](%s)' % name, '']
     else:
         L += ['No screenshots in the bag or beside it.', '']
     L += ['## Timeline', '', '![timeline](%s)' % os.path.basename(timeline), '',

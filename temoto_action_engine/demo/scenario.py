@@ -1,0 +1,391 @@
+"""The demo's stages, waited on by events (never by sleeps), each printed with its time.
+
+1. roscore, the nodes of demo.launch, the recording;
+2. "show the environment" on the chatter -> the first priority entry's stream drawn in RViz;
+3. for every further entry: unplug the device of the one shown -> the next entry's stream drawn;
+4. stop everything in reverse order and check, by the session token every child inherits, that no
+   process is left; then the report.
+
+A stage is reached when the action reported ``sensor_active`` for that priority index and the RViz
+host reported ``first_frame`` for the topic it named.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
+
+from . import topics as T
+
+# --priority names -> (index in action_engine.yaml's sensor_priority, device to unplug, screenshot name)
+PRIORITY_ENTRIES = OrderedDict([('rgbd', (0, 'd435')), ('arm_cloud', (1, 'hokuyo')), ('base_scan', (2, 'sick'))])
+PRIORITY_PARAM = '/temoto_action_engine/actions/show_environment/sensor_priority'
+INSTRUCTION = 'show the environment'
+STARTUP_TIMEOUT = 60.0
+
+
+def _rel(path: str) -> str:
+    rel = os.path.relpath(path)
+    return path if rel.startswith('..') else rel
+
+
+class StageTimeout(RuntimeError):
+    pass
+
+
+@dataclass
+class DemoOptions:
+    out_dir: str
+    live: bool = False
+    stage_timeout: float = 30.0
+    modes: Dict[str, str] = field(default_factory=lambda: {'d435': 'crash', 'hokuyo': 'stall', 'sick': 'crash'})
+    priority: List[str] = field(default_factory=lambda: list(PRIORITY_ENTRIES))
+    report: bool = True
+    namespace: str = T.DEFAULT_NS
+    launch_args: List[str] = field(default_factory=list)
+
+
+class Progress:
+    """One line per stage: total time since start, and the stage's own time."""
+
+    def __init__(self) -> None:
+        self.t0 = self.mark = time.monotonic()
+        self.lines: List[dict] = []
+
+    def line(self, text: str, ok: bool = True) -> None:
+        now = time.monotonic()
+        self.lines.append({'t': now - self.t0, 'stage_s': now - self.mark, 'text': text, 'ok': ok})
+        print('[%5.1f s] %-58s (%.2f s)' % (now - self.t0, text, now - self.mark), flush=True)
+        self.mark = now
+
+
+class EventWatcher:
+    """The action engine's events and the RViz host's display events, as they arrive."""
+
+    def __init__(self, ns: str) -> None:
+        import rospy
+        from std_msgs.msg import String
+        from temoto_output_manager.msg import DisplayEvent
+        self._cond = threading.Condition()
+        self.actions: List[dict] = []
+        self.display: List[tuple] = []      # (arrival, event, topic)
+        self._subs = [rospy.Subscriber(T.action_events(ns), String, self._on_action, queue_size=100),
+                      rospy.Subscriber(T.display_events(ns), DisplayEvent, self._on_display, queue_size=100)]
+
+    def _on_action(self, msg) -> None:
+        try:
+            ev = json.loads(msg.data)
+        except ValueError:
+            return
+        with self._cond:
+            self.actions.append(dict(ev, arrival=time.monotonic()))
+            self._cond.notify_all()
+
+    def _on_display(self, msg) -> None:
+        with self._cond:
+            self.display.append((time.monotonic(), msg.event, msg.topic))
+            self._cond.notify_all()
+
+    def _stage_topic(self, index: int, since: float) -> Optional[str]:
+        active = [e for e in self.actions if e.get('event') == 'sensor_active' and e.get('priority_index') == index
+                  and e['arrival'] >= since]
+        if not active:
+            return None
+        topic = active[-1].get('topic')
+        if any(a >= since and ev == 'first_frame' and t == topic for a, ev, t in self.display):
+            return topic
+        return None
+
+    def wait_stage(self, index: int, since: float, timeout: float, what: str) -> str:
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                topic = self._stage_topic(index, since)
+                if topic:
+                    return topic
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise StageTimeout('timed out after %.0f s waiting for %s on screen; action events since: %s'
+                                       % (timeout, what, self._recent(since)))
+                self._cond.wait(min(left, 1.0))
+
+    def wait_removed(self, since: float, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not any(a >= since and ev == 'removed' and t for a, ev, t in self.display):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise StageTimeout('no display was removed within %.0f s of stopping the action' % timeout)
+                self._cond.wait(min(left, 1.0))
+
+    def _recent(self, since: float) -> str:
+        evs = [e for e in self.actions if e['arrival'] >= since and e.get('event') != 'state'] or \
+              [e for e in self.actions if e['arrival'] >= since]
+        return '; '.join('%s %s' % (e.get('event'), e.get('message') or e.get('label') or e.get('state') or '')
+                         for e in evs[-6:]) or 'none'
+
+
+class Demo:
+    def __init__(self, opts: DemoOptions) -> None:
+        self.opts = opts
+        self.progress = Progress()
+        self.master = None
+        self.stack = None
+        self.recording = None
+        self.rospy_up = False
+        self.bag_path = os.path.join(opts.out_dir, 'failover.bag')
+        self.omi = None
+        self.screenshots: List[str] = []
+        self.token = os.environ.get('TEMOTO_TEST_SESSION') or 'demo_' + uuid.uuid4().hex
+        self.results: dict = {'stages': [], 'errors': []}
+
+    # ------------------------------------------------------------------ setup
+    def _env(self) -> Dict[str, str]:
+        env = dict(self.master.env)
+        if not self.opts.live:
+            env.pop('DISPLAY', None)      # the RViz host then runs its own Xvfb
+        env['TEMOTO_TEST_SESSION'] = self.token
+        return env
+
+    def _priority_override(self, default: list) -> list:
+        return [default[PRIORITY_ENTRIES[name][0]] for name in self.opts.priority]
+
+    def start(self) -> None:
+        from temoto_core.testing.master import RosMaster
+        from .recording import Recording
+        from .stack import Stack, load_launch
+        os.makedirs(self.opts.out_dir, exist_ok=True)
+        os.environ['TEMOTO_TEST_SESSION'] = self.token     # RosMaster's env (and so every child) carries it
+        os.makedirs(os.path.join(self.opts.out_dir, 'ros'), exist_ok=True)
+        self.master = RosMaster(os.path.join(self.opts.out_dir, 'ros'), session_token=self.token).start()
+        self.progress.line('roscore on 127.0.0.1:%d' % self.master.port)
+        env = self._env()
+        launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch', 'demo.launch')
+        _, params = load_launch(launch, self.opts.launch_args)
+        overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
+        self.stack = Stack(launch, env, os.path.join(self.opts.out_dir, 'logs'), self.opts.launch_args, overrides)
+        self.stack.start(STARTUP_TIMEOUT)
+        self._init_rospy(env)
+        self._wait_services(env)
+        self.progress.line('simulation, managers and action engine up (%d nodes)' % len(self.stack.running))
+        self.recording = Recording(self.bag_path, env, self.opts.namespace, os.path.join(self.opts.out_dir, 'logs'))
+        self.recording.start()
+        self._wait_connected(env)
+        self.progress.line('recording %s' % _rel(self.bag_path))
+
+    def _init_rospy(self, env: Dict[str, str]) -> None:
+        for key in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
+            os.environ[key] = env[key]
+        import rospy
+        from sensor_msgs.msg import CompressedImage
+        from std_msgs.msg import String
+        rospy.init_node('temoto_demo', disable_signals=True)
+        self.rospy_up = True
+        ns = self.opts.namespace
+        self.watcher = EventWatcher(ns)
+        self.chatter = rospy.Publisher(T.chatter(ns), String, queue_size=5)
+        self.shot_pub = rospy.Publisher(T.SCREENSHOTS, CompressedImage, queue_size=5)
+        self.stage_pub = rospy.Publisher(T.STAGES, String, queue_size=20)
+
+    def _wait_services(self, env: Dict[str, str]) -> None:
+        import rosgraph
+        from temoto_core.testing.wait import wait_for
+        master = rosgraph.Master('/temoto_demo')
+        wanted = T.manager_services(self.opts.namespace)
+
+        def ready():
+            dead = self.stack.dead()
+            if dead:
+                raise RuntimeError('node(s) died during startup: %s (logs in %s)' % (', '.join(dead), self.stack.log_dir))
+            services = {s for s, _ in master.getSystemState()[2]}
+            return all(s in services for s in wanted)
+
+        wait_for(ready, STARTUP_TIMEOUT, 'the services %s' % ', '.join(wanted))
+
+    def _wait_connected(self, env: Dict[str, str]) -> None:
+        """The engine and the recorder hear the chatter; the recorder hears the screenshots and stages."""
+        from temoto_core.testing.master import connected
+        from temoto_core.testing.wait import wait_for
+        from .recording import RECORDER_NODE
+        uri = env['ROS_MASTER_URI']
+        pairs = [('/temoto_action_engine', T.chatter(self.opts.namespace)), (RECORDER_NODE, T.chatter(self.opts.namespace)),
+                 (RECORDER_NODE, T.SCREENSHOTS), (RECORDER_NODE, T.STAGES)]
+        wait_for(lambda: all(connected(uri, '/temoto_demo', sub, topic) for sub, topic in pairs), 15.0,
+                 'the action engine and the recorder to connect to the demo\'s publishers')
+
+    # ------------------------------------------------------------------ stages
+    def _mark(self, stage: str, **fields) -> None:
+        from std_msgs.msg import String
+        import rospy
+        self.stage_pub.publish(String(data=json.dumps(dict(fields, stage=stage, stamp=rospy.get_time()))))
+
+    def _screenshot(self, name: str) -> str:
+        import rospy
+        from sensor_msgs.msg import CompressedImage
+        from temoto_output_manager.host_client import RvizHostClient, host_node_name
+        resp = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0).screenshot('view')
+        # Numbered in the order taken, as the report numbers them when it extracts them from the bag.
+        path = os.path.join(self.opts.out_dir, 'screenshot_%d_%s.png' % (len(self.screenshots) + 1, name))
+        with open(path, 'wb') as f:
+            f.write(bytes(resp.png))
+        msg = CompressedImage(format='png', data=bytes(resp.png))
+        msg.header.stamp = rospy.Time.now()
+        msg.header.frame_id = name
+        self.shot_pub.publish(msg)
+        self.screenshots.append(path)
+        return path
+
+    def _unplug(self, device: str, mode: str) -> None:
+        import rospy
+        from vaultbot_sim.srv import SetDeviceState
+        resp = rospy.ServiceProxy(T.SET_DEVICE_STATE, SetDeviceState)(device=device, state='unplugged', mode=mode)
+        if not resp.success:
+            raise RuntimeError('the simulation refused to unplug %s: %s' % (device, resp.message))
+
+    def scenario(self) -> None:
+        from std_msgs.msg import String
+        timeout = self.opts.stage_timeout
+        labels = [e['label'] for e in self._priority_override_labels()]
+        since = time.monotonic()
+        self._mark('say', text=INSTRUCTION)
+        self.chatter.publish(String(data=INSTRUCTION))
+        for k, name in enumerate(self.opts.priority):
+            if k > 0:
+                prev = self.opts.priority[k - 1]
+                device = PRIORITY_ENTRIES[prev][1]
+                mode = self.opts.modes.get(device, 'crash')
+                since = time.monotonic()
+                self._mark('unplug', device=device, mode=mode)
+                self._unplug(device, mode)
+                what = '%s on screen after unplugging %s (%s)' % (labels[k], device, mode)
+            else:
+                what = '%s on screen after "%s"' % (labels[k], INSTRUCTION)
+            topic = self.watcher.wait_stage(k, since, timeout, labels[k])
+            self._mark('on_screen', priority_index=k, entry=name, topic=topic)
+            self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
+            self.progress.line(what)
+            self._screenshot(name)
+            if k == 0:
+                self._hold_host()
+        self._empty_view()
+
+    def _hold_host(self) -> None:
+        """Keep the RViz host up after the action ends, for the empty-view baseline.
+
+        The Output Manager stops its host with the last display; a marker display on a topic nobody
+        publishes draws nothing and keeps it. Requested only once the action's first view is on
+        screen, so the host's cold start still counts in the first stage.
+        """
+        from temoto_output_manager.interface import OutputManagerInterface
+        try:
+            self.omi = OutputManagerInterface(namespace=self.opts.namespace)
+            self.omi.show_in_rviz('marker', T.DEMO_NS + '/no_markers', name='demo baseline (draws nothing)')
+        except Exception as e:
+            self.omi = None
+            self.results['errors'].append('could not hold the RViz host for the empty view: %s' % e)
+
+    def _empty_view(self) -> None:
+        """Stop the action (it hides its display) and keep a screenshot of RViz with nothing shown.
+
+        That picture is the baseline a screenshot with sensor data must differ from.
+        """
+        import rospy
+        from temoto_action_engine.srv import StopGraph
+        graphs = [e.get('graph') for e in self.watcher.actions if e.get('event') == 'sensor_active']
+        if not graphs:
+            return
+        since = time.monotonic()
+        resp = rospy.ServiceProxy('/%s/action_engine/stop_graph' % self.opts.namespace.strip('/'),
+                                  StopGraph)(graph_name=graphs[-1])
+        if resp.code != 0:
+            raise RuntimeError('stopping graph %s: %s' % (graphs[-1], resp.message))
+        try:
+            self.watcher.wait_removed(since, 10.0)
+            self._screenshot('empty_view')
+        except (StageTimeout, Exception) as e:   # the host may stop with its last display: no baseline then
+            self.results['errors'].append('no empty-view screenshot: %s' % e)
+        self.progress.line('action stopped, view empty')
+
+    def _priority_override_labels(self) -> list:
+        import rospy
+        return rospy.get_param(PRIORITY_PARAM)
+
+    # ------------------------------------------------------------------ teardown
+    def stop(self) -> List[tuple]:
+        from temoto_core.testing.processes import kill_leftovers, leftover_processes
+        if self.recording is not None:
+            try:
+                self.recording.stop()
+            except RuntimeError as e:
+                self.results['errors'].append(str(e))
+            self.recording = None
+        if self.omi is not None:
+            try:
+                self.omi.shutdown()          # releases the baseline display (and with it the RViz host)
+            except Exception as e:
+                self.results['errors'].append('releasing the baseline display: %s' % e)
+            self.omi = None
+        if self.rospy_up:
+            import rospy
+            rospy.signal_shutdown('demo over')
+        stops = self.stack.stop() if self.stack is not None else []
+        bad = [(n, rc) for n, rc in stops if rc is None]
+        if self.master is not None:
+            self.master.stop()
+        leftovers = leftover_processes(self.token)
+        if leftovers:
+            kill_leftovers(self.token)
+            self.results['errors'].append('processes left behind (killed now): %s' % leftovers)
+        self.progress.line('stopped %d nodes, roscore and the recorder; %s'
+                           % (len(stops), 'no process left' if not leftovers else '%d LEFT BEHIND' % len(leftovers)),
+                           ok=not leftovers and not bad)
+        return leftovers
+
+
+def run_demo(opts: DemoOptions) -> int:
+    demo = Demo(opts)
+    rc = 0
+    print('temoto demo: the paper\'s sensor failover; run folder %s (%s)'
+          % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
+    try:
+        demo.start()
+        demo.scenario()
+    except StageTimeout as e:
+        print('temoto demo: FAILED: %s' % e, file=sys.stderr, flush=True)
+        demo.results['errors'].append(str(e))
+        rc = 1
+    except KeyboardInterrupt:
+        print('temoto demo: interrupted', file=sys.stderr, flush=True)
+        rc = 130
+    except Exception as e:
+        print('temoto demo: FAILED: %s: %s' % (type(e).__name__, e), file=sys.stderr, flush=True)
+        demo.results['errors'].append('%s: %s' % (type(e).__name__, e))
+        rc = 1
+    finally:
+        if demo.stop():
+            rc = rc or 1
+    if opts.report and os.path.exists(demo.bag_path):
+        from .report import write_report
+        try:
+            rep = write_report(demo.bag_path, opts.out_dir, opts.namespace)
+            demo.results['failures'] = [f.as_dict() for f in rep.analysis.failures]
+            demo.progress.line('report %s' % _rel(rep.path))
+            for f in rep.analysis.failures:
+                gap = '-' if f.display_gap is None else '%.3f s' % f.display_gap
+                det = '-' if f.detection is None else '%.3f s' % f.detection
+                print('          %s (%s): FAILED detected in %s, display gap %s' % (f.device, f.mode, det, gap))
+        except Exception as e:
+            print('temoto demo: report failed: %s: %s' % (type(e).__name__, e), file=sys.stderr)
+            rc = rc or 1
+    demo.results.update(rc=rc, total_s=time.monotonic() - demo.progress.t0, progress=demo.progress.lines,
+                        screenshots=demo.screenshots, bag=demo.bag_path)
+    with open(os.path.join(opts.out_dir, 'demo.json'), 'w') as f:
+        json.dump(demo.results, f, indent=2, default=str)
+    print('temoto demo: %s in %.1f s' % ('done' if rc == 0 else 'FAILED', demo.results['total_s']), flush=True)
+    return rc

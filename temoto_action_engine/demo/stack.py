@@ -1,0 +1,127 @@
+"""The nodes of ``launch/demo.launch``, each in its own process group, stopped in reverse order.
+
+``roslaunch`` would start the same nodes, but as one process group with one shutdown sequence. The
+demo needs more: the action engine must stop first (its registrars unload the displays and sensors
+while the managers still run), each component must have its own group so a stuck one is killed
+without touching the rest, and the parameters can be overridden (the sensor priority). So the launch
+file is *read* with roslaunch's own loader (arguments, includes, ``rosparam`` files and remaps all
+resolved as roslaunch would) and its nodes are started here directly.
+"""
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+import xmlrpc.client
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence
+
+from temoto_core.testing.processes import ManagedProcess, stop_process_group
+from temoto_core.testing.wait import wait_for
+
+# Seconds of SIGINT grace per node: the engine stops its graphs (stop_timeout_s 15 s at worst) and
+# the managers unload what they hold; everything else exits at once.
+SIGINT_GRACE = {'temoto_action_engine': 20.0, 'temoto_sensor_manager': 10.0, 'temoto_output_manager': 10.0,
+                'temoto_er_manager': 10.0, 'temoto_context_manager': 10.0}
+DEFAULT_GRACE = 5.0
+
+
+@dataclass
+class NodeSpec:
+    package: str
+    executable: str
+    name: str           # fully qualified, e.g. /temoto_er_manager
+    argv: List[str]
+    env: Dict[str, str]
+
+
+def load_launch(path: str, args: Sequence[str] = ()) -> tuple:
+    """(node specs in launch order, {param: value}) of a launch file, as roslaunch resolves it."""
+    import roslaunch.config
+    config = roslaunch.config.load_config_default([(path, list(args))], None)
+    params = {k: p.value for k, p in config.params.items() if k not in ('/rosdistro', '/rosversion')}
+    return config, params
+
+
+def _argv_for(path: str) -> List[str]:
+    with open(path, 'rb') as f:
+        first = f.readline()
+    return [sys.executable, path] if b'python' in first else [path]
+
+
+def node_specs(config, env: Dict[str, str]) -> List[NodeSpec]:
+    import roslib.packages
+    import rospkg
+    rospack = rospkg.RosPack(rospkg.get_ros_paths(env))
+    specs = []
+    for n in config.nodes:
+        found = roslib.packages.find_node(n.package, n.type, rospack)
+        if not found:
+            raise FileNotFoundError('demo.launch: no executable %r in package %r' % (n.type, n.package))
+        ns = (n.namespace or '/').rstrip('/')
+        full = '%s/%s' % (ns, n.name)
+        argv = _argv_for(found[0]) + shlex.split(n.args or '') + ['%s:=%s' % r for r in n.remap_args]
+        argv += ['__name:=' + n.name] + (['__ns:=' + ns] if ns else [])
+        node_env = dict(env)
+        node_env.update(dict(n.env_args))
+        specs.append(NodeSpec(n.package, n.type, full, argv, node_env))
+    return specs
+
+
+class Stack:
+    """Start with :meth:`start`, stop with :meth:`stop` (reverse order, by process group)."""
+
+    def __init__(self, launch_path: str, env: Dict[str, str], log_dir: str, launch_args: Sequence[str] = (),
+                 param_overrides: Optional[Dict[str, object]] = None) -> None:
+        self.launch_path = launch_path
+        self.env = env
+        self.log_dir = log_dir
+        self.launch_args = list(launch_args)
+        self.param_overrides = dict(param_overrides or {})
+        self.running: List[tuple] = []      # (NodeSpec, ManagedProcess)
+        self.params: Dict[str, object] = {}
+
+    @property
+    def pids(self) -> List[int]:
+        return [p.pid for _, p in self.running]
+
+    def start(self, timeout: float = 40.0) -> None:
+        """Upload the parameters, start every node at once, return when all are registered."""
+        config, self.params = load_launch(self.launch_path, self.launch_args)
+        unknown = [k for k in self.param_overrides if k not in self.params]
+        if unknown:
+            raise KeyError('demo.launch sets no parameter %s' % ', '.join(unknown))
+        self.params.update(self.param_overrides)
+        master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
+        for key, value in self.params.items():
+            code, msg, _ = master.setParam('/temoto_demo', key, value)
+            if code != 1:
+                raise RuntimeError('could not set %s: %s' % (key, msg))
+        os.makedirs(self.log_dir, exist_ok=True)
+        for spec in node_specs(config, self.env):
+            log = os.path.join(self.log_dir, spec.name.strip('/').replace('/', '.') + '.log')
+            self.running.append((spec, ManagedProcess(spec.argv, spec.env, log, spec.name)))
+
+        def all_registered():
+            for spec, proc in self.running:
+                if not proc.alive():
+                    raise RuntimeError('%s exited (rc %s) during startup; log %s:\n%s'
+                                       % (spec.name, proc.proc.returncode, proc.log_path, proc.log()))
+            return all(master.lookupNode('/temoto_demo', spec.name)[0] == 1 for spec, _ in self.running)
+
+        wait_for(all_registered, timeout, 'the nodes of demo.launch to register')
+
+    def dead(self) -> List[str]:
+        return ['%s (rc %s)' % (s.name, p.proc.returncode) for s, p in self.running if not p.alive()]
+
+    def stop(self, on_step=None) -> List[tuple]:
+        """Reverse launch order: the action engine first, the simulation last. Returns (name, rc)."""
+        results = []
+        while self.running:
+            spec, proc = self.running.pop()
+            grace = SIGINT_GRACE.get(spec.name.strip('/'), DEFAULT_GRACE)
+            rc = stop_process_group(proc.proc, sigint_grace=grace, sigterm_grace=3.0)
+            results.append((spec.name, rc))
+            if on_step:
+                on_step(spec.name, rc)
+        return results

@@ -1,0 +1,79 @@
+"""The whole demo, headless, as a user runs it (``temoto demo``); its assertions read the bag.
+
+The demo starts its own roscore, so it runs as a subprocess with an environment that does not
+point at the test session's master, and with this session's token: every process it starts
+inherits the token, so the census finds anything it leaves behind, at any depth.
+"""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from temoto_core.testing import SESSION_ENV, leftover_processes
+
+DEMO_TIMEOUT = 150          # hang catcher; the goal (< 90 s) is the benchmark's business
+MAX_GAP_S = 5.0
+
+
+@pytest.fixture(scope='module')
+def demo_run(tmp_path_factory):
+    token = os.environ.get(SESSION_ENV) or 'test_demo_' + os.urandom(6).hex()
+    out = tmp_path_factory.mktemp('demo') / 'run'
+    master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')
+    env = {k: v for k, v in os.environ.items() if k not in master_vars}
+    env[SESSION_ENV] = token
+    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'demo', '--out', str(out),
+                           '--stage-timeout', '40'], env=env, capture_output=True, text=True, timeout=DEMO_TIMEOUT)
+    left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
+    return proc, out, left
+
+
+def test_demo_exits_0_and_prints_one_line_per_stage(demo_run):
+    proc, out, _ = demo_run
+    assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
+    lines = [l for l in proc.stdout.splitlines() if l.startswith('[')]
+    assert any('RGB-D camera cloud on screen' in l for l in lines)
+    assert any('arm LIDAR stitched cloud on screen after unplugging d435 (crash)' in l for l in lines)
+    assert any('base LIDAR scan on screen after unplugging hokuyo (stall)' in l for l in lines)
+
+
+def test_no_process_remains(demo_run):
+    _, _, left = demo_run
+    assert left == []
+
+
+def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run):
+    proc, out, _ = demo_run
+    from temoto_action_engine.demo.report import analyse, load_run
+    bag = out / 'failover.bag'
+    assert bag.exists(), proc.stderr[-2000:]
+    run = load_run(str(bag))
+    an = analyse(run)
+    assert [s.index for s in an.stages] == [0, 1, 2]
+    assert [s.topic for s in an.stages] == ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan']
+    frames = [s.first_frame_t for s in an.stages]
+    assert None not in frames and frames == sorted(frames)
+    assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
+    for f in an.failures:
+        assert f.failed_t is not None, 'no FAILED status after unplugging %s' % f.device
+        assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
+        assert f.display_gap is not None and 0 < f.display_gap < MAX_GAP_S, \
+            '%s: display gap %s s' % (f.device, f.display_gap)
+    # the ER Manager sees the crash, the Sensor Manager's watchdog the stall
+    assert 'temoto_er_manager' in an.failures[0].failed_by
+    assert 'temoto_sensor_manager' in an.failures[1].failed_by
+
+
+def test_report_files_exist_and_screenshots_show_data(demo_run):
+    _, out, _ = demo_run
+    from temoto_action_engine.demo.report import diff_fraction
+    report = (out / 'report.md').read_text()
+    assert (out / 'timeline.png').stat().st_size > 10000
+    shots = {p.name.split('_', 2)[2][:-4]: p.read_bytes() for p in out.glob('screenshot_*.png')}
+    assert set(shots) == {'rgbd', 'arm_cloud', 'base_scan', 'empty_view'}
+    for name in ('rgbd', 'arm_cloud', 'base_scan'):
+        assert '](screenshot_' in report and name in report
+        # a scan is a few thin lines: a real but small share of the 960x600 view
+        assert diff_fraction(shots[name], shots['empty_view']) > 0.0005, name
+    assert diff_fraction(shots['arm_cloud'], shots['rgbd']) > 0.005
