@@ -122,7 +122,7 @@ def check_invariants(server, clients, held, step):
     for ci, client in enumerate(clients):
         creg = client.registry()
         local = sorted(i for q in creg['client_queries'] for i in q['local_ids'])
-        assert local == sorted(rid for rid, _, _ in held[ci]), (step, ci)
+        assert local == sorted(rid for rid, _, _ in held[ci]), (step, ci, creg, client.command(op='events'))
         for q in creg['client_queries']:
             assert q['local_ids'], ('client query without holders', step)
             remote_ids.add(q['external_id'])
