@@ -143,7 +143,8 @@ def main(argv=None):
 
     c, s, nc = summary(crash), summary(stall), summary(node_crash)
     s_extra = summary([x - limit for x in stall])
-    results = {'crash_to_failed_ms': c, 'node_driver_crash_to_failed_ms': nc, 'stall_to_failed_ms': s, 'stall_beyond_limit_ms': s_extra,
+    results = {'crash_to_failed_ms': c, 'node_driver_crash_to_failed_ms': nc, 'stall_to_failed_ms': s,
+               'stall_beyond_limit_ms': s_extra,
                'stall_limit_s': limit, 'load_until_first_data_s': {k: summary(v, 1.0) for k, v in loads.items()},
                'goals': {'crash_median_ms': CRASH_GOAL_MS, 'stall_beyond_limit_median_ms': STALL_EXTRA_GOAL_MS,
                          'd435_load_median_s': LOAD_GOAL_S},

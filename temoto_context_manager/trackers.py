@@ -24,7 +24,7 @@ Format (``config/trackers.yaml``)::
 Malformed entries are reported with file and line and skipped.
 """
 import dataclasses
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List
 
 import rosgraph.names
 import yaml

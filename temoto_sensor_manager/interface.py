@@ -10,10 +10,9 @@ import copy
 import dataclasses
 from typing import Dict, List, Mapping, Optional, Sequence, Union
 
-import rospy
 from diagnostic_msgs.msg import KeyValue
 
-from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.errors import Subsystem, TemotoError
 from temoto_core.interface import ManagerInterface
 from temoto_sensor_manager.manager import NAME, SERVER
 from temoto_sensor_manager.srv import LoadSensor

@@ -17,7 +17,7 @@ The stalled driver is stopped when the consumer unloads the failed sensor
 import json
 import threading
 import time
-from typing import Dict, List, Optional, Set
+from typing import Dict, List, Optional
 
 import rospy
 from diagnostic_msgs.msg import KeyValue

@@ -7,7 +7,7 @@ ties). Unlike the original, the filtered-out entries are really gone.
 """
 import dataclasses
 import shlex
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Sequence, Tuple
 
 import rosgraph.names
 

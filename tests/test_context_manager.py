@@ -15,8 +15,9 @@ from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
 from temoto_context_manager.interface import ContextManagerInterface
-from temoto_sensor_manager.testing import (ROOT, catalogue, er_processes, managers_idle, set_cable, start_context_manager,
-                                           start_er_manager, start_sensor_manager, start_sim, tracker_info)
+from temoto_sensor_manager.testing import (ROOT, catalogue, er_processes, managers_idle, set_cable,
+                                           start_context_manager, start_er_manager, start_sensor_manager, start_sim,
+                                           tracker_info)
 
 DEFAULT_TRACKERS = os.path.join(ROOT, 'temoto_context_manager', 'config', 'trackers.yaml')
 BAD_TRACKERS = os.path.join(ROOT, 'temoto_context_manager', 'test_config', 'bad_trackers.yaml')

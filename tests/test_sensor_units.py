@@ -1,0 +1,124 @@
+"""ROS-free parts of the sensor and context managers: reliability, catalogue, selection, watchdog, blob finding."""
+import threading
+import time
+import types
+
+import numpy as np
+import pytest
+
+from temoto_core.errors import ErrorCode, TemotoError
+from temoto_context_manager.blob import find_blob, parse_rgb
+from temoto_sensor_manager.catalogue import Catalogue, load_file, parse_entry
+from temoto_sensor_manager.reliability import Reliability
+from temoto_sensor_manager.selection import candidates, plan, validate
+from temoto_sensor_manager.watchdog import Watchdog
+
+
+def test_reliability_is_a_100_sample_moving_average_from_the_prior():
+    r = Reliability()
+    assert r.value == pytest.approx(0.8)
+    assert r.failure() == pytest.approx(0.792)          # one event moves it by (0.8 - 0) / 100
+    for _ in range(100):
+        r.success()
+    assert r.value == pytest.approx(1.0)                # the prior and the failure have left the window
+    assert Reliability(0.5).adjust(7.0) == pytest.approx(0.505)   # clamped to [0, 1]
+    with pytest.raises(ValueError):
+        Reliability(1.5)
+
+
+def entry(name, kind='lidar', exe='x.launch', prior=0.8, topics=None):
+    return parse_entry({'name': name, 'type': kind, 'package': 'p', 'executable': exe, 'reliability': prior,
+                        'output_topics': topics or {'lidar_data': {'topic': '/%s/scan' % name, 'arg': 'scan'}}})
+
+
+def test_one_failure_reorders_equal_priors_and_the_stable_order_breaks_ties():
+    cat = Catalogue([entry('a'), entry('b')])
+    q = validate('lidar', '', '', [])
+    assert [e.name for e in candidates(cat, q)] == ['a', 'b']
+    cat.get('a').reliability.failure()
+    assert [e.name for e in candidates(cat, q)] == ['b', 'a']
+
+
+def test_selection_filters_by_package_executable_and_topic_types():
+    cat = Catalogue([entry('a', exe='a.launch'), entry('b', exe='b', topics={'lidar_data': '/b/scan',
+                                                                           'cloud_data': '/b/cloud'})])
+    assert [e.name for e in candidates(cat, validate('lidar', '', 'b', []))] == ['b']
+    assert [e.name for e in candidates(cat, validate('lidar', '', '', [('cloud_data', '')]))] == ['b']
+    with pytest.raises(TemotoError) as info:
+        candidates(cat, validate('lidar', 'other', '', []))
+    assert info.value.code == ErrorCode.SENSOR_NOT_FOUND and "package 'other'" in str(info.value)
+
+
+def test_requested_names_become_launch_args_or_node_remaps():
+    launch = entry('a')
+    q = validate('lidar', '', '', [('lidar_data', 'pinned/scan')])
+    assert plan(launch, q).args == 'scan:=/pinned/scan'
+    assert plan(launch, q).topics == {'lidar_data': '/pinned/scan'}
+    node = parse_entry({'name': 'n', 'type': 'lidar', 'package': 'p', 'executable': 'drv', 'args': '_rate:=5',
+                        'output_topics': {'lidar_data': {'topic': '/n/scan', 'remap': 'scan'}}})
+    assert plan(node, q).args == '_rate:=5 scan:=/pinned/scan'
+    assert plan(node, validate('lidar', '', '', [])).args == '_rate:=5 scan:=/n/scan'
+
+
+def test_malformed_entries_are_reported_with_file_and_line(tmp_path):
+    path = tmp_path / 'cat.yaml'
+    path.write_text('sensors:\n'
+                    '  - name: ok\n    type: lidar\n    package: p\n    executable: e\n'
+                    '    output_topics: {lidar_data: /s}\n'
+                    '  - name: no_topics\n    type: lidar\n    package: p\n    executable: e\n'
+                    '  - name: bad_rate\n    type: lidar\n    package: p\n    executable: e\n    rate: fast\n'
+                    '    output_topics: {lidar_data: /s}\n')
+    entries, problems = load_file(str(path))
+    assert [e.name for e in entries] == ['ok']
+    assert [p.where for p in problems] == ['%s:7' % path, '%s:11' % path]
+    assert 'output_topics must be a non-empty mapping' in str(problems[0])
+    assert 'rate must be a number' in str(problems[1])
+    path.write_text('sensors: [\n')
+    entries, problems = load_file(str(path))
+    assert not entries and 'not valid YAML' in str(problems[0])
+
+
+def test_silence_limit_defaults_to_three_periods_and_at_least_100_ms():
+    e = parse_entry({'name': 'a', 'type': 't', 'package': 'p', 'executable': 'e', 'rate': 10,
+                     'output_topics': {'fast': {'topic': '/f', 'rate': 100}, 'slow': '/s',
+                                       'set': {'topic': '/x', 'stall_timeout': 2.5}}})
+    assert e.output_topics['fast'].silence_limit() == pytest.approx(0.1)
+    assert e.output_topics['slow'].silence_limit() == pytest.approx(0.3)
+    assert e.output_topics['set'].silence_limit() == pytest.approx(2.5)
+
+
+def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
+    fired = []
+    done = threading.Event()
+    dog = Watchdog(lambda probe, silence: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
+    try:
+        busy = types.SimpleNamespace(topic='busy', limit=0.15, last=time.monotonic(), armed=False)
+        quiet = types.SimpleNamespace(topic='quiet', limit=0.15, last=time.monotonic(), armed=False)
+        dog.arm([busy, quiet])
+        start = time.monotonic()
+        while time.monotonic() - start < 0.5:          # 'busy' gets a message every 20 ms
+            busy.last = time.monotonic()
+            time.sleep(0.02)
+        assert done.wait(1.0)
+        assert [f[0] for f in fired] == ['quiet']
+        assert 0.15 <= fired[0][1] < 0.4 and fired[0][2] - start < 0.4
+        busy.armed = False                              # disarmed (unloaded): never fires
+        time.sleep(0.3)
+        assert [f[0] for f in fired] == ['quiet']
+    finally:
+        dog.stop()
+
+
+def test_blob_centroid_of_green_points_only():
+    dtype = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
+    pts = np.zeros(100, dtype=dtype)
+    rgb = np.full(100, (200 << 16) | (50 << 8) | 50, dtype=np.uint32)
+    rgb[:20] = (10 << 16) | (250 << 8) | 5
+    pts['rgb'] = rgb.view(np.float32)
+    pts['x'][:20], pts['y'][:20], pts['z'][:20] = 1.0, -0.5, 2.0
+    pts['z'][0] = np.nan                                # invalid depth is ignored
+    x, y, z, n = find_blob(pts, parse_rgb('0,255,0'), 60, 10)
+    assert (x, y, z, n) == (pytest.approx(1.0), pytest.approx(-0.5), pytest.approx(2.0), 19)
+    assert find_blob(pts, (0, 255, 0), 60, 50) is None
+    with pytest.raises(ValueError):
+        parse_rgb('green')
