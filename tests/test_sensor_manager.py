@@ -193,3 +193,14 @@ def test_malformed_catalogue_entries_are_reported_with_file_and_line_and_skipped
     where = next(p for p in problems if "'bad_no_type'" in p).split(': ')[0]
     line = int(where.rsplit(':', 1)[1])
     assert 'bad_no_type' in lines[line - 1]
+
+
+def test_cli_lists_the_live_catalogue_and_checks_files(managers, capsys):
+    from temoto_sensor_manager.cli import main
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert 'fake_lidar_a' in out and 'realsense_d435' in out and 'catalogue problem' in out
+    assert main(['check', FAKE_CATALOGUE]) == 1
+    out = capsys.readouterr().out
+    assert "error %s:" % FAKE_CATALOGUE in out and 'bad_no_type' in out
+    assert main(['--ns', 'nowhere']) == 1
