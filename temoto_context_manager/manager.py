@@ -33,7 +33,7 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_context_manager.srv import LoadTracker, TrackObject
 from temoto_context_manager.trackers import Filter, Tracker, TrackerCatalogue
 from temoto_er_manager.srv import LoadProcess
-from temoto_sensor_manager.reliability import Reliability
+from temoto_core.reliability import Reliability
 from temoto_sensor_manager.srv import LoadSensor
 from temoto_sensor_manager.watchdog import TopicProbe
 

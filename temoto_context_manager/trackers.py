@@ -29,7 +29,7 @@ from typing import Dict, List
 import rosgraph.names
 import yaml
 
-from temoto_sensor_manager.reliability import DEFAULT_PRIOR, Reliability
+from temoto_core.reliability import DEFAULT_PRIOR, Reliability
 
 
 @dataclasses.dataclass

@@ -33,7 +33,7 @@ from typing import Dict, List, Optional, Tuple
 import rosgraph.names
 import yaml
 
-from temoto_sensor_manager.reliability import DEFAULT_PRIOR, Reliability
+from temoto_core.reliability import DEFAULT_PRIOR, Reliability
 
 STALL_PERIODS = 3.0
 MIN_STALL_TIMEOUT = 0.1

@@ -9,7 +9,7 @@ import pytest
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_context_manager.blob import find_blob, parse_rgb
 from temoto_sensor_manager.catalogue import Catalogue, load_file, parse_entry
-from temoto_sensor_manager.reliability import Reliability
+from temoto_core.reliability import Reliability
 from temoto_sensor_manager.selection import candidates, plan, validate
 from temoto_sensor_manager.watchdog import Watchdog
 

@@ -3,7 +3,7 @@
 It starts with every one of its samples equal to a prior, so one event moves
 the mean by only ``1/window``; but with equal priors one failure is enough to
 reorder candidates, which is what makes a failed device lose its rank.
-(Shared by the sensor and context managers; a candidate for temoto_core.)
+Shared by the sensor and context managers.
 """
 import threading
 from collections import deque
