@@ -78,7 +78,11 @@ class ManagerInterface:
             raise TemotoError(ErrorCode.RESOURCE_NOT_FOUND, self.SUBSYSTEM,
                               'cannot reload %d: this interface does not hold it' % resource_id)
         server, request = entry
-        self._unload(resource_id)
+        try:
+            self._unload(resource_id)
+        except TemotoError as err:
+            # the failed resource's owner may be gone with it; the reload must still go on
+            rospy.logwarn('%s: releasing failed resource %d: %s', self.rr.prefix, resource_id, err)
         try:
             response = self._load(server, self.pinned_request(request))
         except TemotoError as err:

@@ -129,3 +129,15 @@ def test_status_right_after_load_is_not_lost(chain):
         res = a.call('rr_c', 'quick%d' % i)
         c.fail('quick%d' % i)
         wait_for(lambda: any(e['id'] == res['id'] for e in a.events()), 10, 'status %d' % i)
+
+
+def test_a_sub_resource_released_after_it_failed_does_not_fail_the_load(chain):
+    """A load callback may try a candidate, see it fail, release it and go on with another."""
+    a, b, c = chain
+    res = a.call('rr_b', 'cam', [('try', 'rr_c/load_test/doomed_first'), ('nested', 'rr_c/load_test/second')])
+    assert 'error' not in res, res
+    assert c.counts()['unloads'] == {'doomed_first': 1}
+    links = b.registry()['server_queries'][0]['links']
+    assert len(links) == 1                                   # only the candidate it kept
+    a.unload(res['id'])
+    assert c.counts()['unloads'] == {'doomed_first': 1, 'second': 1}

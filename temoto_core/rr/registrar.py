@@ -73,7 +73,8 @@ class _Server:
 
 
 class _ServerQuery:
-    __slots__ = ('server', 'key', 'internal_id', 'request', 'response', 'state', 'consumers', 'links', 'failure')
+    __slots__ = ('server', 'key', 'internal_id', 'request', 'response', 'state', 'consumers', 'links', 'failure',
+                 'link_failures')
 
     def __init__(self, server: _Server, key: Hashable, internal_id: int, request) -> None:
         self.server = server
@@ -84,7 +85,8 @@ class _ServerQuery:
         self.state = LOADING
         self.consumers: Dict[int, _Consumer] = {}
         self.links: List[int] = []
-        self.failure: Optional[TemotoError] = None
+        self.failure: Optional[TemotoError] = None             # FAILED sent for this resource while loading
+        self.link_failures: Dict[int, TemotoError] = {}         # FAILED of a linked sub-resource while loading
 
 
 class _ClientQuery:
@@ -245,6 +247,11 @@ class ResourceRegistrar:
         finally:
             parents.pop()
         with self._lock:
+            if error is None and query.failure is None:
+                # a sub-resource that failed during the load fails it only if the callback still holds it:
+                # a callback may release a failed candidate and go on with another
+                held = [query.link_failures[i] for i in query.links if i in query.link_failures]
+                query.failure = held[0] if held else None
             if error is None and query.failure is not None:
                 error = query.failure.extended(ErrorCode.RESOURCE_FAILED, self.subsystem,
                                                'a sub-resource of %s failed while it was loading' % server.name,
@@ -368,12 +375,16 @@ class ResourceRegistrar:
             stack = list(error_stack)
         self._propagate(query, code, message, stack)
 
-    def _propagate(self, query: _ServerQuery, code: int, message: str, stack: List[ErrorFrame]) -> None:
+    def _propagate(self, query: _ServerQuery, code: int, message: str, stack: List[ErrorFrame],
+                   via_link: Optional[int] = None) -> None:
         with self._lock:
             if code == ResourceStatus.FAILED:
                 if query.state == LOADING:
-                    if query.failure is None:
-                        query.failure = TemotoError.from_msgs([f.to_msg() for f in stack], message)
+                    error = TemotoError.from_msgs([f.to_msg() for f in stack], message)
+                    if via_link is not None:
+                        query.link_failures.setdefault(via_link, error)
+                    elif query.failure is None:
+                        query.failure = error
                     return
                 if query.state == ACTIVE:
                     query.state = FAILED
@@ -619,20 +630,21 @@ class ResourceRegistrar:
                 if self._client_by_key.get((query.target, query.key)) is query:
                     del self._client_by_key[(query.target, query.key)]
             holders = list(query.local_ids.items())
-            parents = []
+            parents = []          # (the query that links this resource, through which local id)
             for local_id, _ in holders:
                 parent = self._link_parent.get(local_id)
-                if parent is not None and parent not in parents:
-                    parents.append(parent)
+                if parent is not None and all(p is not parent for p, _ in parents):
+                    parents.append((parent, local_id))
             callbacks = list(self._status_callbacks)
         stack = [ErrorFrame.from_msg(e) for e in msg.error_stack]
         # forward first: the action at the top waits on this, the local policy can come after
-        for parent in parents:
+        for parent, via in parents:
             self._propagate(parent, msg.status_code, msg.message,
                             stack + [ErrorFrame(ErrorCode.RESOURCE_FAILED if msg.status_code == ResourceStatus.FAILED
                                                 else ErrorCode.UNSPECIFIED, self.subsystem,
                                                 'sub-resource %s:%d: %s' % (_target_name(target), msg.resource_id,
-                                                                           msg.message), self.prefix)])
+                                                                           msg.message), self.prefix)],
+                            via_link=via)
         for local_id, status_cb in holders:
             event = StatusEvent(resource_id=local_id, code=msg.status_code, message=msg.message,
                                 error_stack=stack, rr_name=msg.manager_name, server_name=msg.server_name,
