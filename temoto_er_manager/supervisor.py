@@ -41,6 +41,8 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
+from temoto_core.process_group import group_members
+
 _log = logging.getLogger('temoto_er_manager.supervisor')
 
 _PR_SET_PDEATHSIG = 1
@@ -333,9 +335,14 @@ class ProcessSupervisor:
             proc = self._procs.pop(pidfd, None)
         if proc is None:
             return
-        rc = proc.popen.wait()                # already dead: returns at once and reaps
-        os.close(pidfd)
-        with proc.cond:
+        # Before reaping: while the dead leader is a zombie, its pid (and so its group id) cannot be
+        # reused, so the group can be signalled safely. pid_max is 32768 here and wraps within minutes:
+        # a group id signalled after the reap may already belong to somebody else's new session.
+        if group_members(proc.pid, exclude=proc.pid):
+            self._kill_members_of_dead_leader(proc.pid)
+        with proc.cond:                       # stop() signals the group only under this lock
+            rc = proc.popen.wait()            # already dead: returns at once and reaps
+            os.close(pidfd)
             info = ExitInfo(pid=proc.pid, returncode=rc, command=proc.spec.command,
                             log_tail=read_tail(proc.spec.log_path, self.tail_lines),
                             intentional=proc.stopping, when=time.time())
@@ -349,19 +356,13 @@ class ProcessSupervisor:
             # also a child that exits before it is ready: wait_ready reports that to the loader,
             # and the consumer-facing owner decides what a failure during loading means.
             self._callbacks.put((proc, info))
-        try:
-            os.killpg(proc.pid, 0)            # leftovers in the child's group (its own children)?
-        except ProcessLookupError:
-            pass
-        except PermissionError:
-            pass
-        else:
-            if not info.intentional:
-                # the group leader died but members remain: they are part of this resource, stop them
-                threading.Thread(target=self._kill_group_leftovers, args=(proc.pid,), daemon=True).start()
 
-    def _kill_group_leftovers(self, pgid: int) -> None:
-        self._signal_group_until_empty(pgid)
+    def _kill_members_of_dead_leader(self, pgid: int) -> None:
+        """SIGKILL what the dead leader left in its group (bounded; the zombie holds the id meanwhile)."""
+        deadline = time.monotonic() + 2.0
+        while group_members(pgid, exclude=pgid) and time.monotonic() < deadline:
+            self._killpg(pgid, signal.SIGKILL)
+            time.sleep(0.005)
 
     def _callback_loop(self) -> None:
         while True:
@@ -387,10 +388,9 @@ class ProcessSupervisor:
         sigterm_grace = self.sigterm_grace if sigterm_grace is None else sigterm_grace
         with proc.cond:
             if proc.exit_info is not None and not proc.stopping:
-                # already dead on its own (and already reported); still clean its group
-                info = proc.exit_info
-                self._signal_group_until_empty(proc.pid, quick=True)
-                return info
+                # already dead on its own, reported, and its group cleaned before the reap;
+                # its group id may belong to another process by now: never signal it again
+                return proc.exit_info
             proc.stopping = True
             proc.cond.notify_all()            # a wait_ready in progress gives up now
         for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace),
@@ -398,16 +398,14 @@ class ProcessSupervisor:
             with proc.cond:
                 if proc.exit_info is not None:
                     break
-            self._killpg(proc.pid, sig)
+                self._killpg(proc.pid, sig)   # under the lock: the leader cannot be reaped meanwhile
             with proc.cond:
                 if proc.cond.wait_for(lambda: proc.exit_info is not None, timeout=grace):
                     break
         with proc.cond:
             if proc.exit_info is None:        # SIGKILL + 5 s and still not reaped: never seen; be loud
                 raise SupervisorError('process %d did not exit after SIGKILL' % proc.pid)
-            info = proc.exit_info
-        self._signal_group_until_empty(proc.pid, quick=True)
-        return info
+            return proc.exit_info
 
     @staticmethod
     def _killpg(pgid: int, sig: int) -> bool:
@@ -418,18 +416,6 @@ class ProcessSupervisor:
             return False
         except PermissionError:               # pid reused by someone else's group: not ours
             return False
-
-    def _signal_group_until_empty(self, pgid: int, quick: bool = False) -> None:
-        """Members left in a dead leader's group (its children): SIGTERM, then SIGKILL."""
-        steps = ((signal.SIGTERM, 0.5 if quick else self.sigterm_grace), (signal.SIGKILL, 1.0))
-        for sig, grace in steps:
-            if not self._killpg(pgid, sig):
-                return
-            deadline = time.monotonic() + grace
-            while time.monotonic() < deadline:   # no pidfd for unknown members: short bounded poll
-                if not self._killpg(pgid, 0):
-                    return
-                time.sleep(0.02)
 
     def forget(self, proc: ManagedProcess) -> None:
         """Drop an exited process from the listing."""

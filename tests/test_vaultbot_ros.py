@@ -210,12 +210,12 @@ def test_unplug_crash_exits_nonzero_and_replug_lets_a_new_driver_work(procs, ros
     t0 = time.monotonic()
     wait_for(lambda: not drv.alive(), 5, 'the sick driver to crash')
     assert time.monotonic() - t0 < 1.0        # generous here; the benchmark measures the 100 ms goal
-    assert drv.proc.returncode != 0
+    assert drv.returncode not in (0, None)
     assert 'device disconnected' in drv.log()
     # a driver started while the device is unplugged fails like a real one
     again = procs.node('vaultbot_sim', 'sick_driver', name='sick_driver_2', wait=False)
     wait_for(lambda: not again.alive(), 30, 'the second sick driver to fail')
-    assert again.proc.returncode != 0
+    assert again.returncode not in (0, None)
     set_device(rospy_client, 'sick', 'plugged')
     procs.node('vaultbot_sim', 'sick_driver', name='sick_driver_3')
     t1 = time.monotonic()

@@ -106,13 +106,13 @@ class Stack:
             for spec, proc in self.running:
                 if not proc.alive():
                     raise RuntimeError('%s exited (rc %s) during startup; log %s:\n%s'
-                                       % (spec.name, proc.proc.returncode, proc.log_path, proc.log()))
+                                       % (spec.name, proc.returncode, proc.log_path, proc.log()))
             return all(master.lookupNode('/temoto_demo', spec.name)[0] == 1 for spec, _ in self.running)
 
         wait_for(all_registered, timeout, 'the nodes of demo.launch to register')
 
     def dead(self) -> List[str]:
-        return ['%s (rc %s)' % (s.name, p.proc.returncode) for s, p in self.running if not p.alive()]
+        return ['%s (rc %s)' % (s.name, p.returncode) for s, p in self.running if not p.alive()]
 
     def stop(self, on_step=None) -> List[tuple]:
         """Reverse launch order: the action engine first, the simulation last. Returns (name, rc)."""

@@ -8,37 +8,41 @@ import time
 import xmlrpc.client
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from temoto_core.process_group import exit_status, group_members
+
 SESSION_ENV = 'TEMOTO_TEST_SESSION'
 REGISTER_TIMEOUT = 20.0
-
-
-def _group_alive(pgid: int) -> bool:
-    try:
-        os.killpg(pgid, 0)
-        return True
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
 
 
 def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigterm_grace: float = 2.0) -> Optional[int]:
     """SIGINT, then SIGTERM, then SIGKILL to the child's process group; reap it.
 
     The child must have been started with ``start_new_session=True`` so that
-    its group is its own and nothing else is signalled.
+    its group is its own. The group is signalled only while the leader is not
+    reaped (see :mod:`temoto_core.process_group`); members left behind by a leader that has
+    exited are killed before the leader is reaped. A leader that was already
+    reaped elsewhere is not signalled at all: its number may be reused.
     """
+    if proc.returncode is not None:
+        return proc.returncode
     pgid = proc.pid
     for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGKILL, 5.0)):
-        if proc.poll() is not None and not _group_alive(pgid):
+        if exit_status(proc) is not None:
             break
         try:
             os.killpg(pgid, sig)
         except ProcessLookupError:
             pass
         deadline = time.monotonic() + grace
-        while time.monotonic() < deadline:
-            if proc.poll() is not None and not _group_alive(pgid):
+        while time.monotonic() < deadline and exit_status(proc) is None:
+            time.sleep(0.01)
+    if exit_status(proc) is not None and proc.returncode is None:
+        # the zombie leader still holds the group id: its leftover members can be killed safely
+        deadline = time.monotonic() + 3.0
+        while group_members(pgid, exclude=pgid) and time.monotonic() < deadline:
+            try:
+                os.killpg(pgid, signal.SIGKILL)
+            except ProcessLookupError:
                 break
             time.sleep(0.01)
     try:
@@ -73,7 +77,13 @@ class ManagedProcess:
         return self.proc.pid
 
     def alive(self) -> bool:
-        return self.proc.poll() is None
+        """Running? Never reaps, so that stop() can still clean its group safely."""
+        return exit_status(self.proc) is None
+
+    @property
+    def returncode(self) -> Optional[int]:
+        """The exit code once it has exited (reaped or not), else None."""
+        return exit_status(self.proc)
 
     def stop(self, sigint_grace: float = 3.0) -> Optional[int]:
         return stop_process_group(self.proc, sigint_grace=sigint_grace)
@@ -153,7 +163,7 @@ class ProcessGroupLauncher:
         while pending:
             if not proc.alive():
                 raise RuntimeError('%s exited (rc %s) before %s registered; log:\n%s'
-                                   % (proc.name, proc.proc.returncode, sorted(pending), proc.log()))
+                                   % (proc.name, proc.returncode, sorted(pending), proc.log()))
             if time.monotonic() > deadline:
                 raise TimeoutError('%s: %s not registered after %.0f s; log:\n%s'
                                    % (proc.name, sorted(pending), timeout, proc.log()))
