@@ -35,6 +35,8 @@ class Devices:
         self.log = []
         self.ids = itertools.count(1)
         self.callbacks = []
+        self.stop_gate = threading.Event()   # cleared: stop_sensor blocks (a slow driver unload)
+        self.stop_gate.set()
 
     def unplug(self, name):
         with self.lock:
@@ -70,6 +72,7 @@ class FakeSensorManager:
         raise RuntimeError('no %s with %s available' % (sensor_type, sorted(output_topics)))
 
     def stop_sensor(self, rid):
+        assert self.d.stop_gate.wait(10), 'stop_sensor gate never opened'
         with self.d.lock:
             self.d.log.append(('stop', self.d.active.pop(rid)))
 
@@ -128,7 +131,7 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
 
     devices.unplug('d435')
     wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
-    assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    wait_for(lambda: displayed(devices) == [('point cloud', '/stitcher/cloud')], 10, 'the failed display hidden')
     assert run.nodes['show_environment_0'].action.outputs == {'topic': '/stitcher/cloud'}
     failed = of(events, 'sensor_failed')[0]
     assert failed['sensor_name'] == 'd435' and failed['message'] == 'd435 unplugged'
@@ -136,11 +139,11 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
 
     devices.unplug('hokuyo')
     wait_for(lambda: len(of(events, 'sensor_active')) == 3, 10, 'sick active')
-    assert displayed(devices) == [('laser scan', '/sick/scan')]
+    wait_for(lambda: displayed(devices) == [('laser scan', '/sick/scan')], 10, 'the failed display hidden')
 
     devices.unplug('sick')
     wait_for(lambda: len(of(events, 'retry')) >= 3, 10, 'retries while everything is unplugged')
-    assert displayed(devices) == []
+    wait_for(lambda: displayed(devices) == [], 10, 'the last display hidden')
     assert any('every sensor failed' in f for f in feedback)
     backoffs = [e['retry_in_s'] for e in of(events, 'all_failed')]
     assert backoffs[:4] == [0.05, 0.1, 0.2, 0.2]                     # bounded exponential backoff
@@ -161,6 +164,44 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
     assert ok, msg
     assert displayed(devices) == [] and devices.active == {}
     assert log[-2:] == [('hide', 'point cloud', '/stitcher/cloud'), ('stop', 'hokuyo')]
+
+
+def test_the_substitute_is_shown_before_the_failed_sensor_is_released(setup):
+    """A slow unload of the failed driver (a stalled one takes seconds) must not delay the new view."""
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    devices.stop_gate.clear()                     # stopping a sensor now blocks until the gate opens
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active while d435 is still stopping')
+    with devices.lock:
+        log = list(devices.log)
+    assert ('start', 'hokuyo') in log and ('show', 'point cloud', '/stitcher/cloud') in log
+    assert ('stop', 'd435') not in log            # the failed sensor is still being released
+    # its display went first, only after the substitute's was up
+    assert log.index(('hide', 'point cloud', '/d435/points')) > log.index(('show', 'point cloud', '/stitcher/cloud'))
+    devices.stop_gate.set()
+    wait_for(lambda: ('stop', 'd435') in devices.log, 10, 'the failed sensor released')
+    assert devices.log.count(('stop', 'd435')) == 1 and devices.log.count(('hide', 'point cloud', '/d435/points')) == 1
+
+
+def test_stopping_during_a_background_release_releases_everything_once(setup):
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    devices.stop_gate.clear()
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    stopper = threading.Thread(target=engine.stop_graph, args=(run.name,))
+    stopper.start()
+    wait_for(lambda: run.nodes['show_environment_0'].state != 'RUNNING', 10, 'the stop to begin')
+    devices.stop_gate.set()
+    stopper.join(10)
+    assert not stopper.is_alive()
+    wait_for(lambda: devices.active == {} and displayed(devices) == [], 10, 'everything released')
+    log = devices.log
+    assert log.count(('stop', 'd435')) == 1 and log.count(('stop', 'hokuyo')) == 1
+    assert not [e for e in log if e[0] == 'stop at shutdown']   # the action released them, not the shutdown
 
 
 def test_starts_lower_in_the_list_when_the_best_sensor_is_already_gone(setup):

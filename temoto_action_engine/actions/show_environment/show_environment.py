@@ -4,8 +4,11 @@ The original ``ShowEnv`` task stepped through depth camera -> Hokuyo -> Sick in 
 status callback and never released the failed sensors. This port:
 - takes the priority list from the engine parameter ``~actions/show_environment/sensor_priority``
   (default: the VaultBot's, from the paper's section 4);
-- on a FAILED status of the active sensor (or its display) releases that sensor and display,
-  then requests the next entry and shows it through the Output Manager;
+- on a FAILED status of the active sensor (or its display) requests the next entry and shows it
+  through the Output Manager first, and only then releases the failed sensor and its display, on a
+  background thread: unloading a stalled driver can take seconds (SIGINT, then SIGTERM), and the
+  operator's view must not wait for it. Each failed pair is released exactly once, and on_stop
+  waits for the releases still running, so a stopped action holds nothing;
 - when every entry has failed, says so on the feedback topic and in the log, and retries from
   the top of the list with a bounded exponential backoff until a device comes back;
 - publishes each step (active, failed, unavailable, all_failed, retry) on
@@ -13,12 +16,14 @@ status callback and never released the failed sensors. This port:
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
 from temoto_action_engine.action_base import ActionBase, ActionError
 
 FAILED = 1      # temoto_core/ResourceStatus.FAILED (wire contract)
+RELEASE_JOIN_S = 30.0   # on_stop waits this long for each background release (an unload is bounded itself)
 
 DEFAULT_PRIORITY = [
     {'label': 'RGB-D camera cloud', 'sensor_type': 'depth camera', 'output_topics': ['camera_data'],
@@ -80,6 +85,7 @@ class ShowEnvironment(ActionBase):
         self.backoff = self.retry_initial
         self.retry_at = None
         self.active: Active | None = None
+        self.releases: list[threading.Thread] = []   # background releases of failed sensors
         self.smi = self.sensor_manager
         self.omi = self.output_manager
         # Replaces the interface's default policy (reload the same request), as ShowEnv did.
@@ -104,6 +110,11 @@ class ShowEnvironment(ActionBase):
     def on_stop(self):
         if self.active is not None:
             self.release_active()
+        for thread in self.releases:
+            thread.join(RELEASE_JOIN_S)
+            if thread.is_alive():
+                self.log_warn('%s still running after %.0f s; the registrar releases what is left'
+                              % (thread.name, RELEASE_JOIN_S))
 
     # ------------------------------------------------------------------ steps
     def handle_status(self, ev) -> None:
@@ -120,8 +131,10 @@ class ShowEnvironment(ActionBase):
         self.event('sensor_failed', sensor_name=a.sensor_name, sensor_type=a.choice.sensor_type,
                    label=a.choice.label, priority_index=a.index, message=message,
                    failed_part='display' if rid == a.display_id and rid != a.resource_id else 'sensor')
-        self.release_active()
+        # The substitute first: the failed pair is released once the new display is up (or none is).
+        self.active = None
         self.activate_from(a.index + 1)
+        self.release_in_background(a)
 
     def activate_from(self, start: int) -> None:
         """Bring up the first entry from ``start`` on that works; on none, schedule a retry."""
@@ -168,6 +181,17 @@ class ShowEnvironment(ActionBase):
 
     def release_active(self) -> None:
         a, self.active = self.active, None
+        self._release(a)
+
+    def release_in_background(self, a: Active) -> None:
+        """Release a failed sensor and its display without holding up the run loop."""
+        self.releases = [t for t in self.releases if t.is_alive()]
+        thread = threading.Thread(target=self._release, args=(a,), daemon=True,
+                                  name='release of %s (%s)' % (a.sensor_name, a.choice.label))
+        self.releases.append(thread)
+        thread.start()
+
+    def _release(self, a: Active) -> None:
         try:
             self.omi.hide(a.display_id)
         except Exception as e:
