@@ -28,9 +28,25 @@ def _value_key(value: Any) -> Hashable:
     return value
 
 
+_PLAIN = (str, int, float, bool, bytes)
+_SLOTS: dict = {}
+
+
 def message_key(msg: genpy.Message, skip: str = '') -> Hashable:
-    """A hashable key of ``msg``'s fields, leaving out the field named ``skip``."""
-    return (msg._type,) + tuple(_value_key(getattr(msg, slot)) for slot in msg.__slots__ if slot != skip)
+    """A hashable key of ``msg``'s fields, leaving out the field named ``skip``.
+
+    This runs twice per load (client and server side), so plain fields, the
+    common case, take a fast path.
+    """
+    cls = type(msg)
+    slots = _SLOTS.get((cls, skip))
+    if slots is None:
+        slots = _SLOTS[(cls, skip)] = tuple(s for s in cls.__slots__ if s != skip)
+    key = [msg._type]
+    for slot in slots:
+        value = getattr(msg, slot)
+        key.append(value if type(value) in _PLAIN else _value_key(value))
+    return tuple(key)
 
 
 def request_key(request: genpy.Message) -> Hashable:
