@@ -113,3 +113,34 @@ def test_teardown_leaves_no_process_behind_even_when_a_test_fails(tmp_path, ros_
     assert 'this test fails on purpose' in out.stdout
     assert '1 failed' in out.stdout
     assert leftover_processes(token) == []
+
+
+def test_setup_without_root_says_so_in_one_line_when_packages_are_missing(tmp_path):
+    import tempfile
+    shared = tempfile.mkdtemp(prefix='temoto_apt_')     # readable by the unprivileged user
+    os.chmod(shared, 0o755)
+    listing = os.path.join(shared, 'apt.txt')
+    with open(listing, 'w') as f:
+        f.write('python3-rospy\ntemoto-no-such-package\n')
+    os.chmod(listing, 0o644)
+    try:
+        out = subprocess.run(['setpriv', '--reuid=65534', '--regid=65534', '--clear-groups',
+                              'bash', os.path.join(ROOT, 'tools', 'setup.sh')],
+                             env=dict(os.environ, TEMOTO_APT_LIST=listing), capture_output=True, text=True,
+                             timeout=60, cwd='/')
+    finally:
+        import shutil
+        shutil.rmtree(shared)
+    assert out.returncode == 1
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, out.stderr
+    assert 'needs root' in lines[0] and 'temoto-no-such-package' in lines[0]
+    assert 'python3-rospy' not in lines[0]            # only what is missing is named
+
+
+def test_warm_setup_only_checks(tmp_path):
+    out = subprocess.run(['bash', os.path.join(ROOT, 'tools', 'setup.sh')], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1].startswith('setup: ready in')
+    assert 'installing' not in out.stdout and 'creating' not in out.stdout

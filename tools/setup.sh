@@ -9,15 +9,19 @@ venv="$root/.venv"
 t0=$(date +%s%N)
 
 # 1. Debian packages
-mapfile -t pkgs < <(grep -v -E '^\s*(#|$)' tools/apt-packages.txt)
-missing=$(dpkg-query -W -f='${db:Status-Abbrev} ${Package}\n' "${pkgs[@]}" 2>/dev/null | awk '$1 != "ii" {print $2}' || true)
-installed_count=$(dpkg-query -W -f='${db:Status-Abbrev}\n' "${pkgs[@]}" 2>/dev/null | grep -c '^ii' || true)
-if [ "$installed_count" -lt "${#pkgs[@]}" ]; then
+# TEMOTO_APT_LIST names another list (the test of the no-root message uses it)
+mapfile -t pkgs < <(grep -v -E '^\s*(#|$)' "${TEMOTO_APT_LIST:-tools/apt-packages.txt}")
+installed=" $(dpkg-query -W -f='${db:Status-Abbrev} ${Package}\n' "${pkgs[@]}" 2>/dev/null | awk '$1 == "ii" {printf "%s ", $2}' || true)"
+missing=""
+for p in "${pkgs[@]}"; do
+  case "$installed" in *" $p "*) ;; *) missing="$missing $p" ;; esac
+done
+if [ -n "$missing" ]; then
   if [ "$(id -u)" -ne 0 ]; then
-    echo "error: Debian packages are missing and installing them needs root: run 'sudo make setup' (or apt-get install $(echo $missing))" >&2
+    echo "error: Debian packages are missing and installing them needs root: run 'sudo make setup' (missing:$missing)" >&2
     exit 1
   fi
-  echo "setup: installing Debian packages (${#pkgs[@]} listed)..."
+  echo "setup: installing Debian packages:$missing"
   apt-get update -qq
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${pkgs[@]}" >/dev/null
 fi
