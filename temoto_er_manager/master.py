@@ -11,22 +11,13 @@ import http.client
 import xmlrpc.client
 from typing import Iterable
 
+from temoto_core.xmlrpc_util import proxy
+
 CALLER_ID = '/temoto_er_manager'
 
 
-class _TimeoutTransport(xmlrpc.client.Transport):
-    def __init__(self, timeout: float):
-        super().__init__()
-        self._timeout = timeout
-
-    def make_connection(self, host):
-        conn = super().make_connection(host)
-        conn.timeout = self._timeout
-        return conn
-
-
 def _proxy(uri: str, timeout: float) -> xmlrpc.client.ServerProxy:
-    return xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout), allow_none=True)
+    return proxy(uri, timeout)
 
 
 def lookup_node(master_uri: str, node_name: str, timeout: float = 1.0) -> str | None:
@@ -66,6 +57,27 @@ def node_is_ours(master_uri: str, node_name: str, pids: Iterable[int], parent: i
     if pid in set(pids):
         return True
     return parent is not None and parent_pid(pid) == parent
+
+
+def set_params(master_uri: str, clear: Iterable[str], params: dict, timeout: float = 5.0) -> None:
+    """Delete the ``clear`` namespaces that exist, then set ``params``, as ``roslaunch`` does (two multicalls).
+
+    Raises RuntimeError naming the parameter the master refused, OSError when it is unreachable."""
+    proxy = _proxy(master_uri, timeout)
+    canon = sorted({c.rstrip('/') + '/' for c in clear})
+    # only the outermost of nested namespaces: deleting /a/ already deleted /a/b/
+    outer = [c for c in canon if not any(c != o and c.startswith(o) for o in canon)]
+    clear = [c for c in outer if proxy.hasParam(CALLER_ID, c)[2]]
+    for names, method, calls in ((clear, 'deleteParam', [(c,) for c in clear]),
+                                 (list(params), 'setParam', list(params.items()))):
+        if not calls:
+            continue
+        multi = xmlrpc.client.MultiCall(proxy)
+        for call in calls:
+            getattr(multi, method)(CALLER_ID, *call)
+        for name, (code, msg, _val) in zip(names, multi()):
+            if code != 1:
+                raise RuntimeError('%s %s: %s' % (method, name, msg))
 
 
 def registered_nodes(master_uri: str, timeout: float = 1.0) -> set[str]:

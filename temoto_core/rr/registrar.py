@@ -38,6 +38,7 @@ from temoto_core.rr.keys import request_key
 from temoto_core.rr.registry import (ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message,
                                      readable)
 from temoto_core.rr.status import StatusEvent
+from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
 from temoto_core.srv import GetRegistry, GetRegistryResponse, UnloadResource, UnloadResourceResponse
 
 DEFAULT_NAMESPACE = 'temoto'
@@ -104,17 +105,6 @@ class _ClientQuery:
 
 def _target_name(target: Tuple[str, str, str]) -> str:
     return '/%s/%s/%s' % target
-
-
-class _TimeoutTransport(xmlrpc.client.Transport):
-    def __init__(self, timeout: float) -> None:
-        super().__init__()
-        self._timeout = timeout
-
-    def make_connection(self, host):
-        conn = super().make_connection(host)
-        conn.timeout = self._timeout
-        return conn
 
 
 class ResourceRegistrar:
@@ -689,7 +679,7 @@ class ResourceRegistrar:
         checked by calling the node's own XML-RPC API (``getPid``), as ``rosnode
         ping`` does. Bound: ``consumer_check_period`` + 1 s of ping timeout.
         """
-        master = xmlrpc.client.ServerProxy(rosgraph.get_master_uri(), transport=_TimeoutTransport(1.0))
+        master = xmlrpc_proxy(rosgraph.get_master_uri(), 1.0)
         while not self._stop_watch.wait(self.consumer_check_period):
             with self._lock:
                 holders: Dict[str, List[Tuple[str, int]]] = {}
@@ -719,7 +709,7 @@ class ResourceRegistrar:
                 return False
             self._consumer_uris[node] = uri
         try:
-            code, _, _ = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(1.0)).getPid(self.prefix)
+            code, _, _ = xmlrpc_proxy(uri, 1.0).getPid(self.prefix)
             return code == 1
         except (OSError, xmlrpc.client.Error):
             self._consumer_uris.pop(node, None)
