@@ -2,10 +2,11 @@
 
 Modules, one idea each:
 - ``policy``     what may run (allowlists, field validation) and the manager's tunables;
-- ``resolve``    a validated request -> an argv (rosrun / roslaunch rules, never a shell);
+- ``resolve``    a validated request -> a plan of argvs (rosrun / roslaunch rules, never a shell);
+- ``launchfile`` a ``.launch`` file -> its parameters and one process per node (roslaunch's loader only);
+- ``resource``   the processes of one resource, which start, fail and stop together;
 - ``supervisor`` start, watch (event-driven), stop and reap child processes; ROS-free;
 - ``master``     ROS master look-ups used to decide that a node "really started";
-- ``launch_runner`` runs a launch file and exits as soon as any of its nodes dies;
 - ``manager``    the node's logic: the Resource Registrar server ``load_process``;
 - ``interface``  ``ERManagerInterface`` for other managers and actions;
 - ``cli``        ``temoto ps``.

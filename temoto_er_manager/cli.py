@@ -1,4 +1,6 @@
-"""``temoto ps``: the ER Manager's running processes with pid, uptime, consumers and log path.
+"""``temoto ps``: the ER Manager's running resources with pid(s), uptime, consumers and log path.
+
+One row per resource: a node, a command, or a launch file (its nodes' pids joined by commas).
 
 Joins two services of the manager: ``/<ns>/temoto_er_manager/registry`` (the
 Resource Registrar's queries and their consumers) and
@@ -22,7 +24,8 @@ def _fetch(service: str, timeout: float) -> dict:
 
 
 def process_rows(registry: dict, processes: dict) -> list[dict]:
-    """One row per live process; consumers from the registry query whose response has that pid."""
+    """One row per live resource (a launch file's nodes share one row, with all their pids);
+    consumers from the registry query whose response has the resource's pid."""
     consumers = {}
     for q in registry.get('server_queries', []):
         pid = q.get('details', {}).get('pid')
@@ -32,7 +35,8 @@ def process_rows(registry: dict, processes: dict) -> list[dict]:
     for p in processes.get('processes', []):
         if p['state'] == 'exited':
             continue
-        rows.append({'pid': p['pid'], 'uptime': p['uptime'], 'consumers': consumers.get(p['pid'], 0),
+        rows.append({'pid': p['pid'], 'pids': p.get('pids') or [p['pid']], 'nodes': p.get('node_names', []),
+                     'uptime': p['uptime'], 'consumers': consumers.get(p['pid'], 0),
                      'state': p['state'], 'resource': p['label'], 'resource_id': p.get('resource_id'),
                      'log_path': p['log_path'], 'command': p['command']})
     return sorted(rows, key=lambda r: -r['uptime'])
@@ -68,8 +72,8 @@ def ps_main(argv: Optional[list] = None) -> int:
         print('no running processes (%s)' % base)
         return 0
     header = ('PID', 'UPTIME', 'CONSUMERS', 'STATE', 'RESOURCE', 'LOG')
-    table = [header] + [(str(r['pid']), _uptime(r['uptime']), str(r['consumers']), r['state'], r['resource'],
-                         r['log_path']) for r in rows]
+    table = [header] + [(','.join(str(pid) for pid in r['pids']), _uptime(r['uptime']), str(r['consumers']),
+                         r['state'], r['resource'], r['log_path']) for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(len(header) - 1)]
     for row in table:
         print('  '.join(cell.ljust(w) for cell, w in zip(row, widths)) + '  ' + row[-1])

@@ -2,7 +2,10 @@
 
 Load = validate, resolve, spawn, and wait until the process *really* started
 (alive, and for ROS nodes registered at the master by the very process we
-started), so the response carries a real pid. Equal requests share one process
+started), so the response carries a real pid. A launch file is one resource of
+several processes, one per node (:mod:`temoto_er_manager.launchfile`): its load
+returns once every node is registered, and any node's exit fails the resource
+at once (the message names the node), after which its other nodes are stopped. Equal requests share one process
 (the registrar calls ``_load`` once). A child that exits while held is
 reported FAILED to every consumer at once, with its exit reason, output tail
 and command; an unload is never reported as a failure.
@@ -28,6 +31,7 @@ from temoto_core.rr import ResourceRegistrar
 from . import master
 from .policy import ERConfig, RequestRefused, validate_request
 from .resolve import Resolver
+from .resource import Resource
 from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSupervisor, ReadyTimeout,
                          StartCancelled, SupervisorError)
 from temoto_er_manager.srv import LoadProcess
@@ -56,9 +60,7 @@ class ERManager:
                                             tail_lines=config.log_tail_lines)
         self.resolver = Resolver(config)
         self._lock = threading.Lock()
-        self._by_id: dict[int, ManagedProcess] = {}     # internal resource id -> its process
-        self._loading: set[int] = set()
-        self._cancelled: set[int] = set()                # unloaded before their process existed
+        self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
         self._closing = False
         self.rr.add_server(SERVER, LoadProcess, self._load, self._unload)
         self._processes_srv = rospy.Service('/%s/%s/processes' % (self.rr.namespace, NAME), GetRegistry,
@@ -74,79 +76,135 @@ class ERManager:
         try:
             lreq = validate_request(req.action, req.ros_namespace, req.package_name, req.executable, req.args,
                                     self.config, base_ns=rospy.get_namespace())
-            spec = self.resolver.resolve(lreq, name_taken=self._name_taken)
+            plan = self.resolver.resolve(lreq, name_taken=self._name_taken)
         except RequestRefused as e:
             rospy.logwarn('%s: refused load_process from %s (%s %s %s %r): %s', NAME, client, req.action,
                           req.package_name, req.executable, req.args, e)
             raise
+        for warning in plan.warnings:
+            rospy.logwarn('%s: %s', NAME, warning)
+        resource = Resource(rid, plan)
         with self._lock:
             if self._closing:
                 raise TemotoError(ErrorCode.SHUTDOWN, Subsystem.ER_MANAGER, 'the ER Manager is shutting down')
-            self._loading.add(rid)
-        proc = None
+            self._resources[rid] = resource
         try:
-            try:
-                proc = self.supervisor.start(spec)
-            except SupervisorError as e:
-                raise TemotoError(ErrorCode.EXECUTABLE_NOT_FOUND, Subsystem.ER_MANAGER, str(e)) from None
-            proc.resource_id = rid
-            with self._lock:
-                cancelled = rid in self._cancelled or self._closing
-                self._by_id[rid] = proc
-            if cancelled:
-                self.supervisor.stop(proc)
-                raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER,
-                                  '%s was unloaded while it was starting' % spec.label)
-            self._wait_started(proc)
+            self._set_params(plan)
+            for spec in plan.specs:
+                try:
+                    proc = self.supervisor.start(spec)
+                except SupervisorError as e:
+                    raise TemotoError(ErrorCode.EXECUTABLE_NOT_FOUND, Subsystem.ER_MANAGER, str(e)) from None
+                proc.resource = resource
+                with resource.lock:
+                    resource.procs.append(proc)
+                    cancelled = resource.stopping        # an unload that came meanwhile missed this process
+                if cancelled:
+                    raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER,
+                                      '%s was unloaded while it was starting' % plan.label)
+            self._wait_started(resource)
         except BaseException:
-            if proc is not None:
-                self.supervisor.stop(proc)
-                self.supervisor.forget(proc)
-                with self._lock:
-                    self._by_id.pop(rid, None)
-            raise
-        finally:
+            with resource.lock:
+                resource.stopping = True
+            self._stop_all(resource.procs)
             with self._lock:
-                self._loading.discard(rid)
-                self._cancelled.discard(rid)
-        res.pid = proc.pid
-        res.log_path = spec.log_path
-        rospy.loginfo('%s: started %s for %s: pid %d, log %s', NAME, spec.label, client, proc.pid, spec.log_path)
+                if self._resources.get(rid) is resource:
+                    del self._resources[rid]
+            raise
+        res.pid = resource.pid
+        res.log_path = plan.log_path
+        rospy.loginfo('%s: started %s for %s: pid %s, log %s', NAME, plan.label, client,
+                      ', '.join(str(p.pid) for p in resource.procs), plan.log_path)
 
-    def _wait_started(self, proc: ManagedProcess) -> None:
-        spec = proc.spec
-        if spec.node_names:
-            launch = spec.argv[1:2] and spec.argv[1].endswith('launch_runner.py')
+    def _set_params(self, plan) -> None:
+        if not plan.params and not plan.clear_params:
+            return
+        try:
+            master.set_params(self.master_uri, plan.clear_params, plan.params)
+        except Exception as e:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER,
+                              '%s: cannot set its parameters on the master: %s' % (plan.label, e)) from None
 
+    def _wait_started(self, resource: Resource) -> None:
+        """Every process started (for ROS nodes: registered by that very process), then ``resource.ready``."""
+        procs = list(resource.procs)
+        names = [n for p in procs for n in p.spec.node_names]
+        if names:
             def registered(p: ManagedProcess) -> bool:
-                return all(master.node_is_ours(self.master_uri, n, [p.pid], parent=p.pid if launch else None)
-                           for n in spec.node_names)
+                # parent=: a node under a launch-prefix wrapper is the child of the process we started
+                return all(master.node_is_ours(self.master_uri, n, [p.pid], parent=p.pid) for n in p.spec.node_names)
             check, timeout = registered, self.config.registration_timeout
-        else:                                 # sys_execute, or a launch file of anonymous nodes only
+        else:                                 # sys_execute
             check, timeout = None, self.config.sys_settle_time
         try:
-            self.supervisor.wait_ready(proc, check, timeout, self.config.ready_poll_interval)
+            self.supervisor.wait_all_ready(procs, check, timeout, self.config.ready_poll_interval)
+            with resource.lock:
+                # a process that dies from here on is reported FAILED by _on_exit; one that died just before
+                # was ignored there (not ready yet), so it must fail the load here
+                dead = [p for p in procs if not p.alive]
+                if not dead and not resource.stopping:
+                    resource.ready = True
+            if dead:
+                info = dead[0].exit_info
+                raise ProcessExitedEarly('process %d (%s) %s before it was ready; last output:\n%s'
+                                         % (info.pid, info.command, info.reason, info.log_tail), info)
+            if not resource.ready:
+                raise StartCancelled('%s was unloaded while it was starting' % resource.label)
         except ProcessExitedEarly as e:
-            raise TemotoError(ErrorCode.PROCESS_STOPPED, Subsystem.ER_MANAGER, str(e)) from None
+            raise TemotoError(ErrorCode.PROCESS_STOPPED, Subsystem.ER_MANAGER,
+                              self._which(resource, e.exit_info.pid) + str(e)) from None
         except ReadyTimeout as e:
+            late = [n for p in procs for n in p.spec.node_names if not p.ready]
             raise TemotoError(ErrorCode.TIMEOUT, Subsystem.ER_MANAGER,
                               '%s: node(s) %s did not register with the master within %.1f s; last output:\n%s'
-                              % (e, ', '.join(spec.node_names), timeout,
-                                 _tail(spec.log_path, self.config.log_tail_lines))) from None
+                              % (e, ', '.join(late or names), timeout,
+                                 _tail(resource.plan.log_path, self.config.log_tail_lines))) from None
         except StartCancelled as e:
             raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER, str(e)) from None
+
+    @staticmethod
+    def _which(resource: Resource, pid: int) -> str:
+        """'pkg/file.launch: node /x: ' for a launch file's process, '' for a single process."""
+        if len(resource.procs) < 2 and not resource.plan.is_launch:
+            return ''
+        for p in resource.procs:
+            if p.pid == pid:
+                return '%s: node %s: ' % (resource.label, resource.node_of(p))
+        return '%s: ' % resource.label
 
     def _unload(self, req, res) -> None:
         rid = res.trr.resource_id
         with self._lock:
-            proc = self._by_id.pop(rid, None)
-            if proc is None and rid in self._loading:
-                self._cancelled.add(rid)      # its process is not spawned yet: _load stops it
-        if proc is None:
+            resource = self._resources.pop(rid, None)
+        if resource is None:
             return
-        info = self.supervisor.stop(proc)
-        self.supervisor.forget(proc)
-        rospy.loginfo('%s: unloaded %s (pid %d, %s)', NAME, proc.spec.label, proc.pid, info.reason)
+        with resource.lock:
+            resource.stopping = True          # a load still starting stops what it spawns from now on
+            procs = list(resource.procs)
+        infos = self._stop_all(procs)
+        rospy.loginfo('%s: unloaded %s (pid %s: %s)', NAME, resource.label,
+                      ', '.join(str(p.pid) for p in procs) or 'none yet',
+                      '; '.join(i.reason for i in infos) or 'its load stops it')
+
+    def _stop_all(self, procs: list) -> list:
+        """Stop processes in parallel (each SIGINT, SIGTERM, SIGKILL, reaped); their exit infos."""
+        infos = [None] * len(procs)
+
+        def stop(i, p):
+            try:
+                infos[i] = self.supervisor.stop(p)
+            except Exception as e:            # never seen: SIGKILL did not end it
+                rospy.logerr('%s: stopping pid %d failed: %s', NAME, p.pid, e)
+            self.supervisor.forget(p)
+        if len(procs) == 1:
+            stop(0, procs[0])
+        else:
+            threads = [threading.Thread(target=stop, args=(i, p), daemon=True) for i, p in enumerate(procs)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+        return [i for i in infos if i is not None]
 
     def _name_taken(self, full_name: str) -> bool:
         for p in self.supervisor.processes():
@@ -162,25 +220,34 @@ class ERManager:
     # -- failures ----------------------------------------------------------------------------------
 
     def _on_exit(self, proc: ManagedProcess, info: ExitInfo) -> None:
-        rid = getattr(proc, 'resource_id', None)
-        if rid is None or not proc.ready or self._closing:
-            return                            # failed while loading: _load reports it to the caller
-        message = '%s: %s' % (proc.spec.label, info.message())
+        resource: Optional[Resource] = getattr(proc, 'resource', None)
+        if resource is None or self._closing:
+            return
+        with resource.lock:
+            if not resource.ready or resource.stopping or resource.failed_by is not None:
+                return                        # loading: _load reports it; unloading: intentional; or reported
+            resource.failed_by = proc
+            others = [p for p in resource.procs if p is not proc]
+        message = '%s%s' % (self._which(resource, proc.pid) or resource.label + ': ', info.message())
+        if others:
+            message += '\n(stopping the other node(s) of %s: %s)' % (resource.label,
+                                                                    ', '.join(resource.node_of(p) for p in others))
         rospy.logerr('%s: %s', NAME, message)
         err = TemotoError(ErrorCode.PROCESS_STOPPED, Subsystem.ER_MANAGER, message)
         try:
-            self.rr.send_status(rid, ResourceStatus.FAILED, message, error_stack=err.stack)
+            self.rr.send_status(resource.resource_id, ResourceStatus.FAILED, message, error_stack=err.stack)
         except Exception as e:                # e.g. the resource was unloaded meanwhile
             rospy.logwarn('%s: could not report the exit of pid %d: %s', NAME, proc.pid, e)
+        if others:                            # after the report: stopping takes up to the grace periods
+            threading.Thread(target=self._stop_all, args=(others,), name='er-stop-rest', daemon=True).start()
 
     # -- introspection and shutdown ------------------------------------------------------------------
 
     def processes_json(self) -> str:
-        rows = []
-        for p in self.supervisor.processes():
-            row = p.snapshot()
-            row['resource_id'] = getattr(p, 'resource_id', None)
-            rows.append(row)
+        """One row per resource (loading or loaded), each with its processes."""
+        with self._lock:
+            resources = list(self._resources.values())
+        rows = [r.snapshot() for r in resources]
         return json.dumps({'manager': NAME, 'time': time.time(), 'processes': rows}, sort_keys=True)
 
     def shutdown(self) -> None:

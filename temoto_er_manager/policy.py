@@ -124,6 +124,17 @@ def normalise_namespace(ns: str, base_ns: str) -> str:
     return '/' + '/'.join(segments)
 
 
+def check_package_allowed(package: str, allowlist: list, what: str = 'package_name') -> None:
+    """Refuse an illegal package name, or one outside a non-empty ``allowlist``.
+
+    Applied to the request's package and to the package of every node of a launch file."""
+    if not isinstance(package, str) or not _PACKAGE_RE.match(package):
+        raise RequestRefused('BAD_REQUEST', '%s %r is not a legal ROS package name' % (what, package))
+    if allowlist and package not in allowlist:
+        raise RequestRefused('NOT_ALLOWED', '%s %r is not in this manager\'s package_allowlist (%s)'
+                             % (what, package, ', '.join(allowlist)))
+
+
 def validate_request(action: str, ros_namespace: str, package_name: str, executable: str, args: str,
                      config: ERConfig, base_ns: str = '/') -> LoadRequest:
     """Check every field and the allowlists; return the normalised request or raise RequestRefused."""
@@ -150,11 +161,7 @@ def validate_request(action: str, ros_namespace: str, package_name: str, executa
             raise RequestRefused('BAD_REQUEST', 'sys_execute takes no package_name (got %r)' % package_name)
         return LoadRequest(action, ns, '', executable, args, argv_args)
 
-    if not _PACKAGE_RE.match(package_name):
-        raise RequestRefused('BAD_REQUEST', 'package_name %r is not a legal ROS package name' % package_name)
-    if config.package_allowlist and package_name not in config.package_allowlist:
-        raise RequestRefused('NOT_ALLOWED', 'package %r is not in this manager\'s package_allowlist (%s)'
-                             % (package_name, ', '.join(config.package_allowlist)))
+    check_package_allowed(package_name, config.package_allowlist)
     if not _FILE_RE.match(executable) or os.sep in executable:
         raise RequestRefused('BAD_REQUEST',
                              'executable %r must be a plain file name inside the package (no path, no '

@@ -1,4 +1,4 @@
-"""Turn a validated request into a :class:`ProcessSpec`: the rosrun and roslaunch rules, no shell.
+"""Turn a validated request into a :class:`Plan`: the rosrun and roslaunch rules, no shell.
 
 - ``ros_execute`` of a node: the package is found through ``ROS_PACKAGE_PATH``
   (rospkg); the executable is the unique file of that name below the package
@@ -6,28 +6,47 @@
   the executable bit. argv = ``[path] + shlex.split(args) + [__name:=, __ns:=]``.
   ``__name`` is always set so the manager knows which node must register.
 - ``ros_execute`` of ``*.launch``: the file below the package directory (the
-  ``roslaunch`` rule). argv = ``[python, launch_runner.py, ..., file, arg:=value...]``;
-  the namespace goes in ``ROS_NAMESPACE``, which roslaunch uses as the root.
+  ``roslaunch`` rule), loaded with roslaunch's loader into parameters and one
+  process per node (:mod:`temoto_er_manager.launchfile`); the request's namespace
+  is the launch's root namespace.
 - ``sys_execute``: the allowlisted command looked up in ``PATH``.
+
+A plan is one resource: one or more processes that live and die together.
 """
 from __future__ import annotations
 
 import itertools
 import os
 import re
-import socket
 import sys
 import time
-from typing import Callable, Optional
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
 
 import rospkg
 
+from .launchfile import plan_launch
 from .policy import SYS_EXECUTE, ERConfig, LoadRequest, RequestRefused
 from .supervisor import ProcessSpec
 
-LAUNCH_RUNNER = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'launch_runner.py')
 _NAME_RE = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 _seq = itertools.count(1)
+
+
+@dataclass
+class Plan:
+    """One resource to start: parameters to set first, then its processes (all must start, all stop together)."""
+    label: str                          # "pkg/executable", "pkg/file.launch" or the command
+    log_path: str                       # every process of the resource appends its output here
+    specs: list[ProcessSpec]
+    command: str                        # for listings: the argv of a single process, or the launch file and args
+    params: dict[str, Any] = field(default_factory=dict)
+    clear_params: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def is_launch(self) -> bool:
+        return self.label.endswith('.launch')
 
 
 def default_log_dir() -> str:
@@ -89,16 +108,37 @@ class Resolver:
                 raise RequestRefused('PACKAGE_NOT_FOUND', 'package %r not found in ROS_PACKAGE_PATH (%s)'
                                      % (package, self.env.get('ROS_PACKAGE_PATH', ''))) from None
 
-    def resolve(self, req: LoadRequest, name_taken: Callable[[str], bool] = lambda n: False) -> ProcessSpec:
+    def resolve(self, req: LoadRequest, name_taken: Callable[[str], bool] = lambda n: False) -> Plan:
         env = dict(self.env)
         env['ROS_NAMESPACE'] = req.ros_namespace
         env['PYTHONUNBUFFERED'] = '1'       # so a crash's last lines are in the log
         if req.action == SYS_EXECUTE:
-            return self._sys(req, env)
+            return self._single(self._sys(req, env))
         pkg_dir = self.package_dir(req.package_name)
         if req.executable.endswith('.launch'):
             return self._launch(req, pkg_dir, env)
-        return self._node(req, pkg_dir, env, name_taken)
+        return self._single(self._node(req, pkg_dir, env, name_taken))
+
+    @staticmethod
+    def _single(spec: ProcessSpec) -> Plan:
+        return Plan(label=spec.label, log_path=spec.log_path, specs=[spec], command=spec.command)
+
+    def find_executable(self, package: str, executable: str, pkg_dir: Optional[str] = None) -> str:
+        """The rosrun rule: the unique file ``executable`` below the package, with the executable bit."""
+        pkg_dir = pkg_dir or self.package_dir(package)
+        matches = find_in_package(pkg_dir, executable)
+        execs = [p for p in matches if os.path.isfile(p) and os.access(p, os.X_OK)]
+        if not execs:
+            if matches:
+                raise RequestRefused('EXECUTABLE_NOT_FOUND',
+                                     'executable %r in package %r is not an executable file: %s'
+                                     % (executable, package, ', '.join(matches)))
+            raise RequestRefused('EXECUTABLE_NOT_FOUND', 'no executable %r in package %r (%s)'
+                                 % (executable, package, pkg_dir))
+        if len(execs) > 1:
+            raise RequestRefused('EXECUTABLE_NOT_FOUND', 'executable %r is not unique in package %r: %s'
+                                 % (executable, package, ', '.join(execs)))
+        return execs[0]
 
     def _log_path(self, req: LoadRequest) -> str:
         parts = [p for p in (req.package_name, req.executable) if p]
@@ -117,18 +157,7 @@ class Resolver:
                            label=req.executable)
 
     def _node(self, req: LoadRequest, pkg_dir: str, env: dict, name_taken) -> ProcessSpec:
-        matches = find_in_package(pkg_dir, req.executable)
-        execs = [p for p in matches if os.path.isfile(p) and os.access(p, os.X_OK)]
-        if not execs:
-            if matches:
-                raise RequestRefused('EXECUTABLE_NOT_FOUND',
-                                     'executable %r in package %r is not an executable file: %s'
-                                     % (req.executable, req.package_name, ', '.join(matches)))
-            raise RequestRefused('EXECUTABLE_NOT_FOUND', 'no executable %r in package %r (%s)'
-                                 % (req.executable, req.package_name, pkg_dir))
-        if len(execs) > 1:
-            raise RequestRefused('EXECUTABLE_NOT_FOUND', 'executable %r is not unique in package %r: %s'
-                                 % (req.executable, req.package_name, ', '.join(execs)))
+        exe = self.find_executable(req.package_name, req.executable, pkg_dir)
         args = list(req.argv_args)
         named = [a.split(':=', 1)[1] for a in args if a.startswith('__name:=')]
         if named:
@@ -145,11 +174,11 @@ class Resolver:
                 name = '%s_%d' % (base, i)
             args.append('__name:=' + name)
         args.append('__ns:=' + req.ros_namespace)
-        return ProcessSpec(argv=interpreter_argv(execs[0]) + args, env=env, log_path=self._log_path(req),
-                           cwd=os.path.dirname(execs[0]), label='%s/%s' % (req.package_name, req.executable),
+        return ProcessSpec(argv=interpreter_argv(exe) + args, env=env, log_path=self._log_path(req),
+                           cwd=os.path.dirname(exe), label='%s/%s' % (req.package_name, req.executable),
                            node_names=[join_name(req.ros_namespace, name)])
 
-    def _launch(self, req: LoadRequest, pkg_dir: str, env: dict) -> ProcessSpec:
+    def _launch(self, req: LoadRequest, pkg_dir: str, env: dict) -> Plan:
         matches = [p for p in find_in_package(pkg_dir, req.executable) if os.path.isfile(p)]
         if not matches:
             raise RequestRefused('EXECUTABLE_NOT_FOUND', 'no launch file %r in package %r (%s)'
@@ -160,31 +189,13 @@ class Resolver:
         for a in req.argv_args:
             if ':=' not in a or a.startswith('__'):
                 raise RequestRefused('BAD_REQUEST', 'launch file args must be name:=value, got %r' % a)
-        node_names = launch_node_names(matches[0], list(req.argv_args), req.ros_namespace)
-        argv = [sys.executable, LAUNCH_RUNNER, '--sigint-timeout', str(self.config.sigint_grace),
-                '--sigterm-timeout', str(self.config.sigterm_grace),
-                '--death-signal', self.config.death_signal, matches[0], *req.argv_args]
-        return ProcessSpec(argv=argv, env=env, log_path=self._log_path(req), cwd=os.path.dirname(matches[0]),
-                           label='%s/%s' % (req.package_name, req.executable), node_names=node_names)
-
-
-def launch_node_names(path: str, args: list[str], ns: str) -> list[str]:
-    """The full names of the launch file's nodes under namespace ``ns``.
-
-    Anonymous names (``$(anon x)``) differ in every roslaunch process, so they
-    cannot be checked and are left out. A ``<group ns="/absolute">`` is also
-    placed under ``ns`` here (roslaunch would not): a documented approximation.
-    """
-    import roslaunch.config
-    import roslaunch.core
-    try:
-        cfg = roslaunch.config.load_config_default([(path, args)], None, verbose=False)
-    except (roslaunch.core.RLException, Exception) as e:     # XML errors are not all RLException
-        raise RequestRefused('BAD_REQUEST', 'launch file %s cannot be loaded: %s' % (path, e)) from None
-    anon = re.compile(r'_%s_%d_\d+$' % (re.escape(re.sub(r'[.\-]', '_', socket.gethostname())), os.getpid()))
-    names = []
-    for node in cfg.nodes:
-        if not node.name or anon.search(node.name):
-            continue
-        names.append(join_name(ns, (node.namespace + node.name).lstrip('/')))
-    return names
+        label = '%s/%s' % (req.package_name, req.executable)
+        log_path = self._log_path(req)
+        launch = plan_launch(matches[0], list(req.argv_args), req.ros_namespace, env=env, log_path=log_path,
+                             label=label, find_executable=self.find_executable,
+                             package_allowlist=self.config.package_allowlist,
+                             sys_allowlist=self.config.sys_allowlist, interpreter_argv=interpreter_argv)
+        command = ' '.join([matches[0], *req.argv_args] + (['(ns %s)' % req.ros_namespace]
+                                                         if req.ros_namespace != '/' else []))
+        return Plan(label=label, log_path=log_path, specs=launch.nodes, command=command, params=launch.params,
+                    clear_params=launch.clear_params, warnings=launch.warnings)

@@ -264,27 +264,50 @@ class ProcessSupervisor:
         ``check`` the process is ready when it is still alive after ``timeout``
         (a settle time).
         """
+        self.wait_all_ready([proc], check, timeout, interval)
+
+    def wait_all_ready(self, procs: list[ManagedProcess], check: Optional[ReadyCheck], timeout: float,
+                       interval: float = 0.02) -> None:
+        """:meth:`wait_ready` for processes that form one resource: all must become ready.
+
+        Any one's exit or stop ends the wait with its error (checked before every
+        poll, so within ``interval``; the first pending process's exit wakes the
+        wait at once), also for a process that was already ready.
+        """
         deadline = time.monotonic() + timeout
+        pending = list(procs)
         while True:
-            self._raise_if_gone(proc)
+            for p in procs:
+                self._raise_if_gone(p)
             if check is not None:
-                try:
-                    ok = check(proc)
-                except Exception as e:        # a flaky look-up is "not yet"
-                    _log.debug('ready check for pid %d failed: %s', proc.pid, e)
-                    ok = False
-                if ok and self._mark_ready(proc):
+                still = []
+                for p in pending:
+                    try:
+                        ok = check(p)
+                    except Exception as e:    # a flaky look-up is "not yet"
+                        _log.debug('ready check for pid %d failed: %s', p.pid, e)
+                        ok = False
+                    if not (ok and self._mark_ready(p)):
+                        still.append(p)
+                pending = still
+                if not pending:
+                    for p in procs:           # one may have died after it was marked ready
+                        self._raise_if_gone(p)
                     return
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                if check is None and self._mark_ready(proc):
+                if check is None and all(self._mark_ready(p) for p in procs):
                     return
-                self._raise_if_gone(proc)
+                for p in procs:
+                    self._raise_if_gone(p)
+                late = pending[0]
                 raise ReadyTimeout('process %d (%s) did not become ready within %.1f s'
-                                   % (proc.pid, proc.spec.label or proc.spec.command, timeout))
-            with proc.cond:
-                proc.cond.wait_for(lambda: not proc.alive or proc.stopping,
-                                   timeout=min(interval, remaining) if check is not None else remaining)
+                                   % (late.pid, late.spec.label or late.spec.command, timeout))
+            first = pending[0]
+            with first.cond:
+                first.cond.wait_for(lambda: not first.alive or first.stopping,
+                                    timeout=min(interval, remaining) if check is not None else
+                                    (remaining if len(procs) == 1 else min(interval, remaining)))
 
     @staticmethod
     def _raise_if_gone(proc: ManagedProcess) -> None:

@@ -77,6 +77,12 @@ def registry():
     return json.loads(rospy.ServiceProxy('/temoto/%s/registry' % MGR, GetRegistry)().json)
 
 
+def processes():
+    import rospy
+    from temoto_core.srv import GetRegistry
+    return json.loads(rospy.ServiceProxy('/temoto/%s/processes' % MGR, GetRegistry)().json)['processes']
+
+
 def master_uri():
     return os.environ['ROS_MASTER_URI']
 
@@ -126,11 +132,16 @@ def test_launch_file_with_a_dying_node_is_detected(consumers):
     r = c.load('er_two_nodes.launch', ns='/launched')
     first, second = node_pid('/launched/first'), node_pid('/launched/inner/second')
     assert first and second, 'both nodes registered before the response'
+    assert r.pid == first, 'a launch resource answers with its first node'
+    t0 = time.monotonic()
     os.kill(second, signal.SIGKILL)
     wait_for(c.failed, 10, 'FAILED for the launch file')
+    took = c.events[0][0] - t0
+    assert took < 2.0, 'generous bound (the bench measures ~ms): %.3f s' % took
     msg = c.failed()[0].message
-    assert 'second' in msg and 'SIGKILL' in msg, msg
-    wait_for(lambda: pid_gone(r.pid) and pid_gone(first), 10, 'the rest of the launch stopped')
+    assert 'node /launched/inner/second' in msg and 'SIGKILL' in msg and 'er_two_nodes.launch' in msg, msg
+    assert '/launched/first' in msg, 'the message says which other nodes are stopped'
+    wait_for(lambda: pid_gone(first) and pid_gone(second), 10, 'the rest of the launch stopped')
     c.rr.unload(r.trr.resource_id)
 
 
@@ -139,9 +150,50 @@ def test_launch_file_unload_stops_its_nodes(consumers):
     r = c.load('er_two_nodes.launch', ns='/launched2')
     nodes = [node_pid('/launched2/first'), node_pid('/launched2/inner/second')]
     c.rr.unload(r.trr.resource_id)
-    assert pid_gone(r.pid)
-    wait_for(lambda: all(pid_gone(p) for p in nodes), 5, 'launch nodes gone')
+    assert all(pid_gone(p) for p in nodes), 'unload returns once every node is stopped and reaped'
     assert not c.failed()
+
+
+def test_launch_file_load_returns_once_every_node_is_registered(consumers):
+    c = consumers()
+    t0 = time.monotonic()
+    r = c.load('er_two_nodes.launch', 'delay:=1.5', ns='/slowlaunch')
+    assert time.monotonic() - t0 >= 1.5
+    [row] = [p for p in processes() if p['pid'] == r.pid]
+    assert row['state'] == 'running' and row['label'] == 'temoto_er_manager/er_two_nodes.launch'
+    assert row['node_names'] == ['/slowlaunch/first', '/slowlaunch/inner/second']
+    assert [node_pid(n) for n in row['node_names']] == row['pids'] and row['pids'][0] == r.pid
+    c.rr.unload(r.trr.resource_id)
+
+
+def test_launch_file_node_failing_at_start_fails_the_load_and_stops_the_others(consumers):
+    c = consumers()
+    with pytest.raises(TemotoError) as err:
+        c.load('er_two_nodes.launch', 'exit_second:=4', ns='/badlaunch')
+    msg = str(err.value)
+    assert 'node /badlaunch/inner/second' in msg and 'exited with code 4' in msg, msg
+    wait_for(lambda: not [p for p in processes() if p['label'].endswith('er_two_nodes.launch') and
+                          p['node_names'][0].startswith('/badlaunch/')], 5, 'resource gone')
+    assert node_pid('/badlaunch/first') is None, 'the first node was stopped with the failed load'
+
+
+def test_launch_file_params_names_remaps_env(consumers, rospy_client):
+    import rospy
+    rospy.set_param('/lp/grp/stale', 'old')
+    c = consumers()
+    r = c.load('er_features.launch', 'prefix:=xy topic:=renamed', ns='/lp')
+    assert rospy.get_param('/lp/top_value') == 'xy_top' and rospy.get_param('/lp/loaded') == {'a': 1, 'b': ['x', 'y']}
+    assert rospy.get_param('/lp/grp/inner_value') == 42 and rospy.get_param('/lp/grp/talker/private_value') == 'xy'
+    assert rospy.get_param('/lp/grp/inc/included_by') == 'xy'
+    assert not rospy.has_param('/lp/grp/stale'), 'clear_params of the group'
+    [row] = [p for p in processes() if p['pid'] == r.pid]
+    talker, listener = row['node_names']
+    assert talker == '/lp/grp/talker' and listener.startswith('/lp/grp/inc/listener_')
+    assert [node_pid(talker), node_pid(listener)] == row['pids'], 'the anonymous node was checked too'
+    pubs = dict(rospy.get_master().getSystemState()[2][0])
+    assert '/lp/grp/talker' in pubs.get('/lp/grp/renamed', []), 'remap chatter:=$(arg topic) in the group ns'
+    assert 'er_test_node: ER_TEST_ENV=from_launch_xy' in open(r.log_path).read()
+    c.rr.unload(r.trr.resource_id)
 
 
 @pytest.mark.parametrize('executable, args, words', [
@@ -184,12 +236,17 @@ def test_ps_lists_running_processes(consumers, capsys):
     from temoto_er_manager.cli import ps_main
     c = consumers()
     r = c.load('er_test_node', '__name:=ps_node')
+    lr = c.load('er_two_nodes.launch', ns='/ps_launch')
     assert ps_main([]) == 0
     out = capsys.readouterr().out
     line = [ln for ln in out.splitlines() if str(r.pid) in ln]
     assert line and 'er_test_node' in line[0] and '1' in line[0]
     assert r.log_path in out
+    pids = '%d,%d' % (node_pid('/ps_launch/first'), node_pid('/ps_launch/inner/second'))
+    rows = [ln for ln in out.splitlines() if 'er_two_nodes.launch' in ln]
+    assert len(rows) == 1 and rows[0].startswith(pids) and lr.log_path in rows[0], out
     c.rr.unload(r.trr.resource_id)
+    c.rr.unload(lr.trr.resource_id)
 
 
 # -- manager lifetime: each test has its own manager -------------------------------------------------
@@ -215,7 +272,7 @@ def test_manager_sigint_leaves_no_process(own_manager, tmp_path):
     try:
         node = c.load('er_test_node', '__name:=stay_a')
         launch = c.load('er_two_nodes.launch', ns='/stay_b')
-        nodes = [node.pid, launch.pid, node_pid('/stay_b/first'), node_pid('/stay_b/inner/second')]
+        nodes = [node.pid, launch.pid, node_pid('/stay_b/inner/second')]
         os.killpg(mgr.pid, signal.SIGINT)
         mgr.proc.wait(20)
         wait_for(lambda: all(pid_gone(p) for p in nodes), 10, 'children gone after SIGINT')
@@ -228,7 +285,7 @@ def test_manager_sigkill_leaves_no_process(own_manager):
     try:
         node = c.load('er_test_node', '__name:=orphan_a')
         launch = c.load('er_two_nodes.launch', ns='/orphan_b')
-        nodes = [node.pid, launch.pid, node_pid('/orphan_b/first'), node_pid('/orphan_b/inner/second')]
+        nodes = [node.pid, launch.pid, node_pid('/orphan_b/inner/second')]
         os.kill(mgr.pid, signal.SIGKILL)      # the manager only, not its group: PDEATHSIG must do it
         mgr.proc.wait(5)
         wait_for(lambda: all(pid_gone(p) or open('/proc/%d/stat' % p).read().split()[2] == 'Z' for p in nodes),

@@ -217,22 +217,64 @@ def test_resolver_unknown_package(tmp_path):
 
 def test_resolver_node_and_launch(tmp_path):
     r = Resolver(ERConfig(log_dir=str(tmp_path)))
-    s = r.resolve(validate_request('ros_execute', '/robot', 'temoto_er_manager', 'er_test_node', 'a:=b "two words"', CFG),
-                  name_taken=lambda n: n == '/robot/er_test_node')
+    plan = r.resolve(validate_request('ros_execute', '/robot', 'temoto_er_manager', 'er_test_node', 'a:=b "two words"',
+                                      CFG), name_taken=lambda n: n == '/robot/er_test_node')
+    [s] = plan.specs
     assert s.argv[-4:] == ['a:=b', 'two words', '__name:=er_test_node_2', '__ns:=/robot']
     assert s.node_names == ['/robot/er_test_node_2'] and s.env['ROS_NAMESPACE'] == '/robot'
-    assert s.log_path.startswith(str(tmp_path))
-    s = r.resolve(validate_request('ros_execute', '/robot', 'temoto_er_manager', 'er_two_nodes.launch', '', CFG))
-    assert sorted(s.node_names) == ['/robot/first', '/robot/inner/second']
-    assert s.argv[1].endswith('launch_runner.py')
+    assert s.log_path.startswith(str(tmp_path)) and plan.log_path == s.log_path
+    plan = r.resolve(validate_request('ros_execute', '/robot', 'temoto_er_manager', 'er_two_nodes.launch', '', CFG))
+    assert [s.node_names for s in plan.specs] == [['/robot/first'], ['/robot/inner/second']]
+    assert all(s.argv[1].endswith('/er_test_node') and s.log_path == plan.log_path for s in plan.specs)
+    assert plan.specs[1].argv[-2:] == ['__name:=second', '__ns:=/robot/inner']
+    assert plan.specs[1].env['ROS_NAMESPACE'] == '/robot/inner'
 
 
 def test_shell_metacharacters_are_plain_arguments(sup, tmp_path):
     marker = tmp_path / 'pwned'
     args = '; touch %s $(touch %s) `touch %s` | touch %s' % ((marker,) * 4)
     req = validate_request('sys_execute', '', '', 'echo', args, CFG)
-    s = Resolver(ERConfig(sys_allowlist=['echo'], log_dir=str(tmp_path))).resolve(req)
+    [s] = Resolver(ERConfig(sys_allowlist=['echo'], log_dir=str(tmp_path))).resolve(req).specs
     proc = sup.start(s)
     wait_for(lambda: not proc.alive, 5, 'echo done')
     assert not marker.exists()
     assert '$(touch' in open(s.log_path).read()
+
+
+def _launch_plan(cfg, exe, args=''):
+    return Resolver(cfg).resolve(validate_request('ros_execute', '/lp', 'temoto_er_manager', exe, args, cfg))
+
+
+def test_launch_file_roslaunch_features_resolve(tmp_path):
+    plan = _launch_plan(ERConfig(log_dir=str(tmp_path)), 'er_features.launch', 'prefix:=xy topic:=renamed')
+    talker, listener = plan.specs
+    assert talker.node_names == ['/lp/grp/talker']
+    assert listener.node_names[0].startswith('/lp/grp/inc/listener_'), 'anon name resolved once, here'
+    assert talker.argv[2:] == ['_publish:=chatter', '_print_env:=ER_TEST_ENV', 'chatter:=renamed', '__name:=talker',
+                               '__ns:=/lp/grp']
+    assert talker.env['ER_TEST_ENV'] == 'from_launch_xy' and 'ER_TEST_ENV' not in listener.env
+    assert plan.params['/lp/top_value'] == 'xy_top' and plan.params['/lp/grp/inner_value'] == 42
+    assert plan.params['/lp/grp/talker/private_value'] == 'xy'
+    assert plan.params['/lp/grp/inc/included_by'] == 'xy' and plan.params['/lp/loaded/b'] == ['x', 'y']
+    assert '/lp/grp/' in plan.clear_params
+
+
+@pytest.mark.parametrize('cfg, exe, args, kind, words', [
+    (ERConfig(), 'er_refused.launch', 'prefix:="nice -n 5"', 'NOT_ALLOWED', "launch-prefix 'nice -n 5' runs 'nice'"),
+    (ERConfig(package_allowlist=['temoto_er_manager']), 'er_refused.launch', '', 'NOT_ALLOWED',
+     "node /lp/elsewhere (temoto_core/anything): package 'temoto_core' is not in"),
+    (ERConfig(), 'er_refused.launch', '', 'EXECUTABLE_NOT_FOUND', "no executable 'anything' in package 'temoto_core'"),
+    (ERConfig(), 'er_included.launch', '', 'BAD_REQUEST', 'cannot be loaded'),      # required arg "who" not set
+])
+def test_launch_file_refusals(tmp_path, cfg, exe, args, kind, words):
+    cfg.log_dir = str(tmp_path)
+    with pytest.raises(RequestRefused) as err:
+        _launch_plan(cfg, exe, args)
+    assert err.value.kind == kind and words in str(err.value), str(err.value)
+
+
+def test_allowlisted_launch_prefix_runs_without_a_shell(tmp_path):
+    plan = _launch_plan(ERConfig(sys_allowlist=['nice'], log_dir=str(tmp_path)), 'er_refused.launch',
+                        'prefix:="nice -n 5" other:=false')
+    [s] = plan.specs
+    assert s.argv[:4] == ['nice', '-n', '5', sys.executable] and s.argv[4].endswith('/er_test_node')
