@@ -183,20 +183,97 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
         assert proc.stop() == 0, f'{name}: {proc.log()}'
 
 
-def test_stitched_cloud_in_base_frame_lies_on_the_wall(procs, rospy_client, collect):
-    from sensor_msgs.msg import PointCloud2
+def _sweep_scans(model, seconds, rate=40.0, speed=math.pi / 2, still=False):
+    """Scans of a 2 m sphere around the Hokuyo while the wrist sweeps as the sim does (triangle wave)."""
+    from vaultbot_sim.motion import WristSweep
+    centre = spec.HOLD_POSE[spec.SWEEP_JOINT]
+    wrist = WristSweep(centre, speed=speed, enabled=not still)
+    ranges = np.full(spec.HOKUYO.beams, 2.0)
+    ranges[::2] = np.inf
+    for k in range(int(seconds * rate)):
+        cfg = dict(spec.HOLD_POSE)
+        cfg[spec.SWEEP_JOINT] = wrist.position
+        yield k / rate, ranges, cfg
+        wrist.advance(1.0 / rate)
+
+
+def test_rolling_stitcher_holds_the_freshest_scan_of_every_direction_of_the_last_sweep():
+    from vaultbot_sim.stitcher import RollingStitcher
+    model = TreeModel(ROBOT_URDF)
+    st = RollingStitcher(model, spec.SWEEP_JOINT, sweep_angle=math.pi, max_window=4.5)
+    assert len(st) == 0 and len(st.cloud()) == 0 and not st.complete
+    sizes, complete, oldest = [], [], []
+    for t, ranges, cfg in _sweep_scans(model, 9.0):
+        st.add(t, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+        sizes.append(len(st))
+        complete.append(st.complete)
+        oldest.append(t - min(s for s, _, _ in st.bins.values()))
+        if t == pytest.approx(1.0):
+            assert abs(st.newest_stamp - 1.0) < 1e-9
+    assert sizes[:3] == [1, 2, 3]              # a cloud from the first scans on
+    # the wrist starts at the centre going up: the whole sweep is seen at the far end, after 1 s up and 2 s down
+    first = complete.index(True)
+    assert 115 <= first <= 121 and all(complete[first:])
+    # then it always holds about one sweep's worth (pi in steps of pi/80), never two
+    assert 78 <= min(sizes[first:]) and max(sizes[first:]) <= 84
+    # the far end is last seen up to a whole period (4 s) ago, and nothing older than max_window is kept
+    assert max(oldest) <= 4.5 and max(oldest[first:]) > 3.5
+    # the cloud: every finite beam of the held scans, 2 m from the scanner, in base_link
+    cloud = st.cloud()
+    assert len(cloud) == len(st) * (spec.HOKUYO.beams // 2)
+    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)[:3, 3]
+    dist = np.sqrt((cloud['x'] - h[0]) ** 2 + (cloud['y'] - h[1]) ** 2 + (cloud['z'] - h[2]) ** 2)
+    assert np.allclose(dist, 2.0, atol=1e-4)
+    assert st.newest_stamp == pytest.approx(9.0 - 1 / 40.0)
+
+
+def test_rolling_stitcher_with_a_still_wrist_keeps_one_plane_and_restarts_when_the_clock_goes_back():
+    from vaultbot_sim.stitcher import RollingStitcher
+    model = TreeModel(ROBOT_URDF)
+    st = RollingStitcher(model, spec.SWEEP_JOINT, max_window=1.0)
+    for t, ranges, cfg in _sweep_scans(model, 3.0, speed=math.pi):
+        st.add(t, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+    # only directions seen in the last second (centre -> far end -> centre: a quarter of the bins)
+    assert all(st.newest_stamp - s <= 1.0 for s, _, _ in st.bins.values()) and 15 <= len(st) <= 25
+    for t, ranges, cfg in _sweep_scans(model, 0.5, still=True):
+        st.add(3.0 + t, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+    later = 3.0 + 0.5 + 1.5
+    st.add(later, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+    assert len(st) == 1 and not st.complete    # the wrist stopped: its one plane is all that is left
+    st.add(0.5, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
+    assert len(st) == 1 and st.newest_stamp == 0.5
+    with pytest.raises(ValueError, match='must be > 0'):
+        RollingStitcher(model, spec.SWEEP_JOINT, max_window=0.0)
+    with pytest.raises(ValueError, match='angle_bin'):
+        RollingStitcher(model, spec.SWEEP_JOINT, angle_bin=-1.0)
+
+
+def test_stitched_cloud_flows_at_once_and_rolls_over_the_last_sweep(procs, rospy_client, collect):
+    from sensor_msgs.msg import LaserScan, PointCloud2
     out = collect('/laser_stitcher/cloud', PointCloud2)
-    start_sim(procs, sweep=True, sweep_speed=math.pi)
+    scans = collect('/hokuyo/scan', LaserScan)
+    start_sim(procs, sweep=True, sweep_speed=math.pi)       # a sweep (pi) takes 1 s
     procs.launch('vaultbot_sim', 'hokuyo.launch')
-    wait_for(lambda: len(out.msgs) >= 2, 30, 'two stitched clouds')
-    m = out.msgs[-1]
+    wait_for(lambda: out.msgs, 30, 'the first stitched cloud')
+    first = out.msgs[0].header.stamp.to_sec()
+    # data flows a few scans after the driver's first one, not one sweep (1 s) later
+    assert first - scans.msgs[0].header.stamp.to_sec() < 0.5
+    wait_for(lambda: out.last().header.stamp.to_sec() > first + 2.5, 30, 'two sweeps of clouds')
+    with out.lock, scans.lock:
+        clouds, scan_stamps = list(out.msgs), {m.header.stamp.to_sec() for m in scans.msgs}
+    stamps = [m.header.stamp.to_sec() for m in clouds]
+    # a steady stream, never faster than ~publish_rate (10 Hz), each cloud stamped with one of its scans
+    gaps = np.diff(stamps)
+    assert gaps.min() >= 0.09 - 1e-6 and np.median(gaps) < 0.5, gaps
+    assert set(stamps) <= scan_stamps
+    m = clouds[-1]
     assert m.header.frame_id == 'base_link' and [f.name for f in m.fields] == ['x', 'y', 'z']
     pts = np.frombuffer(m.data, dtype=np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4')]))
     assert m.width * m.height == len(pts) > 20000
     far = pts[pts['x'] > 2.0]
     on = (np.abs(far['x'] - TEST_WALL_X) < 0.05) | (np.abs(far['z']) < 0.05)
     assert on.mean() > 0.98, on.mean()
-    # a sweep spans 3D: points well above and below the scanner's height
+    # the latest cloud spans a whole sweep in 3D: points well above and below the scanner's height
     assert far['z'].max() > 2.0 and far['z'].min() < 0.1
 
 

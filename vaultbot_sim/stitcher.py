@@ -1,12 +1,18 @@
-"""Stitch the Hokuyo's 2D scans over one wrist sweep into a 3D cloud in the base frame.
+"""Stitch the Hokuyo's 2D scans over a wrist sweep into a 3D cloud in the base frame.
 
 Each scan is placed with the hokuyo_link pose at its stamp, computed by forward
 kinematics from the sim's joint states (JointHistory applies the same
-extrapolation rule the driver used when rendering). A sweep is complete when the
-wrist has turned through `sweep_angle` (pi by default: half a turn of a 270 deg
-scan plane that contains the turning axis covers everything around it), when the
-wrist reverses after turning at least `min_angle`, or after `max_window`
-seconds, so that a still wrist still yields a (planar) cloud now and then.
+extrapolation rule the driver used when rendering). A sweep covers
+`sweep_angle` of wrist turn (pi by default: half a turn of a 270 deg scan plane
+that contains the turning axis covers everything around it).
+
+Two ways to cut the stream of scans into clouds:
+- ``RollingStitcher`` (what the node publishes): the latest sweep's worth of
+  scans, the freshest of each direction, published at a steady rate. Data flows
+  a few scans after the driver's first one, and a viewer that subscribes late
+  waits one publishing period, not one sweep (2 s at the sim's wrist speed).
+- ``SweepStitcher``: one cloud per finished sweep (the wrist turned through
+  `sweep_angle`, reversed after at least `min_angle`, or `max_window` s passed).
 """
 from __future__ import annotations
 
@@ -19,23 +25,24 @@ from vaultbot_sim.kinematics import TreeModel
 from vaultbot_sim.rosmsgs import XYZ
 
 
-class SweepStitcher:
+def _xyz(pts: np.ndarray) -> np.ndarray:
+    out = np.empty(len(pts), dtype=XYZ)
+    out['x'], out['y'], out['z'] = pts[:, 0], pts[:, 1], pts[:, 2]
+    return out
+
+
+class ScanProjector:
+    """Places one scan in the base frame with the sensor pose of its joint configuration."""
+
     def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
-                 base_frame: str = 'base_link', sweep_angle: float = math.pi, min_angle: float = 0.2,
-                 max_window: float = 3.0):
+                 base_frame: str = 'base_link', sweep_angle: float = math.pi, max_window: float = 3.0):
         if base_frame != model.root and base_frame not in model.links():
             raise ValueError(f'base frame {base_frame!r} is not a link of {model.path}')
+        if not sweep_angle > 0 or not max_window > 0:
+            raise ValueError(f'sweep_angle ({sweep_angle}) and max_window ({max_window}) must be > 0')
         self.model, self.sweep_joint = model, sweep_joint
         self.sensor_frame, self.base_frame = sensor_frame, base_frame
-        self.sweep_angle, self.min_angle, self.max_window = sweep_angle, min_angle, max_window
-        self._reset()
-
-    def _reset(self) -> None:
-        self.chunks: list[np.ndarray] = []
-        self.t0: float | None = None
-        self.lo = self.hi = None
-        self.last_angle: float | None = None
-        self.direction = 0.0
+        self.sweep_angle, self.max_window = sweep_angle, max_window
 
     def scan_points(self, ranges: np.ndarray, angle_min: float, angle_increment: float,
                     cfg: Mapping[str, float]) -> np.ndarray:
@@ -46,6 +53,79 @@ class SweepStitcher:
         local = np.stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok]), np.zeros(ok.sum())], axis=1)
         t = self.model.transform(self.sensor_frame, self.base_frame, cfg)
         return local @ t[:3, :3].T + t[:3, 3]
+
+
+class RollingStitcher(ScanProjector):
+    """The freshest scan of every direction the wrist has swept through: a rolling "last sweep".
+
+    Scans are kept by wrist angle, in bins of ``angle_bin`` (default: one scan's turn at
+    the sim's 40 Hz and pi/2 rad/s); a new scan replaces the one of its bin. So after a
+    whole sweep the window holds one sweep's worth of scans, each direction as last
+    seen. A time window could not do that with a wrist that goes back and forth: the
+    directions near the end it turned away from were last seen up to a whole period
+    ago, while those it just passed twice would be held twice. Scans older than
+    ``max_window`` s are dropped (a wrist that stopped leaves only its current plane).
+    Until a whole sweep has been seen it holds what was seen so far. ``cloud()`` is
+    the window as one cloud; its stamp is the newest scan's (``newest_stamp``).
+    """
+
+    def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
+                 base_frame: str = 'base_link', sweep_angle: float = math.pi, max_window: float = 4.5,
+                 angle_bin: float = math.pi / 80):
+        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window)
+        if not 0 < angle_bin <= sweep_angle:
+            raise ValueError(f'angle_bin ({angle_bin}) must be > 0 and at most sweep_angle ({sweep_angle})')
+        self.angle_bin = angle_bin
+        self.bins: dict[int, tuple[float, float, np.ndarray]] = {}   # bin -> (stamp, angle, points)
+        self.newest_stamp: float | None = None
+
+    def __len__(self) -> int:
+        return len(self.bins)
+
+    @property
+    def complete(self) -> bool:
+        """True once the held scans span the whole sweep (the ends to within a bin each)."""
+        if not self.bins:
+            return False
+        angles = [a for _, a, _ in self.bins.values()]
+        return max(angles) - min(angles) >= self.sweep_angle - 2.0 * self.angle_bin - 1e-9
+
+    def add(self, stamp: float, ranges, angle_min: float, angle_increment: float,
+            cfg: Mapping[str, float]) -> None:
+        """Add one scan. A scan older than the newest one means the clock went back (a
+        restarted sim): the window starts again from this scan."""
+        if self.newest_stamp is not None and stamp < self.newest_stamp:
+            self.bins.clear()
+        angle = float(cfg.get(self.sweep_joint, 0.0))
+        pts = self.scan_points(ranges, angle_min, angle_increment, cfg)
+        self.bins[math.floor(angle / self.angle_bin)] = (stamp, angle, pts)
+        self.newest_stamp = stamp
+        for key in [k for k, (t, _, _) in self.bins.items() if stamp - t > self.max_window]:
+            del self.bins[key]
+
+    def cloud(self) -> np.ndarray:
+        """The held scans as one structured XYZ array (base frame), in wrist-angle order."""
+        if not self.bins:
+            return _xyz(np.zeros((0, 3)))
+        return _xyz(np.concatenate([self.bins[k][2] for k in sorted(self.bins)]))
+
+
+class SweepStitcher(ScanProjector):
+    """One cloud per finished sweep (the node's ``~mode: sweep``)."""
+
+    def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
+                 base_frame: str = 'base_link', sweep_angle: float = math.pi, min_angle: float = 0.2,
+                 max_window: float = 3.0):
+        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window)
+        self.min_angle = min_angle
+        self._reset()
+
+    def _reset(self) -> None:
+        self.chunks: list[np.ndarray] = []
+        self.t0: float | None = None
+        self.lo = self.hi = None
+        self.last_angle: float | None = None
+        self.direction = 0.0
 
     def add(self, stamp: float, ranges, angle_min: float, angle_increment: float,
             cfg: Mapping[str, float]) -> np.ndarray | None:
@@ -79,6 +159,4 @@ class SweepStitcher:
         pts = np.concatenate(self.chunks) if self.chunks else np.zeros((0, 3))
         self._reset()
         self.direction = direction
-        out = np.empty(len(pts), dtype=XYZ)
-        out['x'], out['y'], out['z'] = pts[:, 0], pts[:, 1], pts[:, 2]
-        return out
+        return _xyz(pts)

@@ -1,4 +1,13 @@
-"""The laser_stitcher node: hokuyo/scan + /joint_states -> laser_stitcher/cloud (base_link)."""
+"""The laser_stitcher node: hokuyo/scan + /joint_states -> laser_stitcher/cloud (base_link).
+
+``~mode: rolling`` (default) publishes the latest sweep's worth of scans
+(``RollingStitcher``) at ``~publish_rate`` Hz, driven by the scans themselves:
+the first cloud goes out as soon as the window holds ``~min_scans`` scans (a few
+tens of ms after the driver's first scan), then one at most every period. A
+stalled scanner therefore stalls the cloud too (nothing stale is republished),
+and every cloud carries the stamp of its newest scan. ``~mode: sweep`` publishes
+one cloud per finished sweep instead (``SweepStitcher``).
+"""
 from __future__ import annotations
 
 import math
@@ -12,7 +21,12 @@ from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
 from vaultbot_sim.motion import JointHistory
 from vaultbot_sim.rosmsgs import cloud_message
 from vaultbot_sim.spec import SWEEP_JOINT
-from vaultbot_sim.stitcher import SweepStitcher
+from vaultbot_sim.stitcher import RollingStitcher, SweepStitcher
+
+MODES = ('rolling', 'sweep')
+# a scan arriving this share of a period early still publishes (scan stamps jitter; 40 Hz scans at 10 Hz
+# would otherwise alternate between 3 and 5 scans per cloud)
+PERIOD_SLACK = 0.1
 
 
 class StitcherNode:
@@ -20,11 +34,27 @@ class StitcherNode:
         sim_ns = rospy.get_param('~sim_ns', '/vaultbot_sim').rstrip('/')
         urdf = rospy.get_param('~robot_urdf', rospy.get_param(sim_ns + '/robot_urdf', ROBOT_URDF))
         self.base_frame = rospy.get_param('~base_frame', 'base_link')
-        self.stitcher = SweepStitcher(TreeModel(urdf), rospy.get_param('~sweep_joint', SWEEP_JOINT),
-                                      sensor_frame=rospy.get_param('~sensor_frame', 'hokuyo_link'),
-                                      base_frame=self.base_frame,
-                                      sweep_angle=float(rospy.get_param('~sweep_angle', math.pi)),
-                                      max_window=float(rospy.get_param('~max_window', 3.0)))
+        self.mode = rospy.get_param('~mode', 'rolling')
+        if self.mode not in MODES:
+            raise ValueError('~mode %r: use one of %s' % (self.mode, ', '.join(MODES)))
+        rate = float(rospy.get_param('~publish_rate', 10.0))
+        if not 0 < rate <= 100:
+            raise ValueError('~publish_rate %r out of range (0, 100] Hz' % rate)
+        self.period = 1.0 / rate
+        self.min_scans = int(rospy.get_param('~min_scans', 3))
+        if self.min_scans < 1:
+            raise ValueError('~min_scans %r must be >= 1' % self.min_scans)
+        common = dict(sensor_frame=rospy.get_param('~sensor_frame', 'hokuyo_link'), base_frame=self.base_frame,
+                      sweep_angle=float(rospy.get_param('~sweep_angle', math.pi)))
+        model, joint = TreeModel(urdf), rospy.get_param('~sweep_joint', SWEEP_JOINT)
+        if self.mode == 'rolling':
+            # max_window: a back-and-forth wrist last saw the far end of its travel a whole period ago
+            self.stitcher = RollingStitcher(model, joint, max_window=float(rospy.get_param('~max_window', 4.5)),
+                                            angle_bin=float(rospy.get_param('~angle_bin', math.pi / 80)), **common)
+        else:
+            self.stitcher = SweepStitcher(model, joint, max_window=float(rospy.get_param('~max_window', 3.0)),
+                                          **common)
+        self.last_published: float | None = None    # stamp of the last cloud (rolling mode)
         self.hist = JointHistory()
         self.lock = threading.Lock()
         self.pub = rospy.Publisher('laser_stitcher/cloud', PointCloud2, queue_size=2, tcp_nodelay=True)
@@ -41,7 +71,21 @@ class StitcherNode:
             cfg = self.hist.cfg_at(t)
             if cfg is None:
                 return
-            pts = self.stitcher.add(t, scan.ranges, scan.angle_min, scan.angle_increment, cfg)
+            if self.mode == 'sweep':
+                pts = self.stitcher.add(t, scan.ranges, scan.angle_min, scan.angle_increment, cfg)
+            else:
+                self.stitcher.add(t, scan.ranges, scan.angle_min, scan.angle_increment, cfg)
+                pts = self._due(t)
         if pts is not None and len(pts):
             self.pub.publish(cloud_message(pts, Header(stamp=scan.header.stamp, frame_id=self.base_frame),
                                            dense=True))
+
+    def _due(self, t: float):
+        """The window's cloud when one is due at scan stamp ``t``, else None (caller holds the lock)."""
+        if len(self.stitcher) < self.min_scans:
+            return None
+        last = self.last_published
+        if last is not None and last <= t < last + self.period * (1.0 - PERIOD_SLACK):
+            return None
+        self.last_published = t
+        return self.stitcher.cloud()
