@@ -48,6 +48,12 @@ def sensor_key(request) -> tuple:
             tuple(sorted((kv.key, kv.value) for kv in request.output_topics)))
 
 
+def _gaps(probes: List[TopicProbe]) -> str:
+    """The longest gap between messages on each topic, beside its stall limit (to tune the limits)."""
+    return 'longest gap between messages: ' + ', '.join(
+        '%s %.3f s in %d msgs (limit %.3f s)' % (p.topic, p.max_gap, p.count, p.limit) for p in probes)
+
+
 class _Attempt:
     """One candidate being started: woken by a first message or by its process failing."""
 
@@ -225,7 +231,7 @@ class SensorManager:
             return
         for probe in held.probes:
             probe.close()
-        rospy.loginfo('%s: released %s (its driver goes with it)', NAME, held.entry.name)
+        rospy.loginfo('%s: released %s (its driver goes with it); %s', NAME, held.entry.name, _gaps(held.probes))
 
     # -- failures ------------------------------------------------------------------------------
     def _on_process_status(self, event: StatusEvent) -> None:
@@ -258,7 +264,7 @@ class SensorManager:
         for probe in held.probes:
             probe.close()
         value = held.entry.reliability.failure()
-        rospy.logerr('%s: %s (reliability now %.3f)', NAME, message, value)
+        rospy.logerr('%s: %s (reliability now %.3f); before that, %s', NAME, message, value, _gaps(held.probes))
         if report:
             err = TemotoError(ErrorCode.TIMEOUT, SUB, message)
             try:

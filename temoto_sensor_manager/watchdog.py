@@ -26,6 +26,7 @@ class TopicProbe:
         self.limit = limit                   # seconds of silence that count as a stall; 0: not watched
         self.last = 0.0                      # time.monotonic() of the last message
         self.count = 0
+        self.max_gap = 0.0                   # longest time between two messages seen (what a limit must exceed)
         self.first = threading.Event()
         self.armed = False
         self.owner = None                    # set by the watchdog user (what stalled)
@@ -33,7 +34,10 @@ class TopicProbe:
         self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
 
     def _on_msg(self, _msg) -> None:
-        self.last = time.monotonic()
+        now = time.monotonic()
+        if self.count and now - self.last > self.max_gap:
+            self.max_gap = now - self.last
+        self.last = now
         self.count += 1
         if not self.first.is_set():
             self.first.set()

@@ -47,10 +47,10 @@ def failed(events, resource_id):
 def test_depth_camera_starts_the_d435_and_answers_with_data_flowing(smi):
     sm = smi()
     res = sm.start_sensor('depth camera', ['camera_data', 'camera_info'])
-    assert (res.sensor_name, res.package_name, res.executable) == ('realsense_d435', 'vaultbot_sim', 'd435.launch')
+    assert (res.sensor_name, res.package_name, res.executable) == ('realsense_d435', 'vaultbot_sim', 'd435_driver')
     assert res.output_topics == D435_TOPICS
     procs = er_processes()
-    assert [p['label'] for p in procs] == ['vaultbot_sim/d435.launch']
+    assert [p['label'] for p in procs] == ['vaultbot_sim/d435_driver']
     watch = TopicWatch(D435_TOPICS['camera_info'])
     wait_for(lambda: watch.count >= 3, 5, 'camera_info flowing right after the response')
     watch.close()
@@ -82,7 +82,7 @@ def test_an_unplugged_camera_alone_gives_no_candidate_left(smi):
     sm = smi()
     set_cable('d435', 'unplugged', 'crash')
     with pytest.raises(TemotoError) as info:
-        sm.start_sensor('depth camera', ['camera_data'], executable='d435.launch')
+        sm.start_sensor('depth camera', ['camera_data'], executable='d435_driver')
     assert 'no candidate left' in str(info.value) and 'realsense_d435' in str(info.value)
     assert not er_processes()
 
@@ -92,7 +92,7 @@ def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stoppe
     events = []
     sm.register_update_callback(events.append)                 # keep the failed sensor to look at it
     # the cheap topic (no cloud is rendered); the D435 by name, since earlier failures may rank it below the fake
-    res = sm.start_sensor('depth camera', ['camera_info'], executable='d435.launch')
+    res = sm.start_sensor('depth camera', ['camera_info'], executable='d435_driver')
     limit = catalogue()['realsense_d435']['output_topics']['camera_info']['stall_limit']
     pid = er_processes()[0]['pid']
     sent = set_cable('d435', 'unplugged', 'stall')
