@@ -4,7 +4,7 @@ Why not run ``roslaunch``: its process monitor polls every 0.1 s, a wrapper
 around it must shut the rest of the launch down before its own exit tells the
 supervisor anything (a node death reached consumers after ~0.6 s), and starting
 a ``ROSLaunchParent`` costs ~2 s before the first node even runs. So the ER
-Manager uses only roslaunch's *loader* (``roslaunch.config.load_config_default``:
+Manager uses only roslaunch's *loader* (as ``roslaunch.config.load_config_default`` does:
 args, includes, groups and namespaces, remaps, params, ``$(find)``, ``$(arg)``,
 ``$(anon)``, ``<env>``) and starts each node itself, as its own supervised child.
 Every node's exit is then seen at once by the supervisor's pidfd reaper.
@@ -61,13 +61,24 @@ class LaunchPlan:
 
 
 def load_launch_config(path: str, args: list[str], ns: str):
-    """roslaunch's own model of ``path`` with ``args`` (``name:=value``) under root namespace ``ns``."""
+    """roslaunch's own model of ``path`` with ``args`` (``name:=value``) under root namespace ``ns``.
+
+    This is ``roslaunch.config.load_config_default`` minus its ``load_roscore``
+    step: that step parses roscore.xml, whose ``/rosversion`` and ``/rosdistro``
+    params run two commands (~0.2 s per load) to set what the running roscore
+    already set, and declares core nodes that are never started here.
+    """
     import roslaunch.config
+    import roslaunch.loader
+    import roslaunch.xmlloader
     with _load_lock:
         try:
+            config = roslaunch.config.ROSLaunchConfig()
+            loader = roslaunch.xmlloader.XmlLoader()
             # __ns:= in the loader's argv sets the root namespace, exactly like ROS_NAMESPACE for roslaunch
-            return roslaunch.config.load_config_default([(path, list(args) + ['__ns:=' + ns])], None,
-                                                        verbose=False)
+            loader.load(path, config, argv=list(args) + ['__ns:=' + ns], verbose=False)
+            config.assign_machines()
+            return config
         except Exception as e:           # RLException, XML errors, $(find) of a missing package, bad $(arg)
             raise RequestRefused('BAD_REQUEST', 'launch file %s cannot be loaded: %s' % (path, e)) from None
 
