@@ -54,6 +54,13 @@ def _gaps(probes: List[TopicProbe]) -> str:
         '%s %.3f s in %d msgs (limit %.3f s)' % (p.topic, p.max_gap, p.count, p.limit) for p in probes)
 
 
+def fetch_catalogue(namespace: str = 'temoto', timeout: float = 1.0) -> List[dict]:
+    """The running manager's catalogue rows (``catalogue_json``), through its service."""
+    name = '/%s/%s/catalogue' % (namespace.strip('/'), NAME)
+    rospy.wait_for_service(name, timeout)
+    return json.loads(rospy.ServiceProxy(name, GetRegistry)().json)['sensors']
+
+
 class _Attempt:
     """One candidate being started: woken by a first message or by its process failing."""
 
@@ -139,6 +146,10 @@ class SensorManager:
     def _start(self, entry: SensorEntry, launch: LaunchPlan, internal_id: int) -> _Held:
         """Start one candidate's driver and wait for its first data; then link the process to the sensor.
 
+        The topics are subscribed before the driver starts. A message from a publisher already on a
+        topic (another device serving the same name) would count as first data, as it did when the
+        subscription came after the start.
+
         The trial start is made *unlinked* (from a helper thread, which has no load
         in progress): a candidate that crashes during the wait must not fail the
         whole sensor load, as a linked sub-resource failing mid-load would. Once
@@ -148,18 +159,24 @@ class SensorManager:
         request = LoadProcess._request_class(action='ros_execute', package_name=entry.package,
                                              executable=entry.executable, args=launch.args)
         attempt = _Attempt()
-        trial = self._call_unlinked(request)
+        # Subscribed before the driver starts: the connection to its publishers is made while it starts
+        # (not after the ER Manager answers), so its first message is seen as soon as it is sent.
+        probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
+                  for key, topic in launch.topics.items()]
+        try:
+            trial = self._call_unlinked(request)
+        except BaseException:
+            for probe in probes:
+                probe.close()
+            raise
         trial_id = trial.trr.resource_id
         with self._lock:
             self._attempts[trial_id] = attempt
             early = self._early_failures.pop(trial_id, None)
         if early is not None:
             attempt.fail(early)
-        probes = []
         linked_id = None
         try:
-            probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
-                      for key, topic in launch.topics.items()]
             deadline = time.monotonic() + self.first_data_timeout
             with attempt.cond:
                 while not attempt.failure and not all(p.first.is_set() for p in probes):

@@ -7,7 +7,7 @@ ties). Unlike the original, the filtered-out entries are really gone.
 """
 import dataclasses
 import shlex
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import rosgraph.names
 
@@ -116,3 +116,23 @@ def plan(entry: SensorEntry, query: SensorQuery) -> LaunchPlan:
         elif name != spec.topic or spec.remap:
             args.append('%s:=%s' % (spec.remap or spec.topic, name))
     return LaunchPlan(' '.join(shlex.quote(a) for a in args), topics)
+
+
+def likely_topics(rows: Sequence[dict], sensor_type: str, keys: Sequence[str]) -> Optional[Dict[str, str]]:
+    """The topics a ``start_sensor`` request with no names would most likely be answered with.
+
+    ``rows`` are the ``sensors`` of the manager's catalogue JSON. The ranking is the one
+    ``candidates`` applies (type, topic types, reliability, catalogue order), so a client
+    can get ready for the data (e.g. subscribe a display) while the driver starts. Only a
+    guess: the best candidate may fail and a lower one answer. None when nothing matches.
+    """
+    wanted = set(keys)
+    found = [r for r in rows if isinstance(r, dict) and r.get('type') == sensor_type
+             and isinstance(r.get('output_topics'), dict) and wanted <= set(r['output_topics'])]
+    if not found:
+        return None
+    best = sorted(found, key=lambda r: -float(r.get('reliability', 0.0)))[0]
+    try:
+        return {k: str(best['output_topics'][k]['topic']) for k in keys}
+    except (KeyError, TypeError):
+        return None

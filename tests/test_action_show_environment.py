@@ -37,10 +37,15 @@ class Devices:
         self.callbacks = []
         self.stop_gate = threading.Event()   # cleared: stop_sensor blocks (a slow driver unload)
         self.stop_gate.set()
+        self.start_gate = threading.Event()  # cleared: start_sensor blocks (a driver starting)
+        self.start_gate.set()
+        self.failed_before = set()           # ranked last by the fake's likely_topics (as reliability does)
+        self.guess_override = None           # likely_topics answers this instead
 
     def unplug(self, name):
         with self.lock:
             self.plugged.discard(name)
+            self.failed_before.add(name)
             victims = [rid for rid, n in self.active.items() if n == name]
             cbs = list(self.callbacks)
         for rid in victims:
@@ -61,6 +66,7 @@ class FakeSensorManager:
             self.d.callbacks.append(cb)
 
     def start_sensor(self, sensor_type, output_topics):
+        assert self.d.start_gate.wait(10), 'start_sensor gate never opened'
         with self.d.lock:
             for name, stype, topics in VAULTBOT:
                 if stype == sensor_type and name in self.d.plugged and set(output_topics) <= set(topics):
@@ -70,6 +76,17 @@ class FakeSensorManager:
                     return SimpleNamespace(sensor_name=name, resource_id=rid,
                                            output_topics={k: topics[k] for k in output_topics})
         raise RuntimeError('no %s with %s available' % (sensor_type, sorted(output_topics)))
+
+    def likely_topics(self, sensor_type, keys):
+        """What the real manager's catalogue ranking gives: the first plugged-or-not match in VAULTBOT."""
+        with self.d.lock:
+            self.d.log.append(('guess', sensor_type))
+            if self.d.guess_override is not None:
+                return self.d.guess_override
+        for name, stype, topics in VAULTBOT:
+            if stype == sensor_type and set(keys) <= set(topics) and name not in self.d.failed_before:
+                return {k: topics[k] for k in keys}
+        return None
 
     def stop_sensor(self, rid):
         assert self.d.stop_gate.wait(10), 'stop_sensor gate never opened'
@@ -211,6 +228,51 @@ def test_starts_lower_in_the_list_when_the_best_sensor_is_already_gone(setup):
     wait_for(lambda: of(events, 'sensor_active'), 10, 'a sensor active')
     assert [e['sensor_type'] for e in of(events, 'sensor_unavailable')] == ['depth camera']
     assert of(events, 'sensor_active')[0]['sensor_name'] == 'hokuyo'
+    # the display asked for early on the camera's likely topic went when the camera could not start
+    assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    assert devices.log.count(('hide', 'point cloud', '/d435/points')) == 1
+
+
+def test_the_display_is_asked_for_while_the_sensor_starts(setup):
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    devices.start_gate.clear()                    # the next driver takes its time to start
+    devices.unplug('d435')
+    wait_for(lambda: ('show', 'point cloud', '/stitcher/cloud') in devices.log, 10, 'the display on the likely topic')
+    assert ('start', 'hokuyo') not in devices.log and len(of(events, 'sensor_active')) == 1
+    devices.start_gate.set()
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    wait_for(lambda: displayed(devices) == [('point cloud', '/stitcher/cloud')], 10, 'the failed display hidden')
+    assert devices.log.count(('show', 'point cloud', '/stitcher/cloud')) == 1     # the early display was kept
+
+
+def test_a_wrong_guess_is_hidden_once_and_the_right_topic_shown(setup):
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    devices.guess_override = {'lidar_data': '/elsewhere/scan', 'cloud_data': '/elsewhere/cloud'}
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    wait_for(lambda: displayed(devices) == [('point cloud', '/stitcher/cloud')], 10, 'only the right display left')
+    log = devices.log
+    assert log.count(('show', 'point cloud', '/elsewhere/cloud')) == 1
+    assert log.count(('hide', 'point cloud', '/elsewhere/cloud')) == 1
+    assert log.index(('hide', 'point cloud', '/elsewhere/cloud')) < log.index(('show', 'point cloud', '/stitcher/cloud'))
+    assert of(events, 'sensor_active')[1]['topic'] == '/stitcher/cloud'
+    ok, msg = engine.stop_graph(run.name)
+    assert ok, msg
+    assert displayed(devices) == [] and devices.active == {}
+
+
+def test_without_speculative_display_the_display_follows_the_sensor(setup):
+    engine, devices, events, _ = setup
+    engine.action_config['show_environment'] = {'speculative_display': False}
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    log = devices.log
+    assert not [e for e in log if e[0] == 'guess']
+    assert log.index(('start', 'd435')) < log.index(('show', 'point cloud', '/d435/points'))
 
 
 def test_a_status_for_a_released_resource_is_ignored(setup):

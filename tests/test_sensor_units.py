@@ -122,3 +122,20 @@ def test_blob_centroid_of_green_points_only():
     assert find_blob(pts, (0, 255, 0), 60, 50) is None
     with pytest.raises(ValueError):
         parse_rgb('green')
+
+
+def test_likely_topics_follow_the_ranking_of_the_catalogue_rows():
+    from temoto_sensor_manager.selection import likely_topics
+
+    def row(name, rel, **topics):
+        return {'name': name, 'type': 'lidar', 'reliability': rel,
+                'output_topics': {k: {'topic': t, 'rate': 0, 'stall_limit': 0} for k, t in topics.items()}}
+    rows = [row('hokuyo', 0.79, lidar_data='/hokuyo/scan', cloud_data='/cloud'),
+            row('sick', 0.8, lidar_data='/sick/scan'), row('other', 0.8, lidar_data='/other/scan')]
+    assert likely_topics(rows, 'lidar', ['lidar_data']) == {'lidar_data': '/sick/scan'}   # best, then file order
+    assert likely_topics(rows, 'lidar', ['lidar_data', 'cloud_data']) == {'lidar_data': '/hokuyo/scan',
+                                                                         'cloud_data': '/cloud'}
+    assert likely_topics(rows, 'depth camera', ['camera_data']) is None
+    assert likely_topics(rows, 'lidar', ['image']) is None
+    assert likely_topics([{'type': 'lidar', 'output_topics': {'lidar_data': 'not a mapping'}}], 'lidar',
+                         ['lidar_data']) is None

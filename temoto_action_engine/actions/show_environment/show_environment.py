@@ -9,6 +9,10 @@ status callback and never released the failed sensors. This port:
   background thread: unloading a stalled driver can take seconds (SIGINT, then SIGTERM), and the
   operator's view must not wait for it. Each failed pair is released exactly once, and on_stop
   waits for the releases still running, so a stopped action holds nothing;
+- asks for the display on the topic the sensor will most likely get (the Sensor Manager's
+  catalogue ranking) while the sensor starts, instead of after: RViz then subscribes while the
+  driver starts, and draws its first message at once. A wrong guess is hidden and the right
+  topic shown, as without the guess (parameter ``speculative_display``, default true);
 - when every entry has failed, says so on the feedback topic and in the log, and retries from
   the top of the list with a bounded exponential backoff until a device comes back;
 - publishes each step (active, failed, unavailable, all_failed, retry) on
@@ -24,6 +28,8 @@ from temoto_action_engine.action_base import ActionBase, ActionError
 
 FAILED = 1      # temoto_core/ResourceStatus.FAILED (wire contract)
 RELEASE_JOIN_S = 30.0   # on_stop waits this long for each background release (an unload is bounded itself)
+GUESS_JOIN_S = 30.0     # how long the right guess may still take once the sensor is up
+CATALOGUE_TIMEOUT_S = 0.5
 
 DEFAULT_PRIORITY = [
     {'label': 'RGB-D camera cloud', 'sensor_type': 'depth camera', 'output_topics': ['camera_data'],
@@ -54,6 +60,67 @@ class Active:
     display_id: object
 
 
+class SpeculativeDisplay:
+    """A display requested, on a helper thread, on the topic a sensor will most likely be given.
+
+    ``take(topic)`` returns its id when it shows ``topic`` (the caller then owns it); otherwise,
+    and from ``discard()``, it is hidden exactly once, now or when its request returns (a
+    discard can come while the request is still out, when the sensor request fails fast).
+    """
+
+    def __init__(self, action: 'ShowEnvironment', choice: SensorChoice):
+        self.action, self.choice = action, choice
+        self.topic = ''
+        self.display_id = None
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._settled = False          # taken or discarded
+        self._thread = threading.Thread(target=self._run, daemon=True, name='display guess for %s' % choice.label)
+        self._thread.start()
+
+    def _run(self) -> None:
+        did = None
+        try:
+            topic = self.action.likely_topic(self.choice)
+            if topic:
+                with self._lock:
+                    self.topic = topic
+                    settled = self._settled
+                if not settled:
+                    did = self.action.omi.show_in_rviz(self.choice.display_type, topic, name=self.choice.label)
+        except Exception as e:          # only a guess: the display is requested after the sensor then
+            self.action.log_info('no early display for %s: %s' % (self.choice.label, e))
+        with self._lock:
+            self.display_id = did
+            orphan = did if self._settled else None
+        self._done.set()
+        if orphan is not None:
+            self.action.hide_display(orphan, self.choice.label)
+
+    def take(self, topic: str):
+        """The display's id if it shows ``topic``; else it is hidden and None returned.
+
+        Waits for the guess to finish: it has had the whole sensor start to do so, and when
+        it shows the right topic, waiting is quicker than asking for the display again.
+        """
+        self._done.wait(GUESS_JOIN_S)
+        with self._lock:
+            if self.topic == topic and self.display_id is not None and not self._settled:
+                self._settled = True
+                return self.display_id
+        self.discard()
+        return None
+
+    def discard(self) -> None:
+        with self._lock:
+            if self._settled:
+                return
+            self._settled = True
+            did, self.display_id = self.display_id, None
+        if did is not None:
+            self.action.hide_display(did, self.choice.label)
+
+
 def parse_priority(raw) -> list[SensorChoice]:
     """Validate the priority list parameter; raise ActionError naming the bad entry."""
     if not isinstance(raw, list) or not raw:
@@ -82,6 +149,7 @@ class ShowEnvironment(ActionBase):
         self.priority = parse_priority(self.config.get('sensor_priority', DEFAULT_PRIORITY))
         self.retry_initial = float(self.config.get('retry_initial_s', 2.0))
         self.retry_max = float(self.config.get('retry_max_s', 30.0))
+        self.speculative = bool(self.config.get('speculative_display', True))
         self.backoff = self.retry_initial
         self.retry_at = None
         self.active: Active | None = None
@@ -142,18 +210,23 @@ class ShowEnvironment(ActionBase):
             if not self.action_ok():
                 return
             choice = self.priority[i]
+            guess = SpeculativeDisplay(self, choice) if self.speculative else None
             try:
                 result = self.smi.start_sensor(choice.sensor_type,
                                                output_topics={k: '' for k in choice.output_topics})
             except Exception as e:
+                if guess is not None:
+                    guess.discard()
                 self.event('sensor_unavailable', sensor_type=choice.sensor_type, label=choice.label,
                            priority_index=i, message=str(e))
                 continue
             topic = dict(result.output_topics).get(choice.display_key, '')
+            display_id = guess.take(topic) if guess is not None else None
             try:
                 if not topic:
                     raise ActionError('the sensor gave no %r topic' % choice.display_key)
-                display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label)
+                if display_id is None:
+                    display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label)
             except Exception as e:
                 self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
                            priority_index=i, message=str(e))
@@ -192,11 +265,28 @@ class ShowEnvironment(ActionBase):
         thread.start()
 
     def _release(self, a: Active) -> None:
-        try:
-            self.omi.hide(a.display_id)
-        except Exception as e:
-            self.log_warn('hiding the display of %s: %s' % (a.sensor_name, e))
+        self.hide_display(a.display_id, '%s (%s)' % (a.choice.label, a.sensor_name))
         self._stop_sensor(a.resource_id)
+
+    def hide_display(self, display_id, what: str) -> None:
+        try:
+            self.omi.hide(display_id)
+        except Exception as e:
+            self.log_warn('hiding the display of %s: %s' % (what, e))
+
+    def likely_topic(self, choice: SensorChoice) -> str:
+        """The topic ``choice``'s display will most likely show: the Sensor Manager's ranking, read
+        from its catalogue (or from the sensor manager interface, when it offers ``likely_topics``)."""
+        keys = list(choice.output_topics)
+        guess = getattr(self.smi, 'likely_topics', None)
+        if guess is not None:
+            topics = guess(choice.sensor_type, keys)
+        else:
+            from temoto_sensor_manager.manager import fetch_catalogue
+            from temoto_sensor_manager.selection import likely_topics
+            topics = likely_topics(fetch_catalogue(self.context.namespace, CATALOGUE_TIMEOUT_S),
+                                   choice.sensor_type, keys)
+        return (topics or {}).get(choice.display_key, '')
 
     def _stop_sensor(self, resource_id) -> None:
         try:
