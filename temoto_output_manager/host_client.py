@@ -5,8 +5,12 @@ refuses, so callers never have to inspect ``ok`` fields.
 """
 from __future__ import annotations
 
-from typing import List, Optional
+import socket
+import time
+from typing import Callable, List, Optional
 
+import rosgraph
+import rosgraph.network
 import rospy
 
 from temoto_output_manager.srv import (AddDisplay, ConfigureDisplay, ListDisplays, RemoveDisplay, Screenshot,
@@ -34,12 +38,28 @@ class RvizHostClient:
             proxy = self._proxies[name] = rospy.ServiceProxy('%s/%s' % (self.node_name, name), srv_type)
         return proxy
 
-    def wait_ready(self, timeout: Optional[float] = None) -> None:
-        try:
-            rospy.wait_for_service('%s/list_displays' % self.node_name, timeout=timeout or self.timeout)
-        except rospy.ROSException:
-            raise RvizHostError('RViz host %s did not come up within %.0f s'
-                                % (self.node_name, timeout or self.timeout)) from None
+    def wait_ready(self, timeout: Optional[float] = None,
+                   failed: Callable[[], Optional[str]] = lambda: None, poll: float = 0.05) -> None:
+        """Return once the host's services answer; raise at once when ``failed()`` gives a reason.
+
+        Not rospy.wait_for_service: it retries every 0.3 s, logs a warning per
+        attempt, and keeps knocking on the registration a crashed host left at
+        the master until the timeout. A host that died while starting should
+        fail its request with the reason (its log tail) within a poll period.
+        """
+        timeout = timeout or self.timeout
+        service = rospy.resolve_name('%s/list_displays' % self.node_name)
+        deadline = time.monotonic() + timeout
+        while True:
+            reason = failed()
+            if reason:
+                raise RvizHostError('RViz host %s failed while starting: %s' % (self.node_name, reason))
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RvizHostError('RViz host %s did not come up within %.0f s' % (self.node_name, timeout))
+            if _service_answers(service, min(1.0, left)):
+                return
+            time.sleep(min(poll, max(0.0, deadline - time.monotonic())))
 
     def _call(self, service: str, srv_type, *args, **kwargs):
         try:
@@ -73,3 +93,19 @@ class RvizHostClient:
 
     def display_names(self) -> List[str]:
         return [d.name for d in self.list_displays().displays]
+
+
+def _service_answers(service: str, timeout: float) -> bool:
+    """True when ``service`` is registered and its server accepts a connection (the same probe as rospy's)."""
+    try:
+        uri = rosgraph.Master(rospy.get_name()).lookupService(service)
+        host, port = rospy.core.parse_rosrpc_uri(uri)
+    except Exception:           # not registered yet, master busy, or a malformed URI: not ready
+        return False
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as s:
+            rosgraph.network.write_ros_handshake_header(s, {'probe': '1', 'md5sum': '*', 'service': service,
+                                                            'callerid': rospy.get_name()})
+        return True
+    except OSError:             # a registration left by a host that is gone: refused
+        return False

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
 from typing import Optional
 
 import rospy
@@ -171,6 +172,24 @@ def _probe(topic: str, on_message):
     return rospy.Subscriber(topic, rospy.AnyMsg, lambda _msg: on_message(), queue_size=1)
 
 
+STARTUP_FRAMES = 3              # rendered frames before the host offers its services
+STARTUP_RENDER_TIMEOUT = 20.0
+
+
+def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bool:
+    """Run the Qt event loop until RViz has rendered ``frames`` frames (True) or ``timeout`` passed (False)."""
+    from python_qt_binding import QtCore
+    deadline = time.monotonic() + timeout
+    loop = QtCore.QEventLoop()
+    check = QtCore.QTimer()
+    check.timeout.connect(lambda: loop.quit() if host.frame_count() >= frames or time.monotonic() > deadline
+                          else None)
+    check.start(5)
+    loop.exec_()
+    check.stop()
+    return host.frame_count() >= frames
+
+
 def main(argv=None) -> int:
     """Entry point of nodes/rviz_host: headless by default, RViz on the Qt main thread."""
     from .xvfb import ensure_display
@@ -199,20 +218,32 @@ def main(argv=None) -> int:
                 node.publish_event(*args)
         host = RvizHost(app, settings, on_event, get_urdf=_get_urdf(settings.robot_description),
                         probe_factory=_probe)
-        host.start()
-        node = RvizHostNode(host, caller, namespace)
+        stop = []       # set by SIGINT/SIGTERM/rospy shutdown, also while the host is still starting
+
+        def request_stop(*_):
+            stop.append(True)
+            app.quit()  # leaves every running Qt event loop, the start-up one included
         # Python runs signal handlers only between bytecodes; the tick gives it a chance while Qt waits.
-        signal.signal(signal.SIGINT, lambda *_: app.quit())
-        signal.signal(signal.SIGTERM, lambda *_: app.quit())
+        signal.signal(signal.SIGINT, request_stop)
+        signal.signal(signal.SIGTERM, request_stop)
         tick = QtCore.QTimer()
         tick.timeout.connect(lambda: None)
         tick.start(100)
-        rospy.on_shutdown(app.quit)
+        rospy.on_shutdown(request_stop)
+        host.start()
+        # Offer the services only once RViz has rendered: under CPU load Mesa's llvmpipe (22.3) now and then
+        # segfaults in the first frames (about 1 start in 15 with both cores busy). A host that dies there never
+        # looked ready, so the Output Manager sees a failed start it can retry, not a display lost just after add.
+        if not _render_first_frames(app, host, STARTUP_FRAMES, STARTUP_RENDER_TIMEOUT) and not stop:
+            raise SystemExit('RViz rendered %d frames in %.0f s of starting, %d needed'
+                             % (host.frame_count(), STARTUP_RENDER_TIMEOUT, STARTUP_FRAMES))
+        node = RvizHostNode(host, caller, namespace)
         node.publish_event('host_started', '', '', '', host.frame_count(), 0.0)
         rospy.loginfo('rviz host ready on DISPLAY=%s (%s), fixed frame %s, %d fps cap',
                       os.environ.get('DISPLAY'), 'private Xvfb' if xvfb else 'given', settings.fixed_frame,
                       settings.frame_rate)
-        app.exec_()
+        if not stop:
+            app.exec_()
         node.publish_event('host_stopping', '', '', '', host.frame_count(), 0.0)
         node.shutdown()
         host.shutdown()

@@ -46,18 +46,20 @@ class OutputManager:
     """Serves ``/<ns>/temoto_output_manager/load_rviz_plugin``."""
 
     def __init__(self, rr: ResourceRegistrar, host_params: Optional[Dict[str, object]] = None,
-                 host_ready_timeout: float = 20.0,
+                 host_ready_timeout: float = 20.0, host_start_attempts: int = 2,
                  client_factory: Callable[[str], RvizHostClient] = RvizHostClient) -> None:
         self.rr = rr
         self.namespace = rr.namespace
         self.host_params = dict(host_params or {})
         self.host_ready_timeout = host_ready_timeout
+        self.host_start_attempts = max(1, int(host_start_attempts))
         self.host_node = '/%s/%s' % (self.namespace, HOST_NODE)
         self.client = client_factory(self.host_node)
         self._lock = threading.Lock()
         self._displays: Dict[int, Tuple[str, int]] = {}   # internal id -> (display name, host pid)
         self._dead_hosts: set = set()                     # pids of hosts that failed
         self._host_pid_by_local: Dict[int, int] = {}
+        self._host_failures: Dict[int, str] = {}          # local id of a host resource -> why it failed
         rr.add_server(SERVER_NAME, _srv_type(), self.load_cb, self.unload_cb)
 
     # ------------------------------------------------------------------ the host process
@@ -70,23 +72,53 @@ class OutputManager:
                                           args=' '.join(args))
 
     def _on_host_status(self, ev: StatusEvent) -> None:
-        # The RR forwards a FAILED to the display resources by itself; here only remember the host is gone.
+        # The RR forwards a FAILED to the display resources by itself; here only remember the host is gone
+        # (and why: a load still waiting for this host to come up fails at once with the reason).
         if ev.code == ResourceStatus.FAILED:
             with self._lock:
+                self._host_failures[ev.resource_id] = ev.message
                 pid = self._host_pid_by_local.get(ev.resource_id)
                 if pid is not None:
                     self._dead_hosts.add(pid)
             rospy.logwarn('%s: the RViz host failed: %s', self.rr.prefix, ev.message)
 
     def _start_or_share_host(self) -> int:
-        resp = self.rr.call('temoto_er_manager', 'load_process', self._host_request(), status_cb=self._on_host_status)
-        with self._lock:
-            self._host_pid_by_local[resp.trr.resource_id] = resp.pid
-        try:
-            self.client.wait_ready(self.host_ready_timeout)
-        except RvizHostError as e:
-            raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
-        return resp.pid
+        """The pid of a host whose services answer: the running one, or a new one.
+
+        A host that dies while starting (Mesa's llvmpipe segfaults now and then in
+        the first frames under load) is released and started once more; the
+        reason of the last failure, with the host's log tail, is the error.
+        """
+        for attempt in range(1, self.host_start_attempts + 1):
+            try:
+                resp = self.rr.call('temoto_er_manager', 'load_process', self._host_request(),
+                                    status_cb=self._on_host_status)
+            except TemotoError as e:     # died before it registered at the master: the same start-up crash
+                if e.origin.code != ErrorCode.PROCESS_STOPPED or attempt == self.host_start_attempts:
+                    raise
+                rospy.logwarn('%s: the RViz host died while starting: %s; starting another one (attempt %d of %d)',
+                              self.rr.prefix, e, attempt + 1, self.host_start_attempts)
+                continue
+            local_id = resp.trr.resource_id
+            with self._lock:
+                self._host_pid_by_local[local_id] = resp.pid
+
+            def failed(local_id=local_id) -> Optional[str]:
+                with self._lock:
+                    return self._host_failures.get(local_id)
+            try:
+                self.client.wait_ready(self.host_ready_timeout, failed=failed)
+                return resp.pid
+            except RvizHostError as e:
+                if failed() is None or attempt == self.host_start_attempts:
+                    raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
+                rospy.logwarn('%s: %s; starting another RViz host (attempt %d of %d)', self.rr.prefix, e,
+                              attempt + 1, self.host_start_attempts)
+                try:
+                    self.rr.unload(local_id)
+                except TemotoError as err:
+                    rospy.logwarn('%s: releasing the failed RViz host: %s', self.rr.prefix, err)
+        raise AssertionError('unreachable')
 
     # ------------------------------------------------------------------ RR callbacks
     def load_cb(self, req, resp) -> None:

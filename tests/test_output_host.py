@@ -6,6 +6,7 @@ One host serves the module (it takes ~1.5 s to start and renders on the shared
 import io
 import os
 import signal
+import time
 import xmlrpc.client
 
 import numpy as np
@@ -26,8 +27,13 @@ def host(module_procs, rospy_client):
     proc = module_procs.node('temoto_output_manager', 'rviz_host', name='rviz_host', namespace=NS,
                              params={'show_robot': 'false'})
     client = RvizHostClient('/%s/rviz_host' % NS)
-    client.wait_ready(20)
+    client.wait_ready(20, failed=exit_reason(proc))
     return proc, client
+
+
+def exit_reason(proc):
+    """For wait_ready: why the host process is gone (with its log), or None while it runs."""
+    return lambda: None if proc.alive() else 'exited (rc %s); log:\n%s' % (proc.returncode, proc.log(40))
 
 
 @pytest.fixture(scope='module')
@@ -151,7 +157,8 @@ def test_add_remove_cycles_keep_memory_flat(host, rospy_client):
 def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
     proc = procs.node('temoto_output_manager', 'rviz_host', name='rviz_host_crash', namespace=NS,
                       params={'show_robot': 'false', 'show_grid': 'false'})
-    RvizHostClient('/%s/rviz_host_crash' % NS).wait_ready(20)
+    client = RvizHostClient('/%s/rviz_host_crash' % NS)
+    client.wait_ready(20, failed=exit_reason(proc))
     children = psutil.Process(proc.pid).children()
     xvfb = [c for c in children if c.name() == 'Xvfb']
     assert len(xvfb) == 1, 'headless host must run its own Xvfb: %s' % children
@@ -160,6 +167,14 @@ def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
     proc.proc.wait(timeout=10)
     wait_for(lambda: not xvfb[0].is_running() or xvfb[0].status() == psutil.STATUS_ZOMBIE, 10,
              'Xvfb to stop after its host was killed')
+    # The dead host's services are still registered at the master: that is not "ready" ...
+    with pytest.raises(RvizHostError, match='did not come up within'):
+        client.wait_ready(0.5)
+    # ... and a wait that knows the host is gone ends at once, with the reason.
+    t0 = time.monotonic()
+    with pytest.raises(RvizHostError, match=r'failed while starting: exited \(rc -9\)'):
+        client.wait_ready(20, failed=exit_reason(proc))
+    assert time.monotonic() - t0 < 2.0
 
 
 def test_cli_screenshot_and_displays(host, tmp_path, capsys):

@@ -3,6 +3,8 @@ load_process, consumers as OutputManagerInterfaces in this test process."""
 import io
 import os
 import signal
+import threading
+import time
 import xmlrpc.client
 
 import numpy as np
@@ -65,6 +67,15 @@ def host_pid():
         return None
 
 
+def service_registered(name):
+    import rosgraph
+    try:
+        rosgraph.Master('/pytest').lookupService(name)
+        return True
+    except rosgraph.MasterError:
+        return False
+
+
 def subscribers(topic):
     import rosgraph
     return next((nodes for name, nodes in rosgraph.Master('/pytest').getSystemState()[1] if name == topic), [])
@@ -116,6 +127,59 @@ def test_host_crash_is_failed_for_every_holder_and_a_new_request_starts_a_new_ho
     new_pid = host_pid()
     assert new_pid and new_pid != pid
     assert again.display_name in RvizHostClient(HOST).display_names()
+
+
+def kill_host_while_starting(previous_pid=None):
+    """SIGKILL the RViz host the ER Manager just started, before it offers its services; its pid."""
+    from temoto_core.registry_cli import fetch
+
+    def started():      # the ER Manager answered load_process: the Output Manager now waits for the services
+        pid = host_pid()
+        return pid if pid and pid != previous_pid and any(
+            q.target.endswith('/load_process') and q.state == 'active'
+            for q in fetch(NS, 'temoto_output_manager').client_queries) else None
+    pid = wait_for(started, 20, 'the ER Manager to start an RViz host', interval=0.01)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        assert not service_registered(HOST + '/list_displays'), 'the host was ready before it could be stopped'
+    finally:
+        os.kill(pid, signal.SIGKILL)
+    return pid
+
+
+def show_in_thread(consumer, *args):
+    outcome = {}
+
+    def show():
+        try:
+            outcome['response'] = consumer.show(*args)
+        except TemotoError as e:
+            outcome['error'] = e
+    thread = threading.Thread(target=show, daemon=True)
+    thread.start()
+    return thread, outcome
+
+
+def test_a_host_that_dies_while_starting_is_started_once_more(om, rospy_client):
+    thread, outcome = show_in_thread(om(), 'laser scan', '/om_mgr/scan_after_a_restart')
+    first = kill_host_while_starting()
+    thread.join(30)
+    assert not thread.is_alive() and 'response' in outcome, outcome
+    assert host_pid() not in (None, first)
+    assert outcome['response'].display_name in RvizHostClient(HOST).display_names()
+
+
+def test_a_host_that_keeps_dying_while_starting_fails_at_once_with_the_reason(om, rospy_client):
+    """Not after host_ready_timeout (20 s): the ER Manager's FAILED, with the host's log tail, ends the wait."""
+    thread, outcome = show_in_thread(om(), 'laser scan', '/om_mgr/scan_of_a_dying_host')
+    first = kill_host_while_starting()
+    kill_host_while_starting(previous_pid=first)
+    t0 = time.monotonic()
+    thread.join(15)
+    assert not thread.is_alive()
+    assert time.monotonic() - t0 < 5.0, 'the request waited out the timeout instead of failing at once'
+    message = str(outcome['error'])
+    assert 'failed while starting' in message and 'SIGKILL' in message, message
 
 
 @pytest.mark.parametrize('kwargs,words', [
