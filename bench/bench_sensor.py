@@ -87,7 +87,7 @@ def main(argv=None):
                         stamp['t'] = time.monotonic()
                         got.set()
                 resp = rr.call('temoto_sensor_manager', 'start_sensor',
-                               request('depth camera', topics, 'd435.launch'), status_cb=on_status)
+                               request('depth camera', topics, 'd435_driver'), status_cb=on_status)
                 t0 = time.monotonic()
                 t.set_cable('d435', 'unplugged', mode)
                 if not got.wait(10.0):
@@ -124,8 +124,8 @@ def main(argv=None):
         limit = t.catalogue()['realsense_d435']['output_topics']['camera_info']['stall_limit']
 
         loads = {}
-        for label, sensor_type, topics, exe in (('D435 cloud', 'depth camera', ['camera_data'], 'd435.launch'),
-                                                ('SICK scan', 'lidar', ['lidar_data'], 'sick.launch'),
+        for label, sensor_type, topics, exe in (('D435 cloud', 'depth camera', ['camera_data'], 'd435_driver'),
+                                                ('SICK scan', 'lidar', ['lidar_data'], 'sick_driver'),
                                                 ('fake driver (floor)', 'fake lidar', ['lidar_data'], '')):
             times = []
             for i in range(opts.loads):

@@ -231,6 +231,10 @@ def main(argv=None) -> int:
         tick.start(100)
         rospy.on_shutdown(request_stop)
         host.start()
+        # librviz's roscpp node (ros::init inside frame.initialize()) installs its own SIGINT handler, which
+        # only shuts roscpp down and leaves Qt running: a host then ignored SIGINT until SIGKILL. Ours again.
+        signal.signal(signal.SIGINT, request_stop)
+        signal.signal(signal.SIGTERM, request_stop)
         # Offer the services only once RViz has rendered: under CPU load Mesa's llvmpipe (22.3) now and then
         # segfaults in the first frames (about 1 start in 15 with both cores busy). A host that dies there never
         # looked ready, so the Output Manager sees a failed start it can retry, not a display lost just after add.

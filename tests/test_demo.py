@@ -1,8 +1,9 @@
 """The whole demo, headless, as a user runs it (``temoto demo``); its assertions read the bag.
 
 The demo starts its own roscore, so it runs as a subprocess with an environment that does not
-point at the test session's master, and with this session's token: every process it starts
-inherits the token, so the census finds anything it leaves behind, at any depth.
+point at the test session's master, and with a token of its own: every process it starts
+inherits the token, so the census finds anything it leaves behind, at any depth. (Not the
+session's token: the demo's own census would count this worker's roscore as its leftover.)
 """
 import os
 import subprocess
@@ -18,7 +19,7 @@ MAX_GAP_S = 5.0
 
 @pytest.fixture(scope='module')
 def demo_run(tmp_path_factory):
-    token = os.environ.get(SESSION_ENV) or 'test_demo_' + os.urandom(6).hex()
+    token = 'test_demo_' + os.urandom(6).hex()
     out = tmp_path_factory.mktemp('demo') / 'run'
     master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')
     env = {k: v for k, v in os.environ.items() if k not in master_vars}

@@ -177,6 +177,20 @@ def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
     assert time.monotonic() - t0 < 2.0
 
 
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_host_stops_cleanly_on_a_signal(procs, rospy_client, sig):
+    """librviz's roscpp installs its own SIGINT handler; the host must still quit Qt on SIGINT and SIGTERM."""
+    name = 'rviz_host_sig%d' % sig
+    proc = procs.node('temoto_output_manager', 'rviz_host', name=name, namespace=NS,
+                      params={'show_robot': 'false', 'show_grid': 'false'})
+    RvizHostClient('/%s/%s' % (NS, name)).wait_ready(20, failed=exit_reason(proc))
+    xvfb = [c for c in psutil.Process(proc.pid).children() if c.name() == 'Xvfb']
+    os.kill(proc.pid, sig)
+    assert proc.proc.wait(timeout=10) == 0          # a hang here used to end only in SIGKILL
+    wait_for(lambda: all(not x.is_running() or x.status() == psutil.STATUS_ZOMBIE for x in xvfb), 10,
+             'its Xvfb to stop')
+
+
 def test_cli_screenshot_and_displays(host, tmp_path, capsys):
     from temoto_output_manager.cli import displays_main, screenshot_main
     out = tmp_path / 'shot.png'

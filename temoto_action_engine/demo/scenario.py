@@ -225,6 +225,10 @@ class Demo:
         import rospy
         self.stage_pub.publish(String(data=json.dumps(dict(fields, stage=stage, stamp=rospy.get_time()))))
 
+    # The operator's view for the report: from behind and above the robot, looking ahead, where the
+    # sensors look (the host's default frames the robot alone).
+    OPERATOR_VIEW = 'Distance: 7.5\nYaw: 3.14159\nPitch: 0.6\nFocal Point: [2.2, 0.0, 0.4]\n'
+
     def _screenshot(self, name: str) -> str:
         import rospy
         from sensor_msgs.msg import CompressedImage
@@ -270,10 +274,45 @@ class Demo:
             self._mark('on_screen', priority_index=k, entry=name, topic=topic)
             self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
             self.progress.line(what)
+            if k == 0:
+                self._set_operator_view()
+            if name == 'arm_cloud':
+                self._wait_full_sweep(topic)
             self._screenshot(name)
             if k == 0:
                 self._hold_host()
         self._empty_view()
+
+    def _set_operator_view(self) -> None:
+        """Turn the view, then wait (bounded) until RViz has drawn two frames with it."""
+        from temoto_output_manager.host_client import RvizHostClient, host_node_name
+        try:
+            host = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0)
+            host.set_view(self.OPERATOR_VIEW)
+            first = host.screenshot('view').frame_count
+            deadline = time.monotonic() + 2.0
+            while host.screenshot('view').frame_count < first + 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+        except Exception as e:   # the run goes on with the default view; the report says so
+            self.results['errors'].append('could not set the operator view: %s' % e)
+
+    def _wait_full_sweep(self, topic: str, limit: float = 4.0) -> None:
+        """The rolling stitched cloud is on screen from its first few scans; the screenshot shows
+        it once it holds a whole sweep, i.e. once its point count stops growing (bounded)."""
+        import threading
+        import rospy
+        from sensor_msgs.msg import PointCloud2
+        sizes, grown = [], threading.Event()
+
+        def on_cloud(msg):
+            sizes.append(msg.width * msg.height)
+            if len(sizes) >= 4 and sizes[-1] <= max(sizes[:-3]):
+                grown.set()
+        sub = rospy.Subscriber(topic, PointCloud2, on_cloud, queue_size=1, buff_size=2 ** 24)
+        try:
+            grown.wait(limit)
+        finally:
+            sub.unregister()
 
     def _hold_host(self) -> None:
         """Keep the RViz host up after the action ends, for the empty-view baseline.

@@ -48,6 +48,7 @@ class SensorChoice:
     output_topics: tuple
     display_type: str
     display_key: str
+    display_config: str = ''     # RViz properties (YAML) for the display, e.g. point size and colour
 
 
 @dataclass
@@ -87,7 +88,8 @@ class SpeculativeDisplay:
                     self.topic = topic
                     settled = self._settled
                 if not settled:
-                    did = self.action.omi.show_in_rviz(self.choice.display_type, topic, name=self.choice.label)
+                    did = self.action.omi.show_in_rviz(self.choice.display_type, topic, name=self.choice.label,
+                                                       config=self.choice.display_config)
         except Exception as e:          # only a guess: the display is requested after the sensor then
             self.action.log_info('no early display for %s: %s' % (self.choice.label, e))
         with self._lock:
@@ -139,8 +141,12 @@ def parse_priority(raw) -> list[SensorChoice]:
         if key not in keys:
             raise ActionError('sensor_priority[%d].display_key %r is not one of its output_topics %s'
                               % (i, key, keys))
+        config = e.get('display_config', '')
+        if not isinstance(config, str):
+            import yaml
+            config = yaml.safe_dump(config, default_flow_style=True).strip()
         out.append(SensorChoice(str(e.get('label', e['sensor_type'])), e['sensor_type'], tuple(keys),
-                                e['display_type'], key))
+                                e['display_type'], key, config))
     return out
 
 
@@ -226,7 +232,8 @@ class ShowEnvironment(ActionBase):
                 if not topic:
                     raise ActionError('the sensor gave no %r topic' % choice.display_key)
                 if display_id is None:
-                    display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label)
+                    display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label,
+                                                       config=choice.display_config)
             except Exception as e:
                 self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
                            priority_index=i, message=str(e))
