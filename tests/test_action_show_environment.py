@@ -32,6 +32,7 @@ class Devices:
         self.plugged = {name for name, _, _ in VAULTBOT}
         self.active = {}             # resource id -> sensor name
         self.shown = {}              # display id -> (type, topic)
+        self.configs = {}            # display id -> the RViz properties it was shown with
         self.log = []
         self.ids = itertools.count(1)
         self.callbacks = []
@@ -103,10 +104,11 @@ class FakeOutputManager:
     def __init__(self, devices, rr):
         self.d = devices
 
-    def show_in_rviz(self, display_type, topic, name=''):
+    def show_in_rviz(self, display_type, topic, name='', config=''):
         with self.d.lock:
             did = 1000 + next(self.d.ids)
             self.d.shown[did] = (display_type, topic)
+            self.d.configs[did] = config
             self.d.log.append(('show', display_type, topic))
             return did
 
@@ -298,3 +300,14 @@ def test_bad_priority_parameter_fails_the_action_clearly(setup):
     node = run.nodes['show_environment_0']
     assert node.state == 'ERROR' and "display_key 'cloud_data'" in node.message
     assert devices.log == []
+
+
+def test_display_config_reaches_the_output_manager_as_yaml():
+    import yaml
+    from temoto_action_engine.actions.show_environment.show_environment import ActionError, parse_priority
+    entry = {'sensor_type': 'lidar', 'output_topics': ['lidar_data'], 'display_type': 'laser scan',
+             'display_config': {'Size (m)': 0.05, 'Color': '255; 120; 0'}}
+    choice = parse_priority([entry])[0]
+    assert yaml.safe_load(choice.display_config) == {'Size (m)': 0.05, 'Color': '255; 120; 0'}
+    with pytest.raises(ActionError, match='display_config'):
+        parse_priority([dict(entry, display_config=[1, 2])])

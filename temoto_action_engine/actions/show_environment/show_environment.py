@@ -37,7 +37,9 @@ DEFAULT_PRIORITY = [
     {'label': 'arm LIDAR stitched cloud', 'sensor_type': 'lidar', 'output_topics': ['lidar_data', 'cloud_data'],
      'display_type': 'point cloud', 'display_key': 'cloud_data'},
     {'label': 'base LIDAR scan', 'sensor_type': 'lidar', 'output_topics': ['lidar_data'],
-     'display_type': 'laser scan', 'display_key': 'lidar_data'},
+     'display_type': 'laser scan', 'display_key': 'lidar_data',
+     'display_config': {'Style': 'Flat Squares', 'Size (m)': 0.05, 'Color Transformer': 'FlatColor',
+                        'Color': '255; 120; 0'}},
 ]
 
 
@@ -142,9 +144,12 @@ def parse_priority(raw) -> list[SensorChoice]:
             raise ActionError('sensor_priority[%d].display_key %r is not one of its output_topics %s'
                               % (i, key, keys))
         config = e.get('display_config', '')
-        if not isinstance(config, str):
+        if isinstance(config, dict):
             import yaml
             config = yaml.safe_dump(config, default_flow_style=True).strip()
+        elif not isinstance(config, str):
+            raise ActionError('sensor_priority[%d].display_config must be a mapping of RViz properties or YAML, '
+                              'got %r' % (i, config))
         out.append(SensorChoice(str(e.get('label', e['sensor_type'])), e['sensor_type'], tuple(keys),
                                 e['display_type'], key, config))
     return out
