@@ -128,6 +128,7 @@ class ResourceRegistrar:
         self._ids = IdGenerator()
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)
+        self._waiters = 0            # threads in _wait_for_change: most state changes have none to wake
         self._tls = threading.local()
         self._servers: Dict[str, _Server] = {}
         self._server_by_internal: Dict[int, _ServerQuery] = {}
@@ -149,6 +150,8 @@ class ResourceRegistrar:
         self._callback_thread = threading.Thread(target=self._run_callbacks, name='rr-%s-callbacks' % name,
                                                  daemon=True)
         self._callback_thread.start()
+        self._header = RMPRequest(status_topic=self.status_topic, temoto_namespace=self.namespace,
+                                  client_name=rospy.get_name())
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._on_status_msg, queue_size=1000,
                                             tcp_nodelay=True)
         self._registry_srv = rospy.Service('/%s/%s/registry' % (self.namespace, name), GetRegistry,
@@ -208,7 +211,7 @@ class ResourceRegistrar:
                 # loading: wait for its outcome; unloading: wait until it is gone, then load anew
                 shared = query
                 while shared.state in (LOADING, UNLOADING):
-                    self._changed.wait()
+                    self._wait_for_change()
                 if shared.state == FAILED and shared.failure is not None and shared.response is None:
                     return self._failure_response(response, shared.failure.extended(
                         ErrorCode.RESOURCE_FAILED, self.subsystem, 'shared load of %s failed' % server.name,
@@ -256,7 +259,7 @@ class ResourceRegistrar:
                 query.response = response
                 query.state = ACTIVE
                 rollback = []
-            self._changed.notify_all()
+            self._notify_change()
             if error is None:
                 return self._attach_consumer(query, external_id, consumer, response)
         for local_id in rollback:
@@ -323,7 +326,7 @@ class ResourceRegistrar:
         with self._lock:
             query.state = GONE
             self._forget_server_query(query)
-            self._changed.notify_all()
+            self._notify_change()
         if errors:
             # the registry is consistent whatever failed; report the first failure
             raise errors[0].extended(ErrorCode.RESOURCE_UNLOAD_FAIL, self.subsystem,
@@ -454,15 +457,14 @@ class ResourceRegistrar:
                     return self._attach_local(query, local_id, status_cb, parent)
                 shared = query
                 while shared.state == LOADING:
-                    self._changed.wait()
+                    self._wait_for_change()
                 if shared.state == FAILED and shared.error is not None and shared.response is None:
                     raise shared.error
         return self._call_remote(query, local_id, status_cb, parent, request, timeout)
 
     def _call_remote(self, query: _ClientQuery, local_id, status_cb, parent, request, timeout):
         request = _shallow_copy(request)      # the caller's object keeps its own header
-        request.trr = RMPRequest(status_topic=self.status_topic, temoto_namespace=self.namespace,
-                                 client_name=rospy.get_name())
+        request.trr = self._header          # the same for every request of this registrar; never mutated
         query.request = request                # what was asked, as sent (for the registry and for reloads)
         service = _target_name(query.target)
         error = None
@@ -481,7 +483,7 @@ class ResourceRegistrar:
                 query.error = error
                 if self._client_by_key.get((query.target, query.key)) is query:
                     del self._client_by_key[(query.target, query.key)]
-                self._changed.notify_all()
+                self._notify_change()
                 raise error
             query.response = response
             query.external_id = response.trr.resource_id
@@ -489,7 +491,7 @@ class ResourceRegistrar:
             self._client_by_external[(query.target, query.external_id)] = query
             out = self._attach_local(query, local_id, status_cb, parent)
             parked = self._take_pending(query.target, query.external_id)
-            self._changed.notify_all()
+            self._notify_change()
         for msg in parked:
             self._on_status_msg(msg)
         return out
@@ -565,7 +567,7 @@ class ResourceRegistrar:
                 del self._client_by_key[(query.target, query.key)]
             self._client_by_external.pop((query.target, query.external_id), None)
             query.state = GONE
-            self._changed.notify_all()
+            self._notify_change()
         if send:
             self._send_unload(query)
         return query
@@ -799,6 +801,19 @@ class ResourceRegistrar:
         self._callbacks.put(None)
 
     # ================================================================================ helpers
+    def _wait_for_change(self) -> None:
+        """Wait (lock held) until another thread changes a query's state."""
+        self._waiters += 1
+        try:
+            self._changed.wait()
+        finally:
+            self._waiters -= 1
+
+    def _notify_change(self) -> None:
+        """Wake the waiters, if any (lock held): notify_all costs more than the check on the hot path."""
+        if self._waiters:
+            self._changed.notify_all()
+
     def _error(self, code: int, message: str) -> TemotoError:
         return TemotoError(code, self.subsystem, message, prefix=self.prefix)
 
