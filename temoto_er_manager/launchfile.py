@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import os
 import shlex
+import sys
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -109,6 +110,8 @@ def plan_launch(path: str, args: list[str], ns: str, *, env: dict, log_path: str
                                  % (where, node.machine.address))
         exe = find_executable(node.package, node.type)
         argv = interpreter_argv(exe)
+        # a launch-prefix (gdb, valgrind, ...) must see a real process start
+        preloadable = not node.launch_prefix and len(argv) == 2 and argv[0] == sys.executable
         if node.launch_prefix:
             try:
                 prefix = shlex.split(node.launch_prefix)
@@ -139,7 +142,7 @@ def plan_launch(path: str, args: list[str], ns: str, *, env: dict, log_path: str
         if node.respawn:
             plan.warnings.append('%s: respawn="true" is not honoured; a death is reported FAILED instead' % where)
         plan.nodes.append(ProcessSpec(argv=argv, env=node_env, log_path=log_path, cwd=cwd,
-                                      label='%s %s' % (label, full), node_names=[full]))
+                                      label='%s %s' % (label, full), node_names=[full], preloadable=preloadable))
     if not plan.nodes:
         raise RequestRefused('BAD_REQUEST', 'launch file %s starts no node' % path)
     return plan

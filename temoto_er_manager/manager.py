@@ -16,6 +16,7 @@ manager (``death_signal``), see :mod:`temoto_er_manager.supervisor`.
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from typing import Optional
@@ -54,19 +55,25 @@ class ERManager:
         self.config = config
         self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=Subsystem.ER_MANAGER)
         self.master_uri = rosgraph.get_master_uri()
+        self.resolver = Resolver(config)
+        preload_log = os.path.join(self.resolver.log_dir, '%s-%d-zygote.log' % (time.strftime('%Y%m%d-%H%M%S'),
+                                                                               os.getpid()))
         self.supervisor = ProcessSupervisor(self._on_exit, sigint_grace=config.sigint_grace,
                                             sigterm_grace=config.sigterm_grace,
                                             death_signal=config.death_signal_number(),
-                                            tail_lines=config.log_tail_lines)
-        self.resolver = Resolver(config)
+                                            tail_lines=config.log_tail_lines,
+                                            preload_modules=config.preload_modules if config.preload_python else None,
+                                            preload_log=preload_log, preload_env=self.resolver.env)
         self._lock = threading.Lock()
         self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
         self._closing = False
         self.rr.add_server(SERVER, LoadProcess, self._load, self._unload)
         self._processes_srv = rospy.Service('/%s/%s/processes' % (self.rr.namespace, NAME), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.processes_json()))
-        rospy.loginfo('%s: ready (sys_execute allowlist: %s; package allowlist: %s; logs in %s)', NAME,
-                      config.sys_allowlist or 'none', config.package_allowlist or 'all', self.resolver.log_dir)
+        rospy.loginfo('%s: ready (sys_execute allowlist: %s; package allowlist: %s; logs in %s; Python nodes %s)',
+                      NAME, config.sys_allowlist or 'none', config.package_allowlist or 'all', self.resolver.log_dir,
+                      'forked from a zygote preloading ' + ', '.join(config.preload_modules)
+                      if config.preload_python else 'started plainly')
 
     # -- load / unload ---------------------------------------------------------------------------
 

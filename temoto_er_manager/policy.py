@@ -53,6 +53,8 @@ class ERConfig:
     death_signal: str = 'SIGKILL'        # sent to children if the manager dies; '' to let them outlive it
     log_dir: str = ''                    # per-process logs; empty: <ROS log dir>/temoto_er_manager
     log_tail_lines: int = 20             # lines of output quoted in a FAILED status
+    preload_python: bool = False         # fork Python node scripts from a zygote that has imported preload_modules
+    preload_modules: list = field(default_factory=lambda: ['rospy', 'numpy', 'std_msgs.msg', 'sensor_msgs.msg'])
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> 'ERConfig':
@@ -62,6 +64,13 @@ class ERConfig:
             raise ValueError('unknown ER Manager parameter(s): %s (known: %s)'
                              % (', '.join(unknown), ', '.join(sorted(known))))
         cfg = cls(**values)
+        if not isinstance(cfg.preload_python, bool):
+            raise ValueError('preload_python must be true or false, got %r' % (cfg.preload_python,))
+        v = cfg.preload_modules
+        if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) and re.match(
+                r'^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$', x) for x in v):
+            raise ValueError('preload_modules must be a list of dotted module names, got %r' % (v,))
+        cfg.preload_modules = list(v)
         for name in ('sys_allowlist', 'package_allowlist'):
             v = getattr(cfg, name)
             if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) and x for x in v):

@@ -77,6 +77,11 @@ def interpreter_argv(path: str) -> list[str]:
     return [path]
 
 
+def is_python_script_argv(argv: list) -> bool:
+    """``argv`` is what :func:`interpreter_argv` makes of a Python script (so the zygote may start it)."""
+    return len(argv) >= 2 and argv[0] == sys.executable and os.path.isabs(argv[1])
+
+
 def find_in_package(pkg_dir: str, filename: str) -> list[str]:
     """Every path named ``filename`` below ``pkg_dir``; skips hidden dirs and ``build``, no symlinked dirs."""
     found = []
@@ -174,9 +179,10 @@ class Resolver:
                 name = '%s_%d' % (base, i)
             args.append('__name:=' + name)
         args.append('__ns:=' + req.ros_namespace)
-        return ProcessSpec(argv=interpreter_argv(exe) + args, env=env, log_path=self._log_path(req),
+        argv = interpreter_argv(exe)
+        return ProcessSpec(argv=argv + args, env=env, log_path=self._log_path(req),
                            cwd=os.path.dirname(exe), label='%s/%s' % (req.package_name, req.executable),
-                           node_names=[join_name(req.ros_namespace, name)])
+                           node_names=[join_name(req.ros_namespace, name)], preloadable=is_python_script_argv(argv))
 
     def _launch(self, req: LoadRequest, pkg_dir: str, env: dict) -> Plan:
         matches = [p for p in find_in_package(pkg_dir, req.executable) if os.path.isfile(p)]

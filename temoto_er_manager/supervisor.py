@@ -21,6 +21,13 @@ shared/reference/temoto_original.md §2):
   one spawner thread that lives as long as the supervisor (rospy runs each
   service request in a short-lived thread, which would otherwise kill the child
   as soon as the request returned).
+- **Optional preloading.** With ``preload_modules``, Python node scripts
+  (``ProcessSpec.preloadable``) are forked from a zygote that has already
+  imported those modules (:mod:`temoto_er_manager.zygote`), which saves most of
+  a Python node's start-up. The zygote reports each child's exit over a socket
+  and reaps it only after the supervisor has recorded the exit, so the rules
+  above hold for those children too. If the zygote cannot be used (it died, did
+  not start, refused a fork), nodes are started plainly and the log says so.
 """
 from __future__ import annotations
 
@@ -42,6 +49,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from temoto_core.process_group import group_members
+
+from .preload import Zygote, ZygoteError
 
 _log = logging.getLogger('temoto_er_manager.supervisor')
 
@@ -79,6 +88,7 @@ class ProcessSpec:
     cwd: Optional[str] = None
     label: str = ''                 # free text for messages and listings, e.g. "pkg/exe"
     node_names: list[str] = field(default_factory=list)   # ROS nodes that must register
+    preloadable: bool = False       # argv = [this interpreter, a Python script, args...]: may come from the zygote
 
     @property
     def command(self) -> str:
@@ -93,10 +103,11 @@ class ExitInfo:
     log_tail: str
     intentional: bool
     when: float                     # time.time() of detection
+    detail: str = ''                # replaces the reason when the exit status is not known
 
     @property
     def reason(self) -> str:
-        return describe_returncode(self.returncode, self.intentional)
+        return self.detail or describe_returncode(self.returncode, self.intentional)
 
     def message(self) -> str:
         tail = self.log_tail.rstrip()
@@ -130,16 +141,27 @@ def read_tail(path: str, lines: int, max_bytes: int = 16384) -> str:
     return '\n'.join(text.splitlines()[-lines:])
 
 
+def _pidfd_readable(pidfd: int) -> bool:
+    """The process behind ``pidfd`` has exited."""
+    try:
+        return bool(select.select([pidfd], [], [], 0)[0])
+    except (OSError, ValueError):
+        return True
+
+
 class ManagedProcess:
     """One child. Its state changes are announced on ``cond``."""
 
     _ids = itertools.count(1)
 
-    def __init__(self, spec: ProcessSpec, popen: subprocess.Popen, pidfd: int, started: float):
+    def __init__(self, spec: ProcessSpec, pid: int, pidfd: int, started: float,
+                 popen: Optional[subprocess.Popen] = None, zygote: Optional[Zygote] = None):
         self.key = next(self._ids)
         self.spec = spec
-        self.popen = popen
-        self.pid = popen.pid
+        self.popen = popen                  # a plain child, reaped here
+        self.zygote = zygote                # or a child of the zygote, reaped there on our word
+        self.orphan = False                 # its zygote died: exit status unknown, reaped by init
+        self.pid = pid
         self.pidfd = pidfd
         self.started = started              # time.time() when spawned
         self.ready = False
@@ -166,6 +188,7 @@ class ManagedProcess:
             'log_path': self.spec.log_path, 'node_names': list(self.spec.node_names),
             'started': self.started, 'uptime': (info.when if info else time.time()) - self.started,
             'state': self.state, 'returncode': info.returncode if info else None,
+            'preloaded': self.zygote is not None,
         }
 
 
@@ -182,7 +205,9 @@ class ProcessSupervisor:
     """
 
     def __init__(self, on_exit: Optional[ExitCallback] = None, *, sigint_grace: float = 3.0,
-                 sigterm_grace: float = 2.0, death_signal: int = signal.SIGKILL, tail_lines: int = 20):
+                 sigterm_grace: float = 2.0, death_signal: int = signal.SIGKILL, tail_lines: int = 20,
+                 preload_modules: Optional[list] = None, preload_log: str = '', preload_env: Optional[dict] = None,
+                 preload_ready_timeout: float = 30.0):
         self.on_exit = on_exit
         self.sigint_grace = sigint_grace
         self.sigterm_grace = sigterm_grace
@@ -196,6 +221,13 @@ class ProcessSupervisor:
         self._spawn_q: queue.Queue = queue.Queue()
         self._callbacks: queue.Queue = queue.Queue()
         self._recent_exits: deque = deque(maxlen=64)
+        self._zprocs: dict[int, ManagedProcess] = {}         # pid -> child of the zygote, until its exit is read
+        self._zygote: Optional[Zygote] = None                # None: plain spawning only
+        self.preload_ready_timeout = preload_ready_timeout
+        if preload_modules is not None:
+            self._zygote = Zygote(preload_modules, env=dict(os.environ if preload_env is None else preload_env),
+                                  log_path=preload_log or os.path.join('/tmp', 'temoto_er_zygote-%d.log' % os.getpid()))
+            self._spawn_q.put(('start-zygote', None))
         self._spawner = threading.Thread(target=self._spawn_loop, name='er-spawner', daemon=True)
         self._reaper = threading.Thread(target=self._reap_loop, name='er-reaper', daemon=True)
         self._notifier = threading.Thread(target=self._callback_loop, name='er-exit-callbacks', daemon=True)
@@ -219,10 +251,60 @@ class ProcessSupervisor:
             if item is None:
                 return
             spec, fut = item
+            if spec == 'start-zygote':
+                self._start_zygote()
+                continue
             try:
                 fut.set_result(self._spawn(spec))
             except BaseException as e:        # the caller sees it through the future
                 fut.set_exception(e)
+
+    def _start_zygote(self) -> None:
+        """On the spawner thread: the zygote dies with it (SIGKILL), whatever ``death_signal`` says."""
+        parent = os.getpid()
+
+        def in_child():
+            _prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+            if os.getppid() != parent:
+                os._exit(125)
+        try:
+            self._zygote.start(in_child)
+            os.write(self._wake_w, b'x')      # let the reaper select on its exit reports
+            _log.info('preload zygote pid %d started: importing %s (log %s)', self._zygote.pid,
+                      ', '.join(self._zygote.modules), self._zygote.log_path)
+        except ZygoteError as e:
+            self._drop_zygote('it could not start: %s' % e)
+
+    def _usable_zygote(self, spec: ProcessSpec) -> Optional[Zygote]:
+        z = self._zygote
+        if z is None or not spec.preloadable or not z.compatible(spec.env):
+            return None
+        if not z.ready:
+            try:
+                info = z.wait_ready(self.preload_ready_timeout)
+            except ZygoteError as e:
+                self._drop_zygote(str(e))
+                return None
+            for module, error in sorted(info.get('failed', {}).items()):
+                _log.warning('preload zygote: cannot import %s (%s); nodes import it themselves', module, error)
+            _log.info('preload zygote pid %d ready', z.pid)
+        return z
+
+    def _drop_zygote(self, why: str) -> None:
+        """Plain spawning from now on; the zygote's live children are watched through their pidfds."""
+        with self._lock:
+            z, self._zygote = self._zygote, None
+            if z is None:
+                return
+            orphans = list(self._zprocs.values())
+            self._zprocs.clear()
+            for proc in orphans:
+                proc.orphan = True
+                self._procs[proc.pidfd] = proc
+        _log.warning('preload zygote (pid %d) is not used any more: %s. Python nodes start plainly from now on'
+                     '%s', z.pid, why, ' (%d of its children are still watched)' % len(orphans) if orphans else '')
+        os.write(self._wake_w, b'x')
+        threading.Thread(target=z.close, name='er-zygote-close', daemon=True).start()
 
     def _spawn(self, spec: ProcessSpec) -> ManagedProcess:
         os.makedirs(os.path.dirname(spec.log_path) or '.', exist_ok=True)
@@ -238,6 +320,11 @@ class ProcessSupervisor:
         with open(spec.log_path, 'ab', buffering=0) as log:
             log.write(('[temoto_er_manager] %s $ %s\n' % (time.strftime('%Y-%m-%d %H:%M:%S'),
                                                           spec.command)).encode())
+            zygote = self._usable_zygote(spec)
+            if zygote is not None:
+                proc = self._spawn_from_zygote(zygote, spec, log.fileno())
+                if proc is not None:
+                    return proc
             try:
                 popen = subprocess.Popen(spec.argv, env=spec.env, cwd=spec.cwd, stdin=subprocess.DEVNULL,
                                          stdout=log, stderr=subprocess.STDOUT, close_fds=True,
@@ -246,12 +333,32 @@ class ProcessSupervisor:
                 raise SupervisorError('cannot start %s: %s' % (spec.command, e.strerror or e)) from e
         started = time.time()
         pidfd = os.pidfd_open(popen.pid)
-        proc = ManagedProcess(spec, popen, pidfd, started)
+        proc = ManagedProcess(spec, popen.pid, pidfd, started, popen=popen)
         with self._lock:
             self._procs[pidfd] = proc
             self._all[proc.key] = proc
         os.write(self._wake_w, b'x')          # let the reaper select on the new pidfd
         _log.info('started pid %d: %s (log %s)', proc.pid, spec.command, spec.log_path)
+        return proc
+
+    def _spawn_from_zygote(self, zygote: Zygote, spec: ProcessSpec, log_fd: int) -> Optional[ManagedProcess]:
+        """Fork ``spec`` from the zygote; None (and the zygote dropped) if it cannot."""
+        with self._lock:                      # the reaper looks the pid up under this lock: register first
+            try:
+                pid = zygote.spawn(spec.argv, spec.env, spec.cwd, log_fd, self.death_signal)
+            except ZygoteError as e:
+                failure = str(e)
+            else:
+                # the zygote reaps the child only on our word, so the pid is still this child's
+                pidfd = os.pidfd_open(pid)
+                proc = ManagedProcess(spec, pid, pidfd, time.time(), zygote=zygote)
+                self._zprocs[pid] = proc
+                self._all[proc.key] = proc
+                failure = None
+        if failure is not None:
+            self._drop_zygote(failure)
+            return None
+        _log.info('started pid %d from the preload zygote: %s (log %s)', pid, spec.command, spec.log_path)
         return proc
 
     def wait_ready(self, proc: ManagedProcess, check: Optional[ReadyCheck], timeout: float,
@@ -335,8 +442,14 @@ class ProcessSupervisor:
         while True:
             with self._lock:
                 fds = list(self._procs)
+                zygote = self._zygote
+            zfd = zygote.events_fd if zygote is not None and zygote.popen is not None else -1
+            if zfd >= 0:
+                fds.append(zfd)
             try:
                 readable, _, _ = select.select([self._wake_r] + fds, [], [])
+            except ValueError:                # the zygote's socket closed under us: rebuild the set
+                continue
             except OSError as e:              # a pidfd closed under us by a race: rebuild the set
                 if e.errno in (errno.EBADF, errno.EINTR):
                     continue
@@ -350,7 +463,9 @@ class ProcessSupervisor:
                 if self._closed and not self._procs:
                     return
             for fd in readable:
-                if fd != self._wake_r:
+                if fd == zfd:
+                    self._zygote_exits(zygote)
+                elif fd != self._wake_r:
                     self._reap(fd)
 
     def _reap(self, pidfd: int) -> None:
@@ -361,14 +476,38 @@ class ProcessSupervisor:
         # Before reaping: while the dead leader is a zombie, its pid (and so its group id) cannot be
         # reused, so the group can be signalled safely. pid_max is 32768 here and wraps within minutes:
         # a group id signalled after the reap may already belong to somebody else's new session.
+        if proc.orphan:
+            # its zygote died, so init reaps it, maybe already: its group id may be reused; never signal it
+            self._record_exit(proc, -int(self.death_signal or signal.SIGKILL),
+                              'died after its preload zygote died (exit status unknown)')
+            return
         if group_members(proc.pid, exclude=proc.pid):
             self._kill_members_of_dead_leader(proc.pid)
+        self._record_exit(proc, None)
+
+    def _zygote_exits(self, zygote: Zygote) -> None:
+        """Exits the zygote reported: record each (its group cleaned first), then let the zygote reap it."""
+        exits, gone = zygote.read_events()
+        for pid, rc in exits:
+            with self._lock:
+                proc = self._zprocs.pop(pid, None)
+            if proc is not None:
+                # the zombie holds the pid and group id until we ack: the same rule as _reap
+                if group_members(pid, exclude=pid):
+                    self._kill_members_of_dead_leader(pid)
+                self._record_exit(proc, rc)
+            zygote.ack(pid)                   # after the exit is recorded: stop() never signals it again
+        if gone:
+            self._drop_zygote('it exited (%s); its output is in %s' % (zygote.exit_text(), zygote.log_path))
+
+    def _record_exit(self, proc: ManagedProcess, rc: Optional[int], detail: str = '') -> None:
         with proc.cond:                       # stop() signals the group only under this lock
-            rc = proc.popen.wait()            # already dead: returns at once and reaps
-            os.close(pidfd)
+            if rc is None:
+                rc = proc.popen.wait()        # already dead: returns at once and reaps
+            os.close(proc.pidfd)
             info = ExitInfo(pid=proc.pid, returncode=rc, command=proc.spec.command,
                             log_tail=read_tail(proc.spec.log_path, self.tail_lines),
-                            intentional=proc.stopping, when=time.time())
+                            intentional=proc.stopping, when=time.time(), detail=detail)
             proc.exit_info = info
             proc.cond.notify_all()
         self._recent_exits.append(info)
@@ -421,7 +560,10 @@ class ProcessSupervisor:
             with proc.cond:
                 if proc.exit_info is not None:
                     break
-                self._killpg(proc.pid, sig)   # under the lock: the leader cannot be reaped meanwhile
+                # under the lock: the leader cannot be reaped meanwhile (by us, or by the zygote, which waits
+                # for our word); an orphan of a dead zygote that has exited may be reaped by init already
+                if not (proc.orphan and _pidfd_readable(proc.pidfd)):
+                    self._killpg(proc.pid, sig)
             with proc.cond:
                 if proc.cond.wait_for(lambda: proc.exit_info is not None, timeout=grace):
                     break
@@ -463,6 +605,11 @@ class ProcessSupervisor:
         for t in threads:
             t.join(self.sigint_grace + self.sigterm_grace + 10.0)
         self._spawn_q.put(None)
+        self._spawner.join(5.0)
+        with self._lock:
+            zygote, self._zygote = self._zygote, None
+        if zygote is not None:
+            zygote.close()
         self._callbacks.put(None)
         os.write(self._wake_w, b'x')
         self._reaper.join(2.0)

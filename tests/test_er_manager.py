@@ -32,10 +32,15 @@ def start_manager(launcher, tmp, name=MGR, **params):
     return launcher.node(MGR, MGR, name=name, params=base)
 
 
-@pytest.fixture(scope='module')
-def manager(ros_master, tmp_path_factory):
+# every test runs against a manager that starts Python nodes plainly and one that forks them from its zygote
+MODES = {'plain': {}, 'preload': {'preload_python': 'true'}}
+
+
+@pytest.fixture(scope='module', params=sorted(MODES))
+def manager(request, ros_master, tmp_path_factory):
     launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path_factory.mktemp('er_manager')))
-    proc = start_manager(launcher, tmp_path_factory.mktemp('er_logs'))
+    proc = start_manager(launcher, tmp_path_factory.mktemp('er_logs'), **MODES[request.param])
+    proc.mode = request.param
     yield proc
     launcher.stop_all()
 
@@ -251,8 +256,8 @@ def test_ps_lists_running_processes(consumers, capsys):
 
 # -- manager lifetime: each test has its own manager -------------------------------------------------
 
-@pytest.fixture
-def own_manager(ros_master, rospy_client, tmp_path):
+@pytest.fixture(params=sorted(MODES))
+def own_manager(request, ros_master, rospy_client, tmp_path):
     launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
     started = []
 
@@ -260,7 +265,8 @@ def own_manager(ros_master, rospy_client, tmp_path):
         # its own node name and TeMoto namespace: it must not collide with the module's manager
         n = next(_names)
         proc = start_manager(launcher, tmp_path / 'logs', name='er_manager_%d' % n, temoto_namespace='own%d' % n,
-                             **params)
+                             **dict(MODES[request.param], **params))
+        proc.mode = request.param
         started.append(proc)
         return proc, Consumer('own%d' % n)
     yield start
@@ -273,9 +279,11 @@ def test_manager_sigint_leaves_no_process(own_manager, tmp_path):
         node = c.load('er_test_node', '__name:=stay_a')
         launch = c.load('er_two_nodes.launch', ns='/stay_b')
         nodes = [node.pid, launch.pid, node_pid('/stay_b/inner/second')]
+        everything = descendants(mgr.pid)     # with preload: the zygote too
+        assert set(nodes) <= set(everything) and len(everything) == len(nodes) + (mgr.mode == 'preload')
         os.killpg(mgr.pid, signal.SIGINT)
         mgr.proc.wait(20)
-        wait_for(lambda: all(pid_gone(p) for p in nodes), 10, 'children gone after SIGINT')
+        wait_for(lambda: all(pid_gone(p) for p in everything), 10, 'children gone after SIGINT')
     finally:
         c.rr.shutdown()
 
@@ -286,9 +294,11 @@ def test_manager_sigkill_leaves_no_process(own_manager):
         node = c.load('er_test_node', '__name:=orphan_a')
         launch = c.load('er_two_nodes.launch', ns='/orphan_b')
         nodes = [node.pid, launch.pid, node_pid('/orphan_b/inner/second')]
+        everything = descendants(mgr.pid)     # with preload: the zygote too
+        assert set(nodes) <= set(everything) and len(everything) == len(nodes) + (mgr.mode == 'preload')
         os.kill(mgr.pid, signal.SIGKILL)      # the manager only, not its group: PDEATHSIG must do it
         mgr.proc.wait(5)
-        wait_for(lambda: all(pid_gone(p) or open('/proc/%d/stat' % p).read().split()[2] == 'Z' for p in nodes),
+        wait_for(lambda: all(pid_gone(p) or _state(p) == 'Z' for p in everything),
                  10, 'children gone after SIGKILL of the manager')
     finally:
         c.rr.shutdown()
@@ -306,7 +316,7 @@ def test_stop_while_a_load_is_starting_leaks_nothing(own_manager, tmp_path):
         log = wait_for(lambda: [p for p in log_dir.glob('*er_test_node.log') if 'not registering' in p.read_text()],
                        15, 'child started')[0]
         assert log
-        pid = _child_pid(mgr.pid)
+        [pid] = [p for p in descendants(mgr.pid) if _is_test_node(p)]
         os.killpg(mgr.pid, signal.SIGINT)
         t.join(20)
         assert not t.is_alive() and isinstance(result[0], TemotoError)
@@ -323,11 +333,34 @@ def _try(fn):
         return e
 
 
-def _child_pid(parent):
+def descendants(root):
+    """Live processes below ``root`` (children, and the zygote's children)."""
+    parents = {}
     for entry in os.listdir('/proc'):
-        if entry.isdigit() and er_master.parent_pid(int(entry)) == parent:
-            return int(entry)
-    raise AssertionError('no child of %d' % parent)
+        if entry.isdigit():
+            parents[int(entry)] = er_master.parent_pid(int(entry))
+    found, frontier = [], [root]
+    while frontier:
+        kids = [p for p, pp in parents.items() if pp in frontier and _state(p) not in ('Z', '')]
+        found += kids
+        frontier = kids
+    return found
+
+
+def _state(pid):
+    try:
+        return open('/proc/%d/stat' % pid).read().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return ''
+
+
+def _is_test_node(pid):
+    """Plain start: the script is in the command line; from the zygote: the process name is the script's."""
+    try:
+        return (open('/proc/%d/comm' % pid).read().strip() == 'er_test_node' or
+                b'er_test_node' in open('/proc/%d/cmdline' % pid, 'rb').read())
+    except OSError:
+        return False
 
 
 def test_interface_load_unload_and_update_callback(rospy_client, manager):
