@@ -15,8 +15,16 @@
    consumer (goal: median <= 20 ms, as for a node), and the load until both
    nodes are registered against ``roslaunch`` of the same file measured the same way.
 
+4. Preloading (``~preload_python``): load latency with Python nodes started
+   plainly against forked from the manager's zygote, for the trivial node, the
+   two-node launch file and vaultbot_sim's ``hokuyo.launch`` (hokuyo_driver +
+   laser_stitcher, the failover demo's substitute sensor). Two managers run side
+   by side (one per mode) and their loads alternate, so machine load hits both
+   alike. Also the interpreter start and ``import rospy, numpy, std_msgs.msg,
+   sensor_msgs.msg`` in a fresh process, which is what the zygote saves.
+
 Prints a markdown table and writes bench/results/er.json.
-Usage: python bench/bench_er.py [--kills N] [--loads N]
+Usage: python bench/bench_er.py [--kills N] [--loads N] [--preload-loads N] [--preload-only]
 """
 import argparse
 import itertools
@@ -78,6 +86,56 @@ def stop_group(proc):
         proc.wait(5)
 
 
+PRELOAD_CASES = [  # figure key, package, executable, args, node names (relative to the load's namespace)
+    ('node', 'temoto_er_manager', 'er_minimal_node', '__name:=pre_node', ['pre_node']),
+    ('two_node_launch', 'temoto_er_manager', LAUNCH, '', ['alpha', 'beta']),
+    ('hokuyo_launch', 'vaultbot_sim', 'hokuyo.launch', '', ['hokuyo_driver', 'laser_stitcher']),
+]
+IMPORTS = 'import rospy, numpy, std_msgs.msg, sensor_msgs.msg'
+
+
+def fresh_interpreter(code, n):
+    """Seconds to run ``python -c code`` in a fresh process, ``n`` times."""
+    out = []
+    for _ in range(n):
+        t0 = time.monotonic()
+        subprocess.run([sys.executable, '-c', code], check=True)
+        out.append(time.monotonic() - t0)
+    return out
+
+
+def preload_comparison(launcher, work, n):
+    """Load latency per case with preloading off and on (two managers, loads alternating)."""
+    from temoto_core.rr import ResourceRegistrar
+    from temoto_er_manager.srv import LoadProcess
+    rrs = {}
+    for mode, on in (('off', False), ('on', True)):
+        launcher.node('temoto_er_manager', 'temoto_er_manager', name='er_preload_' + mode,
+                      params={'log_dir': os.path.join(work, 'er_logs_' + mode), 'temoto_namespace': 'pre_' + mode,
+                              'preload_python': 'true' if on else 'false', 'registration_timeout': 20.0})
+        rrs[mode] = ResourceRegistrar('bench_preload_' + mode, namespace='pre_' + mode)
+    times = {case[0]: {'off': [], 'on': []} for case in PRELOAD_CASES}
+    seq = itertools.count(1)
+    # one warm-up load per manager and case (the zygote imports while the first load waits; disk caches)
+    for i in range(n + 1):
+        for key, pkg, exe, args, _nodes in PRELOAD_CASES:
+            for mode in (('off', 'on') if i % 2 else ('on', 'off')):
+                req = LoadProcess._request_class(action='ros_execute', package_name=pkg, executable=exe, args=args,
+                                                 ros_namespace='/p%s_%d' % (mode, next(seq)))
+                t0 = time.monotonic()
+                resp = rrs[mode].call('temoto_er_manager', 'load_process', req)
+                took = time.monotonic() - t0
+                rrs[mode].unload(resp.trr.resource_id)
+                if i:
+                    times[key][mode].append(took)
+            if i:
+                print('  preload %2d/%d %-16s off %4.0f ms, on %4.0f ms' % (
+                    i, n, key, times[key]['off'][-1] * 1e3, times[key]['on'][-1] * 1e3), flush=True)
+    for rr in rrs.values():
+        rr.shutdown()
+    return times
+
+
 def detect_once(rr, request, victim_pid, ResourceStatus):
     """Load ``request``, SIGKILL the pid ``victim_pid(response)`` gives, return seconds to FAILED at ``rr``."""
     got = threading.Event()
@@ -101,6 +159,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--kills', type=int, default=20)
     ap.add_argument('--loads', type=int, default=10)
+    ap.add_argument('--preload-loads', type=int, default=10)
+    ap.add_argument('--preload-only', action='store_true', help='only section 4 (writes er_preload.json)')
     opts = ap.parse_args(argv)
     work = tempfile.mkdtemp(prefix='bench_er_')
     ros = RosMaster(work).start()
@@ -108,13 +168,18 @@ def main(argv=None):
         os.environ[k] = ros.env[k]
     launcher = ProcessGroupLauncher(ros.env, work)
     try:
+        import rospy
+        rospy.init_node('bench_er', disable_signals=True)
+        bare_python = fresh_interpreter('pass', 5)
+        bare_imports = fresh_interpreter(IMPORTS, 5)
+        preload = preload_comparison(launcher, work, opts.preload_loads)
+        if opts.preload_only:
+            return report_preload(preload, bare_python, bare_imports, 'er_preload.json')
         launcher.node('temoto_er_manager', 'temoto_er_manager', name='temoto_er_manager',
                       params={'log_dir': os.path.join(work, 'er_logs')})
-        import rospy
         from temoto_core.msg import ResourceStatus
         from temoto_core.rr import ResourceRegistrar
         from temoto_er_manager.srv import LoadProcess
-        rospy.init_node('bench_er', disable_signals=True)
         rr = ResourceRegistrar('bench_consumer')
         master = xmlrpc.client.ServerProxy(ros.uri)
         names = itertools.count(1)
@@ -213,7 +278,37 @@ def main(argv=None):
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'er.json'), 'w') as f:
         json.dump(results, f, indent=2, sort_keys=True)
-    return 0 if d['median_ms'] <= 20.0 and ld['median_ms'] <= 20.0 else 1
+    ok = report_preload(preload, bare_python, bare_imports, None, results)
+    return 0 if d['median_ms'] <= 20.0 and ld['median_ms'] <= 20.0 and ok == 0 else 1
+
+
+def report_preload(times, bare_python, bare_imports, filename, results=None):
+    """Print section 4 (preload off vs on) and store it (in ``results`` and er.json, or in ``filename``)."""
+    out = {'fresh_python_ms': summary(bare_python), 'fresh_python_with_imports_ms': summary(bare_imports),
+           'preload_modules_imported': IMPORTS}
+    print()
+    print('| preloading: load until every node is registered | plain start | from the zygote | goal |')
+    print('| --- | --- | --- | --- |')
+    worse = False
+    for key, _pkg, exe, _args, nodes in PRELOAD_CASES:
+        off, on = summary(times[key]['off']), summary(times[key]['on'])
+        out['load_%s' % key] = {'plain': off, 'preload': on}
+        worse |= on['median_ms'] >= off['median_ms']
+        print('| %s (%s), n=%d | median %.0f ms, p90 %.0f ms | median %.0f ms, p90 %.0f ms | noticeably lower |'
+              % (exe, ', '.join(nodes), off['n'], off['median_ms'], off['p90_ms'], on['median_ms'], on['p90_ms']))
+    print('| fresh `python -c pass` / `python -c "%s"` (n=%d) | median %.0f ms / %.0f ms | (saved by the zygote) '
+          '| reference |' % (IMPORTS, len(bare_python), statistics.median(bare_python) * 1e3,
+                             statistics.median(bare_imports) * 1e3))
+    if results is not None:
+        results['preload'] = out
+        path = os.path.join(ROOT, 'bench', 'results', 'er.json')
+        with open(path, 'w') as f:
+            json.dump(results, f, indent=2, sort_keys=True)
+    else:
+        os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
+        with open(os.path.join(ROOT, 'bench', 'results', filename), 'w') as f:
+            json.dump(dict(out, time=time.time(), machine={'cpus': os.cpu_count()}), f, indent=2, sort_keys=True)
+    return 1 if worse else 0
 
 
 if __name__ == '__main__':

@@ -6,6 +6,7 @@ Modules, one idea each:
 - ``launchfile`` a ``.launch`` file -> its parameters and one process per node (roslaunch's loader only);
 - ``resource``   the processes of one resource, which start, fail and stop together;
 - ``supervisor`` start, watch (event-driven), stop and reap child processes; ROS-free;
+- ``zygote``     the optional fork server that starts Python nodes with their imports done (``preload``: its client);
 - ``master``     ROS master look-ups used to decide that a node "really started";
 - ``manager``    the node's logic: the Resource Registrar server ``load_process``;
 - ``interface``  ``ERManagerInterface`` for other managers and actions;

@@ -11,7 +11,9 @@ reported FAILED to every consumer at once, with its exit reason, output tail
 and command; an unload is never reported as a failure.
 
 Processes are not recovered across a manager restart: children die with the
-manager (``death_signal``), see :mod:`temoto_er_manager.supervisor`.
+manager (``death_signal``), see :mod:`temoto_er_manager.supervisor`. With
+``preload_python`` Python nodes are forked from a zygote that has their common
+imports done (:mod:`temoto_er_manager.zygote`); they die with it, and it with the manager.
 """
 from __future__ import annotations
 

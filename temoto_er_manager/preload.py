@@ -70,6 +70,10 @@ class Zygote:
             ctrl_child.close()
             events_child.close()
         self.pid = self.popen.pid
+        # blocking, whatever socket.setdefaulttimeout() says (rospy's XML-RPC code sets one): with a timeout,
+        # Python waits for readability even with MSG_DONTWAIT, which would stall the reaper
+        ctrl.settimeout(None)
+        events.settimeout(None)
         self._ctrl, self._events = ctrl, events
 
     def wait_ready(self, timeout: float) -> dict:
@@ -122,10 +126,13 @@ class Zygote:
 
     @property
     def events_fd(self) -> int:
-        return self._events.fileno()
+        """The socket to select on, or -1 before the zygote started (or after it was closed)."""
+        events = self._events
+        return events.fileno() if events is not None else -1
 
     def read_events(self) -> tuple:
-        """``([(pid, returncode)], gone)``: the exits the zygote reported, without blocking; ``gone`` at EOF."""
+        """``(events, gone)`` without blocking: ``('exit', pid, returncode)`` and ``('reaped', pid, 0)`` in
+        the order the zygote sent them; ``gone`` once it closed its end."""
         out = []
         while True:
             try:
@@ -137,7 +144,10 @@ class Zygote:
             if not data:
                 return out, True
             msg = json.loads(data)
-            out.append((int(msg['exit']), int(msg['rc'])))
+            if 'exit' in msg:
+                out.append(('exit', int(msg['exit']), int(msg['rc'])))
+            else:
+                out.append(('reaped', int(msg['reaped']), 0))
 
     def ack(self, pid: int) -> None:
         """Let the zygote reap ``pid``: its exit is recorded, its group is never signalled again."""

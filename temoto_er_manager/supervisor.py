@@ -161,6 +161,7 @@ class ManagedProcess:
         self.popen = popen                  # a plain child, reaped here
         self.zygote = zygote                # or a child of the zygote, reaped there on our word
         self.orphan = False                 # its zygote died: exit status unknown, reaped by init
+        self.reaped = False                 # gone for good (its pid may be reused from now on)
         self.pid = pid
         self.pidfd = pidfd
         self.started = started              # time.time() when spawned
@@ -222,6 +223,7 @@ class ProcessSupervisor:
         self._callbacks: queue.Queue = queue.Queue()
         self._recent_exits: deque = deque(maxlen=64)
         self._zprocs: dict[int, ManagedProcess] = {}         # pid -> child of the zygote, until its exit is read
+        self._zreaping: dict[int, ManagedProcess] = {}       # pid -> exited child of the zygote, until reaped
         self._zygote: Optional[Zygote] = None                # None: plain spawning only
         self.preload_ready_timeout = preload_ready_timeout
         if preload_modules is not None:
@@ -301,6 +303,10 @@ class ProcessSupervisor:
             for proc in orphans:
                 proc.orphan = True
                 self._procs[proc.pidfd] = proc
+            exited = list(self._zreaping.values())
+            self._zreaping.clear()
+        for proc in exited:                   # init reaps them now
+            self._mark_reaped(proc)
         _log.warning('preload zygote (pid %d) is not used any more: %s. Python nodes start plainly from now on'
                      '%s', z.pid, why, ' (%d of its children are still watched)' % len(orphans) if orphans else '')
         os.write(self._wake_w, b'x')
@@ -443,7 +449,7 @@ class ProcessSupervisor:
             with self._lock:
                 fds = list(self._procs)
                 zygote = self._zygote
-            zfd = zygote.events_fd if zygote is not None and zygote.popen is not None else -1
+            zfd = zygote.events_fd if zygote is not None else -1
             if zfd >= 0:
                 fds.append(zfd)
             try:
@@ -463,10 +469,13 @@ class ProcessSupervisor:
                 if self._closed and not self._procs:
                     return
             for fd in readable:
-                if fd == zfd:
-                    self._zygote_exits(zygote)
-                elif fd != self._wake_r:
-                    self._reap(fd)
+                try:
+                    if fd == zfd:
+                        self._zygote_exits(zygote)
+                    elif fd != self._wake_r:
+                        self._reap(fd)
+                except Exception:             # never seen; the reaper must outlive any one process
+                    _log.exception('reaping (fd %d) failed', fd)
 
     def _reap(self, pidfd: int) -> None:
         with self._lock:
@@ -487,10 +496,18 @@ class ProcessSupervisor:
 
     def _zygote_exits(self, zygote: Zygote) -> None:
         """Exits the zygote reported: record each (its group cleaned first), then let the zygote reap it."""
-        exits, gone = zygote.read_events()
-        for pid, rc in exits:
+        events, gone = zygote.read_events()
+        for kind, pid, rc in events:
+            if kind == 'reaped':
+                with self._lock:
+                    proc = self._zreaping.pop(pid, None)
+                if proc is not None:
+                    self._mark_reaped(proc)
+                continue
             with self._lock:
                 proc = self._zprocs.pop(pid, None)
+                if proc is not None:
+                    self._zreaping[pid] = proc
             if proc is not None:
                 # the zombie holds the pid and group id until we ack: the same rule as _reap
                 if group_members(pid, exclude=pid):
@@ -500,10 +517,18 @@ class ProcessSupervisor:
         if gone:
             self._drop_zygote('it exited (%s); its output is in %s' % (zygote.exit_text(), zygote.log_path))
 
+    @staticmethod
+    def _mark_reaped(proc: ManagedProcess) -> None:
+        with proc.cond:
+            proc.reaped = True
+            proc.cond.notify_all()
+
     def _record_exit(self, proc: ManagedProcess, rc: Optional[int], detail: str = '') -> None:
         with proc.cond:                       # stop() signals the group only under this lock
             if rc is None:
                 rc = proc.popen.wait()        # already dead: returns at once and reaps
+            if proc.zygote is None or proc.orphan:
+                proc.reaped = True            # by us, or by init
             os.close(proc.pidfd)
             info = ExitInfo(pid=proc.pid, returncode=rc, command=proc.spec.command,
                             log_tail=read_tail(proc.spec.log_path, self.tail_lines),
@@ -570,6 +595,9 @@ class ProcessSupervisor:
         with proc.cond:
             if proc.exit_info is None:        # SIGKILL + 5 s and still not reaped: never seen; be loud
                 raise SupervisorError('process %d did not exit after SIGKILL' % proc.pid)
+            # a child of the zygote is reaped there once we recorded its exit: return when it is gone
+            if not proc.cond.wait_for(lambda: proc.reaped, timeout=5.0):
+                _log.warning('pid %d: its exit is recorded but the zygote has not reaped it yet', proc.pid)
             return proc.exit_info
 
     @staticmethod

@@ -26,7 +26,8 @@ Two ``SOCK_SEQPACKET`` socket pairs (one JSON message per packet):
 - *events* (the manager's reaper thread only): the zygote sends
   ``{"exit": pid, "rc": returncode}`` as soon as a child has exited, but does
   **not** reap it (``waitid(WNOWAIT)``); it reaps only when the manager answers
-  ``{"reap": pid}``. The manager sends that after it has recorded the exit under
+  ``{"reap": pid}`` (and confirms with ``{"reaped": pid}``, so that a stop
+  returns only once the child is gone). The manager sends that after it has recorded the exit under
   the process's lock, the same lock under which it signals the child's group. So
   the rule of :mod:`temoto_core.process_group` holds: a group is signalled only
   while its leader is unreaped (the zombie holds the id).
@@ -126,6 +127,7 @@ class _Server:
                 if isinstance(pid, int) and pid in self.children:
                     os.waitpid(pid, 0)              # a zombie already: returns at once
                     del self.children[pid]
+                    send(self.events, {'reaped': pid})
             if self.ctrl in readable:
                 data, fds, _flags, _addr = socket.recv_fds(self.ctrl, MAX_MESSAGE, 1)
                 if not data:
@@ -298,6 +300,8 @@ def main(argv: list) -> int:
     """``python -m temoto_er_manager.zygote CTRL_FD EVENTS_FD MODULES_JSON``"""
     ctrl = socket.socket(fileno=int(argv[0]))
     events = socket.socket(fileno=int(argv[1]))
+    ctrl.settimeout(None)                          # blocking whatever a preloaded module sets as default
+    events.settimeout(None)
     server = _Server(ctrl, events)
     server.preload(json.loads(argv[2]))
     try:

@@ -201,6 +201,20 @@ def test_launch_file_params_names_remaps_env(consumers, rospy_client):
     c.rr.unload(r.trr.resource_id)
 
 
+def test_python_nodes_come_from_the_zygote_only_with_preload(consumers, manager):
+    c = consumers()
+    r = c.load('er_test_node', '__name:=which_start')
+    lr = c.load('er_two_nodes.launch', ns='/which_launch')
+    rows = {row['pid']: row for row in processes()}
+    preloaded = [p['preloaded'] for row in (rows[r.pid], rows[lr.pid]) for p in row['processes']]
+    assert preloaded == [manager.mode == 'preload'] * 3, preloaded
+    comm = open('/proc/%d/comm' % r.pid).read().strip()
+    assert comm == ('er_test_node' if manager.mode == 'preload' else 'python'), 'ps shows the node by its script'
+    c.rr.unload(r.trr.resource_id)
+    c.rr.unload(lr.trr.resource_id)
+    assert pid_gone(r.pid)
+
+
 @pytest.mark.parametrize('executable, args, words', [
     ('no_such_node', '', 'no executable'),
     ('er_not_executable', '', 'not an executable file'),
