@@ -180,7 +180,7 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
     assert ci.K[4] * xyz[k, 1] / xyz[k, 2] + ci.K[5] == pytest.approx(v, abs=1e-3)
 
     for name, proc in drivers.items():     # SIGINT: a clean exit with code 0
-        assert proc.stop() == 0, f'{name}: {proc.log()}'
+        assert proc.stop(sigint_grace=10.0) == 0, f'{name}: {proc.log()}'
 
 
 def _sweep_scans(model, seconds, rate=40.0, speed=math.pi / 2, still=False):
@@ -317,4 +317,4 @@ def test_unplug_stall_keeps_driver_alive_and_silent(procs, rospy_client, collect
     t2 = time.monotonic()
     wait_for(lambda: time.monotonic() > t2 + 1.0, 3, 'a second quiet period')
     assert second.alive() and scans.count_after(t_quiet) == 0
-    assert drv.stop() == 0 and second.stop() == 0
+    assert drv.stop(sigint_grace=10.0) == 0 and second.stop(sigint_grace=10.0) == 0
