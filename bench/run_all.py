@@ -34,7 +34,11 @@ def main(argv):
         t0 = time.monotonic()
         out = subprocess.run([sys.executable, path], cwd=ROOT, capture_output=True, text=True, timeout=1800)
         took = time.monotonic() - t0
-        table = [line for line in out.stdout.splitlines() if line.startswith('|')]
+        lines = out.stdout.splitlines()
+        marks = [i for i, line in enumerate(lines) if line.startswith('|')]
+        # every table line, and the blank lines that separate one table from the next
+        table = [line for line in lines[marks[0]:marks[-1] + 1] if line.startswith('|') or not line.strip()] \
+            if marks else []
         status = 'ok' if out.returncode == 0 else 'FAILED (rc %d)' % out.returncode
         print('bench: %s %s in %.0f s' % (name, status, took), flush=True)
         body = '\n'.join(table) if table else '```\n%s\n```' % (out.stdout[-2000:] + out.stderr[-2000:])
