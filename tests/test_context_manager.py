@@ -8,6 +8,8 @@ import os
 import time
 
 import pytest
+
+from temoto_core.testing import made_interfaces
 import rospy
 from geometry_msgs.msg import PoseStamped
 
@@ -35,15 +37,8 @@ def stack(rospy_client, module_procs, tmp_path_factory):
 
 @pytest.fixture
 def cmi(stack):
-    made = []
-
-    def make():
-        iface = ContextManagerInterface()
-        made.append(iface)
-        return iface
-    yield make
-    for iface in made:
-        iface.shutdown()
+    with made_interfaces(ContextManagerInterface) as make:
+        yield make
     set_cable('d435', 'plugged')
     managers_idle(ALL_RRS, timeout=20)
 

@@ -8,6 +8,8 @@ on the ranking reads the current ranking first.
 import time
 
 import pytest
+
+from temoto_core.testing import made_interfaces
 import rospy
 
 from temoto_core.errors import ErrorCode, TemotoError
@@ -30,15 +32,8 @@ def managers(rospy_client, module_procs, tmp_path_factory):
 @pytest.fixture
 def smi(managers):
     """Interfaces made by a test; each is shut down (releasing what it holds) at its end."""
-    made = []
-
-    def make():
-        iface = SensorManagerInterface()
-        made.append(iface)
-        return iface
-    yield make
-    for iface in made:
-        iface.shutdown()
+    with made_interfaces(SensorManagerInterface) as make:
+        yield make
     managers_idle()
 
 

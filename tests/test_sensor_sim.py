@@ -7,6 +7,8 @@ import time
 
 import pytest
 
+from temoto_core.testing import made_interfaces
+
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
@@ -27,15 +29,8 @@ def stack(rospy_client, module_procs, tmp_path_factory):
 
 @pytest.fixture
 def smi(stack):
-    made = []
-
-    def make():
-        iface = SensorManagerInterface()
-        made.append(iface)
-        return iface
-    yield make
-    for iface in made:
-        iface.shutdown()
+    with made_interfaces(SensorManagerInterface) as make:
+        yield make
     set_cable('d435', 'plugged')
     managers_idle(timeout=20)
 

@@ -12,6 +12,7 @@ from temoto_core.testing.processes import (ManagedProcess, ProcessGroupLauncher,
                                            SESSION_ENV)
 from temoto_core.testing.bag import BagRecorder
 from temoto_core.testing.wait import wait_for
+from temoto_core.testing.interfaces import made_interfaces
 
 __all__ = ['RosMaster', 'free_port', 'master_proxy', 'ManagedProcess', 'ProcessGroupLauncher',
-           'leftover_processes', 'SESSION_ENV', 'BagRecorder', 'wait_for']
+           'leftover_processes', 'SESSION_ENV', 'BagRecorder', 'wait_for', 'made_interfaces']
