@@ -6,6 +6,7 @@ refuses, so callers never have to inspect ``ok`` fields.
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from typing import Callable, List, Optional
 
@@ -61,12 +62,44 @@ class RvizHostClient:
                 return
             time.sleep(min(poll, max(0.0, deadline - time.monotonic())))
 
-    def _call(self, service: str, srv_type, *args, **kwargs):
-        try:
-            resp = self._srv(service, srv_type)(*args, **kwargs)
-        except (rospy.ServiceException, rospy.ROSException) as e:
+    # rospy's service calls have no timeout. A call that got no answer is abandoned after this long (the
+    # host answers within ~0.1 s, or within its own 10 s main-thread timeout); calls that only read or set
+    # view state are then tried once more on a fresh connection.
+    CALL_TIMEOUT = 20.0
+    REPEATABLE = ('screenshot', 'list_displays', 'set_view')
+
+    def _bounded(self, service: str, srv_type, args, kwargs):
+        box = {}
+
+        def run():
+            try:
+                box['resp'] = self._srv(service, srv_type)(*args, **kwargs)
+            except BaseException as e:   # handed to the caller
+                box['error'] = e
+        worker = threading.Thread(target=run, daemon=True, name='rviz host call %s' % service)
+        worker.start()
+        worker.join(self.CALL_TIMEOUT)
+        if worker.is_alive():
             self._proxies.pop(service, None)
-            raise RvizHostError('RViz host %s: %s failed: %s' % (self.node_name, service, e)) from None
+            raise TimeoutError('no answer within %.0f s' % self.CALL_TIMEOUT)
+        if 'error' in box:
+            raise box['error']
+        return box['resp']
+
+    def _call(self, service: str, srv_type, *args, **kwargs):
+        attempts = 2 if service in self.REPEATABLE else 1
+        for attempt in range(1, attempts + 1):
+            try:
+                resp = self._bounded(service, srv_type, args, kwargs)
+                break
+            except TimeoutError as e:
+                if attempt < attempts:
+                    rospy.logwarn('RViz host %s: %s: %s; trying again', self.node_name, service, e)
+                    continue
+                raise RvizHostError('RViz host %s: %s failed: %s' % (self.node_name, service, e)) from None
+            except (rospy.ServiceException, rospy.ROSException) as e:
+                self._proxies.pop(service, None)
+                raise RvizHostError('RViz host %s: %s failed: %s' % (self.node_name, service, e)) from None
         if hasattr(resp, 'ok') and not resp.ok:
             raise RvizHostError(resp.message)
         return resp
