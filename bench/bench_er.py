@@ -35,14 +35,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import xmlrpc.client
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
 
 POLL = 0.02
 LAUNCH = 'er_bench_two.launch'
@@ -132,35 +131,27 @@ def preload_comparison(launcher, work, n):
                 print('  preload %2d/%d %-16s off %4.0f ms, on %4.0f ms' % (
                     i, n, key, times[key]['off'][-1] * 1e3, times[key]['on'][-1] * 1e3), flush=True)
     # detection through the zygote's exit report against the manager's own pidfd
-    from temoto_core.msg import ResourceStatus
     for i in range(n):
         for mode in ('off', 'on'):
             req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
                                              executable='er_minimal_node', args='__name:=pre_victim_%d' % next(seq))
             times.setdefault('detection', {'off': [], 'on': []})[mode].append(
-                detect_once(rrs[mode], req, lambda resp: resp.pid, ResourceStatus))
+                detect_once(rrs[mode], req, lambda resp: resp.pid))
     for rr in rrs.values():
         rr.shutdown()
     return times
 
 
-def detect_once(rr, request, victim_pid, ResourceStatus):
+def detect_once(rr, request, victim_pid):
     """Load ``request``, SIGKILL the pid ``victim_pid(response)`` gives, return seconds to FAILED at ``rr``."""
-    got = threading.Event()
-    stamp = {}
-
-    def on_status(ev):
-        if ev.code == ResourceStatus.FAILED and not got.is_set():
-            stamp['t'] = time.monotonic()
-            got.set()
-    resp = rr.call('temoto_er_manager', 'load_process', request, status_cb=on_status)
+    failed = FirstFailure()
+    resp = rr.call('temoto_er_manager', 'load_process', request, status_cb=failed)
     pid = victim_pid(resp)
     t0 = time.monotonic()
     os.kill(pid, signal.SIGKILL)
-    if not got.wait(5.0):
-        raise RuntimeError('no FAILED within 5 s')
+    stamp = failed.wait(5.0)
     rr.unload(resp.trr.resource_id)
-    return stamp['t'] - t0
+    return stamp - t0
 
 
 def main(argv=None):
@@ -172,8 +163,7 @@ def main(argv=None):
     opts = ap.parse_args(argv)
     work = tempfile.mkdtemp(prefix='bench_er_')
     ros = RosMaster(work).start()
-    for k in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
-        os.environ[k] = ros.env[k]
+    ros.point_this_process()
     launcher = ProcessGroupLauncher(ros.env, work)
     try:
         import rospy
@@ -185,7 +175,6 @@ def main(argv=None):
             return report_preload(preload, bare_python, bare_imports, 'er_preload.json')
         launcher.node('temoto_er_manager', 'temoto_er_manager', name='temoto_er_manager',
                       params={'log_dir': os.path.join(work, 'er_logs')})
-        from temoto_core.msg import ResourceStatus
         from temoto_core.rr import ResourceRegistrar
         from temoto_er_manager.srv import LoadProcess
         rr = ResourceRegistrar('bench_consumer')
@@ -197,7 +186,7 @@ def main(argv=None):
         for i in range(opts.kills):
             req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
                                              executable='er_minimal_node', args='__name:=victim_%d' % next(names))
-            detect.append(detect_once(rr, req, lambda resp: resp.pid, ResourceStatus))
+            detect.append(detect_once(rr, req, lambda resp: resp.pid))
             print('  detection %2d/%d: %.1f ms' % (i + 1, opts.kills, detect[-1] * 1e3), flush=True)
 
         # -- 2. load latency ---------------------------------------------------------------------
@@ -231,8 +220,7 @@ def main(argv=None):
             req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
                                              executable=LAUNCH, ros_namespace=ns)
             # the second node: the first is the response's pid, so this is the case a launch wrapper hid
-            launch_detect.append(detect_once(rr, req, lambda resp, ns=ns: node_pid(master, ns + '/beta'),
-                                             ResourceStatus))
+            launch_detect.append(detect_once(rr, req, lambda resp, ns=ns: node_pid(master, ns + '/beta')))
             print('  launch detection %2d/%d: %.1f ms' % (i + 1, opts.kills, launch_detect[-1] * 1e3), flush=True)
         launch_er, launch_bare = [], []
         for i in range(opts.loads):

@@ -52,7 +52,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     master = RosMaster().start()
-    os.environ.update(master.env)
+    master.point_this_process()
     procs = ProcessGroupLauncher(master.env, master.workdir)
     try:
         return run(args, procs)

@@ -24,13 +24,12 @@ import os
 import statistics
 import sys
 import tempfile
-import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
 
 CRASH_GOAL_MS = 100.0         # exit seen by the ER Manager (pidfd) and forwarded one registrar up
 STALL_EXTRA_GOAL_MS = 100.0   # beyond the silence limit: one watchdog wake-up plus the status hop
@@ -54,14 +53,12 @@ def main(argv=None):
     opts = ap.parse_args(argv)
     work = tempfile.mkdtemp(prefix='bench_sensor_')
     ros = RosMaster(work).start()
-    for k in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
-        os.environ[k] = ros.env[k]
+    ros.point_this_process()
     launcher = ProcessGroupLauncher(ros.env, work)
     results = {}
     try:
         import rospy
         from diagnostic_msgs.msg import KeyValue
-        from temoto_core.msg import ResourceStatus
         from temoto_core.rr import ResourceRegistrar
         from temoto_sensor_manager.srv import LoadSensor
         from temoto_sensor_manager import testing as t
@@ -79,20 +76,12 @@ def main(argv=None):
         def failure_latency(mode, topics):
             out = []
             for i in range(opts.failures):
-                got = threading.Event()
-                stamp = {}
-
-                def on_status(ev, got=got, stamp=stamp):
-                    if ev.code == ResourceStatus.FAILED and not got.is_set():
-                        stamp['t'] = time.monotonic()
-                        got.set()
+                failed = FirstFailure()
                 resp = rr.call('temoto_sensor_manager', 'start_sensor',
-                               request('depth camera', topics, 'd435_driver'), status_cb=on_status)
+                               request('depth camera', topics, 'd435_driver'), status_cb=failed)
                 t0 = time.monotonic()
                 t.set_cable('d435', 'unplugged', mode)
-                if not got.wait(10.0):
-                    raise RuntimeError('no FAILED within 10 s after a %s unplug' % mode)
-                out.append(stamp['t'] - t0)
+                out.append(failed.wait(10.0, 'FAILED after a %s unplug' % mode) - t0)
                 rr.unload(resp.trr.resource_id)
                 t.set_cable('d435', 'plugged')
                 print('  %s %d/%d: %.1f ms' % (mode, i + 1, opts.failures, out[-1] * 1e3), flush=True)
@@ -104,19 +93,11 @@ def main(argv=None):
         cables = t.FakeCables()
         node_crash = []
         for i in range(opts.failures):
-            got = threading.Event()
-            stamp = {}
-
-            def on_status(ev, got=got, stamp=stamp):
-                if ev.code == ResourceStatus.FAILED and not got.is_set():
-                    stamp['t'] = time.monotonic()
-                    got.set()
+            failed = FirstFailure()
             resp = rr.call('temoto_sensor_manager', 'start_sensor', request('fake lidar', ['lidar_data']),
-                           status_cb=on_status)
+                           status_cb=failed)
             t0 = cables.send('crash', resp.sensor_name[len('fake_'):])
-            if not got.wait(10.0):
-                raise RuntimeError('no FAILED within 10 s after a fake driver crash')
-            node_crash.append(stamp['t'] - t0)
+            node_crash.append(failed.wait(10.0, 'FAILED after a fake driver crash') - t0)
             rr.unload(resp.trr.resource_id)
             t.managers_idle(timeout=20)
             print('  node crash %d/%d: %.1f ms' % (i + 1, opts.failures, node_crash[-1] * 1e3), flush=True)

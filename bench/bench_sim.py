@@ -99,7 +99,7 @@ def main():
     args = ap.parse_args()
     work = tempfile.mkdtemp(prefix='bench_sim_')
     master = RosMaster(work).start()
-    os.environ.update(master.env)
+    master.point_this_process()
     procs = ProcessGroupLauncher(master.env, work)
     results = {'cores': psutil.cpu_count(), 'window_s': args.window, 'alone': {}, 'together': {}, 'crash_exit_s': {}}
     try:

@@ -13,6 +13,7 @@ from temoto_core.testing.processes import (ManagedProcess, ProcessGroupLauncher,
 from temoto_core.testing.bag import BagRecorder
 from temoto_core.testing.wait import wait_for
 from temoto_core.testing.interfaces import made_interfaces
+from temoto_core.testing.status import FirstFailure
 
 __all__ = ['RosMaster', 'free_port', 'master_proxy', 'ManagedProcess', 'ProcessGroupLauncher',
-           'leftover_processes', 'SESSION_ENV', 'BagRecorder', 'wait_for', 'made_interfaces']
+           'leftover_processes', 'SESSION_ENV', 'BagRecorder', 'wait_for', 'made_interfaces', 'FirstFailure']

@@ -23,6 +23,9 @@ def master_proxy(uri: str) -> xmlrpc.client.ServerProxy:
     return xmlrpc.client.ServerProxy(uri)
 
 
+ROS_VARS = ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME')
+
+
 class RosMaster:
     """``roscore -p PORT`` in its own session, with logs kept in ``workdir``.
 
@@ -55,6 +58,17 @@ class RosMaster:
         if self.session_token:
             env[SESSION_ENV] = self.session_token
         return env
+
+    def point_this_process(self) -> Dict[str, Optional[str]]:
+        """Make this process (its rospy, and children started with os.environ) use this master.
+
+        Returns the values it replaced, so that a caller can put them back.
+        """
+        saved = {k: os.environ.get(k) for k in ROS_VARS}
+        env = self.env
+        for k in ROS_VARS:
+            os.environ[k] = env[k]
+        return saved
 
     def start(self, attempts: int = 3) -> 'RosMaster':
         errors = []

@@ -32,9 +32,7 @@ def session_token():
 @pytest.fixture(scope='session')
 def ros_master(tmp_path_factory, session_token):
     master = RosMaster(str(tmp_path_factory.mktemp('roscore')), session_token).start()
-    saved = {k: os.environ.get(k) for k in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME')}
-    for key in saved:
-        os.environ[key] = master.env[key]
+    saved = master.point_this_process()
     yield master
     master.stop()
     for key, value in saved.items():
