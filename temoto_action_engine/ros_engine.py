@@ -13,11 +13,11 @@ Services:
 from __future__ import annotations
 
 import json
-import signal
 import threading
 
 import rospy
 from std_msgs.msg import String
+from temoto_core.node import on_signals
 
 from .engine import ActionEngine
 from .indexer import ActionIndex
@@ -137,12 +137,7 @@ def run_node(name: str = 'temoto_action_engine') -> None:
     rospy.init_node(name, disable_signals=True)
     node = ActionEngineNode()
     stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    on_signals(lambda signum: stop.set())     # from a thread: Event.set in a handler can deadlock
     while not stop.is_set() and not rospy.is_shutdown():
         stop.wait(1.0)
     rospy.loginfo('action engine shutting down: stopping running graphs')

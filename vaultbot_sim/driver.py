@@ -16,6 +16,7 @@ import threading
 import time
 
 import rospy
+from temoto_core.node import ok
 from sensor_msgs.msg import JointState
 
 from vaultbot_sim.devices import Cable, CableWatch
@@ -68,7 +69,7 @@ class DriverBase:
 
     def _param(self, name: str) -> str:
         deadline = time.monotonic() + self.startup_timeout
-        while time.monotonic() < deadline and not rospy.is_shutdown():
+        while time.monotonic() < deadline and ok():
             if rospy.has_param(name):
                 return rospy.get_param(name)
             time.sleep(0.05)
@@ -109,7 +110,7 @@ class DriverBase:
     def spin(self) -> None:
         period = 1.0 / self.rate
         next_t = time.monotonic()
-        while not rospy.is_shutdown():
+        while ok():
             if self.cable.verdict == 'run':
                 stamp = rospy.Time.now()
                 self.pose_scene(stamp.to_sec())

@@ -11,6 +11,7 @@ import math
 import threading
 
 import rospy
+from temoto_core.node import ok
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
@@ -110,7 +111,7 @@ class SimNode:
 
     def spin(self) -> None:
         rate = rospy.Rate(self.rate)
-        while not rospy.is_shutdown():
+        while ok():
             self.step()
             try:
                 rate.sleep()

@@ -53,13 +53,12 @@ def record_main(argv: Optional[List[str]] = None) -> int:
     if os.path.isdir(out):
         out = os.path.join(out, 'failover.bag')
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-    import signal
     import threading
+    from temoto_core.node import on_signals
     from .recording import Recording
     env = dict(os.environ)
     stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    on_signals(lambda signum: stop.set())     # from a thread: Event.set in a handler can deadlock
     rec = Recording(out, env, args.ns)
     try:
         rec.start()

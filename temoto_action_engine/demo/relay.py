@@ -97,13 +97,14 @@ class StreamRelay:
 
 def main() -> None:
     import rospy
-    rospy.init_node('temoto_demo_relay')
+    from temoto_core.node import init_node, spin
+    init_node('temoto_demo_relay')
     ns = str(rospy.get_param('~temoto_namespace', T.DEFAULT_NS))
     streams = rospy.get_param('~streams', T.DEFAULT_STREAMS)
     if isinstance(streams, str):
         streams = [s for s in streams.split(',') if s.strip()]
     StreamRelay(ns, streams)
-    rospy.spin()
+    spin()
 
 
 if __name__ == '__main__':

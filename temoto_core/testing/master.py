@@ -54,6 +54,9 @@ class RosMaster:
             'ROS_LOG_DIR': os.path.join(self.workdir, 'log'),
             'ROS_HOME': os.path.join(self.workdir, 'home'),
             'PYTHONUNBUFFERED': '1',
+            # a Python child that hangs is stopped at last with SIGABRT (stop_process_group): this
+            # makes it write every thread's stack to its log first
+            'PYTHONFAULTHANDLER': '1',
         })
         if self.session_token:
             env[SESSION_ENV] = self.session_token

@@ -26,11 +26,18 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
     if proc.returncode is not None:
         return proc.returncode
     pgid = proc.pid
-    for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGKILL, 5.0)):
+    stages = ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGABRT, 2.0),
+              (signal.SIGKILL, 5.0))
+    for sig, grace in stages:
         if exit_status(proc) is not None:
             break
         try:
-            os.killpg(pgid, sig)
+            if sig == signal.SIGABRT:
+                # only the leader: with PYTHONFAULTHANDLER set (the harness sets it) a Python child
+                # writes every thread's stack to its log before dying, so a hang explains itself
+                os.kill(pgid, sig)
+            else:
+                os.killpg(pgid, sig)
         except ProcessLookupError:
             pass
         deadline = time.monotonic() + grace

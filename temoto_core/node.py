@@ -1,0 +1,118 @@
+"""Node lifetime: SIGINT and SIGTERM handled outside signal-handler context.
+
+rospy's own handler runs ``rospy.signal_shutdown`` *inside* the Python signal
+handler, that is, on the main thread between two arbitrary bytecodes. If the
+main thread is publishing at that moment, it may hold the non-reentrant lock of
+a queued publisher connection (``QueuedConnection._lock``, taken in
+``write_data``), and the shutdown it runs closes that same connection and takes
+that lock again: the node deadlocks, ignores every later SIGINT and SIGTERM,
+and only SIGKILL ends it. A driver publishing at 25 Hz hit this in about one
+stop in ten under load (stack in the log of the CI run that found it).
+``threading.Event.set`` from a handler has the same hazard while the main
+thread is in ``Event.wait``.
+
+So the handlers here do nothing in Python: Python's C-level handler writes the
+signal number to a wake-up pipe (``signal.set_wakeup_fd``), and a daemon thread
+reads it and calls back from ordinary thread context, where taking any lock is
+safe. ``init_node`` hands the signal to the main thread, whose ``spin()`` or
+``while ok():`` loop then runs rospy's shutdown between two of its own steps.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from typing import Callable, Iterable
+
+import rospy
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _ignore(signum, frame) -> None:
+    """Installed as the Python handler so that the wake-up fd is written; the work is done elsewhere."""
+
+
+def on_signals(callback: Callable[[int], None], signals: Iterable[int] = STOP_SIGNALS) -> threading.Thread:
+    """Call ``callback(signum)`` from a daemon thread whenever one of ``signals`` arrives.
+
+    Must be called from the main thread (a rule of ``signal``). The process has
+    one wake-up fd, so call this once; signals with no Python handler of their
+    own are not reported.
+    """
+    wanted = frozenset(int(s) for s in signals)
+    read_fd, write_fd = os.pipe2(os.O_CLOEXEC)
+    os.set_blocking(write_fd, False)             # set_wakeup_fd requires it; a full pipe only drops duplicates
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    for s in wanted:
+        signal.signal(s, _ignore)
+
+    def relay() -> None:
+        while True:
+            try:
+                data = os.read(read_fd, 64)
+            except InterruptedError:
+                continue
+            if not data:
+                return
+            for signum in data:
+                if signum in wanted:
+                    callback(signum)
+
+    thread = threading.Thread(target=relay, name='temoto-signals', daemon=True)
+    thread.start()
+    return thread
+
+
+_stop_signal = threading.Event()     # a stop signal arrived; ok() reads it without taking a lock
+_wake = threading.Event()            # wakes spin(): a stop signal, or rospy shutting down for another reason
+_shut_by_main = threading.Event()    # the main thread has run rospy's shutdown
+MAIN_THREAD_GRACE = 2.0              # s the relay waits for the main thread before shutting rospy down itself
+
+
+def init_node(name: str, **kwargs) -> None:
+    """``rospy.init_node`` whose SIGINT/SIGTERM shut rospy down on the main thread, outside any handler.
+
+    The main thread must then run ``spin()`` or a ``while ok():`` loop: either
+    runs rospy's shutdown between two of its own steps, where it holds no lock.
+    Not from the relay thread, because rospy closes its topics *before*
+    ``is_shutdown()`` turns true, so a main loop publishing meanwhile would
+    raise. A main thread that does not come round within MAIN_THREAD_GRACE
+    (blocked in start-up, say) is overtaken: the relay thread shuts rospy down.
+    """
+    kwargs['disable_signals'] = True
+    rospy.init_node(name, **kwargs)
+    rospy.on_shutdown(_wake.set)
+
+    def on_stop(signum: int) -> None:
+        _stop_signal.set()
+        _wake.set()
+        if not _shut_by_main.wait(MAIN_THREAD_GRACE):
+            rospy.signal_shutdown('signal %d (main thread busy)' % signum)
+    on_signals(on_stop)
+
+
+def ok() -> bool:
+    """The condition of a node's main loop: False once rospy is shut down or a stop signal arrived.
+
+    Call it from the main thread: the first call after a stop signal runs
+    rospy's whole shutdown here before returning False.
+    """
+    if _stop_signal.is_set() and not rospy.core.is_shutdown_requested():
+        rospy.signal_shutdown('stop signal')
+        _shut_by_main.set()
+    return not rospy.is_shutdown()
+
+
+def spin() -> None:
+    """Block the main thread until rospy shuts down; on a stop signal, shut it down here first.
+
+    Wakes at once (``rospy.spin`` polls every 0.5 s). The 1 s re-check only
+    covers a shutdown that was under way before init_node's hook was added.
+    """
+    while ok():
+        if _wake.is_set():    # shut down from another thread: ok() turns False once its first half is done
+            time.sleep(0.01)
+        else:
+            _wake.wait(1.0)

@@ -1,0 +1,106 @@
+"""temoto_core.node: SIGINT and SIGTERM stop a node cleanly whatever its main thread was doing.
+
+rospy's own handler shuts down inside the signal handler and deadlocked a driver
+that was publishing (see temoto_core/node.py). The first test pins the mechanism
+without ROS: the callback must run while the main thread still holds a lock the
+callback needs, which a handler-based design cannot do. The others stop real
+nodes, in their own processes, many times over.
+"""
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from temoto_core.testing import wait_for
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+HOLDS_A_LOCK = textwrap.dedent('''
+    import os, signal, threading
+    from temoto_core.node import on_signals
+    lock = threading.Lock()
+    seen = []
+    def callback(signum):
+        with lock:          # held by the main thread when the signal arrived
+            seen.append((signum, threading.current_thread() is threading.main_thread()))
+    on_signals(callback)
+    with lock:
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGTERM)
+        total = 0
+        for i in range(200000):     # bytecodes: a Python-level handler would run here, lock held
+            total += i
+    for _ in range(1000):           # bounded: the relay thread needs the lock first
+        if len(seen) == 2:
+            break
+        threading.Event().wait(0.01)
+    print(sorted(seen), flush=True)
+''')
+
+
+def test_the_callback_runs_in_a_thread_after_the_main_thread_lets_go_of_its_lock():
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    out = subprocess.run([sys.executable, '-c', HOLDS_A_LOCK], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == str(sorted([(int(signal.SIGINT), False), (int(signal.SIGTERM), False)]))
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_a_node_publishing_flat_out_from_its_main_thread_always_exits_cleanly(procs, rospy_client, sig):
+    from std_msgs.msg import UInt8MultiArray
+    received = []
+    sub = rospy_client.Subscriber('/busy', UInt8MultiArray, lambda m: received.append(1), queue_size=10)
+    try:
+        for attempt in range(6):
+            node = procs.node('temoto_test_nodes', 'busy_publisher', name='busy_publisher')
+            before = len(received)
+            wait_for(lambda: len(received) > before + 20, 20, 'messages from busy_publisher')
+            os.killpg(node.pid, sig)
+            deadline = time.monotonic() + 15      # generous: a deadlock never ends, a clean stop takes < 1 s
+            wait_for(lambda: node.returncode is not None or time.monotonic() > deadline, 16, 'the node to exit')
+            assert node.returncode == 0, 'attempt %d: exit %r\n%s' % (attempt, node.returncode, node.log())
+            assert node.stop() == 0
+    finally:
+        sub.unregister()
+
+
+def test_a_spinning_node_stops_on_sigterm_and_runs_its_shutdown_hooks(procs, ros_master):
+    """rr_node spins in temoto_core.node.spin(); SIGTERM must end it through rospy's shutdown."""
+    from temoto_core.testing.master import master_proxy
+    node = procs.node('temoto_test_nodes', 'rr_node', name='spinner')
+    master = master_proxy(ros_master.uri)
+    assert '/spinner' in _node_names(master)
+    os.killpg(node.pid, signal.SIGTERM)
+    wait_for(lambda: node.returncode is not None, 15, 'rr_node to exit on SIGTERM')
+    assert node.returncode == 0, node.log()
+    # a clean rospy shutdown unregisters the node from the master
+    wait_for(lambda: '/spinner' not in _node_names(master), 10, 'the node to leave the master')
+
+
+def _node_names(master):
+    code, _, state = master.getSystemState('/test')
+    assert code == 1
+    names = set()
+    for group in state:
+        for _, nodes in group:
+            names.update(nodes)
+    return names
+
+
+def test_a_spinning_node_also_ends_when_rospy_is_shut_down_from_outside(procs, ros_master):
+    """`rosnode kill` calls the node's slave API: spin() must return then too, with no signal at all."""
+    import xmlrpc.client
+    from temoto_core.testing.master import master_proxy
+    node = procs.node('temoto_test_nodes', 'rr_node', name='killed_remotely')
+    code, _, uri = master_proxy(ros_master.uri).lookupNode('/test', '/killed_remotely')
+    assert code == 1
+    try:
+        xmlrpc.client.ServerProxy(uri).shutdown('/test', 'asked by the test')
+    except ConnectionError:
+        pass        # rospy closes its XML-RPC server before replying, as rosnode kill knows
+    wait_for(lambda: node.returncode is not None, 15, 'rr_node to exit after a remote shutdown')
+    assert node.returncode == 0, node.log()
