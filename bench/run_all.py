@@ -15,12 +15,33 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ORDER = ['rr', 'er', 'sim', 'sensor', 'output', 'demo']
+ORDER = ['rr', 'er', 'node_stop', 'sim', 'sensor', 'output', 'demo']
 
 
 def scripts():
     found = {os.path.basename(p)[len('bench_'):-3]: p for p in glob.glob(os.path.join(ROOT, 'bench', 'bench_*.py'))}
     return [found[k] for k in ORDER if k in found] + [p for k, p in sorted(found.items()) if k not in ORDER]
+
+
+def section_name(section):
+    """'bench_rr.py' from a section's heading line '## bench_rr.py (ok, 12 s)'."""
+    return section.split('\n', 1)[0][3:].split(' ', 1)[0]
+
+
+def read_sections(path):
+    """The '## bench_x.py' sections of an existing BENCHMARKS.md, in order."""
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        text = f.read()
+    return ['## ' + part.rstrip('\n') + '\n' for part in text.split('\n## ')[1:]]
+
+
+def merge_sections(old, new):
+    """``old`` with the sections that ``new`` has run again replaced, and new ones appended in run order."""
+    fresh = {section_name(s): s for s in new}
+    merged = [fresh.pop(section_name(s), s) for s in old]
+    return merged + [s for s in new if section_name(s) in fresh]
 
 
 def main(argv):
@@ -42,11 +63,16 @@ def main(argv):
         status = 'ok' if out.returncode == 0 else 'FAILED (rc %d)' % out.returncode
         print('bench: %s %s in %.0f s' % (name, status, took), flush=True)
         body = '\n'.join(table) if table else '```\n%s\n```' % (out.stdout[-2000:] + out.stderr[-2000:])
-        sections.append('## %s (%s, %.0f s)\n\n%s\n' % (name, status, took, body))
-    header = ('# Benchmarks\n\nWritten by `make bench` (bench/run_all.py) on %s, %s, %d cores. '
+        sections.append('## %s (%s, %.0f s, %s)\n\n%s\n'
+                        % (name, status, took, datetime.date.today().isoformat(), body))
+    header = ('# Benchmarks\n\nWritten by `make bench` (bench/run_all.py; `python bench/run_all.py NAME...` reruns '
+              'some and keeps the rest, each section is dated), last on %s, %s, %d cores. '
               'Each table puts the goal beside the figure; the scripts in bench/ say how each is measured.\n\n'
               % (datetime.date.today().isoformat(), platform.platform(), os.cpu_count()))
-    with open(os.path.join(ROOT, 'BENCHMARKS.md'), 'w') as f:
+    path = os.path.join(ROOT, 'BENCHMARKS.md')
+    if only:    # a partial run replaces its own sections and keeps the others
+        sections = merge_sections(read_sections(path), sections)
+    with open(path, 'w') as f:
         f.write(header + '\n'.join(sections))
     print('bench: wrote BENCHMARKS.md')
     return 0

@@ -81,16 +81,17 @@ def init_node(name: str, **kwargs) -> None:
     raise. A main thread that does not come round within MAIN_THREAD_GRACE
     (blocked in start-up, say) is overtaken: the relay thread shuts rospy down.
     """
-    kwargs['disable_signals'] = True
-    rospy.init_node(name, **kwargs)
-    rospy.on_shutdown(_wake.set)
-
     def on_stop(signum: int) -> None:
         _stop_signal.set()
         _wake.set()
         if not _shut_by_main.wait(MAIN_THREAD_GRACE):
             rospy.signal_shutdown('signal %d (main thread busy)' % signum)
+    # before init_node: the node is visible at the master before init_node returns, and a supervisor may
+    # stop it from then on (Python's default SIGINT handler would raise KeyboardInterrupt mid-registration)
     on_signals(on_stop)
+    kwargs['disable_signals'] = True
+    rospy.init_node(name, **kwargs)
+    rospy.on_shutdown(_wake.set)
 
 
 def ok() -> bool:

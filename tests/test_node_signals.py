@@ -104,3 +104,12 @@ def test_a_spinning_node_also_ends_when_rospy_is_shut_down_from_outside(procs, r
         pass        # rospy closes its XML-RPC server before replying, as rosnode kill knows
     wait_for(lambda: node.returncode is not None, 15, 'rr_node to exit after a remote shutdown')
     assert node.returncode == 0, node.log()
+
+
+def test_a_node_stopped_the_moment_it_registers_exits_cleanly(procs):
+    """Supervisors may stop a node as soon as the master knows it, before init_node has returned."""
+    for attempt in range(5):
+        node = procs.node('temoto_er_manager', 'er_minimal_node', args=['_spin:=temoto'], name='early_%d' % attempt)
+        os.killpg(node.pid, signal.SIGINT)
+        wait_for(lambda: node.returncode is not None, 15, 'the node to exit')
+        assert node.returncode == 0, 'attempt %d: exit %r\n%s' % (attempt, node.returncode, node.log())

@@ -1,0 +1,20 @@
+"""bench/run_all.py: a partial run replaces its own sections of BENCHMARKS.md and keeps the others."""
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench'))
+
+import run_all  # noqa: E402
+
+
+def test_a_partial_run_replaces_its_sections_and_keeps_the_rest(tmp_path):
+    path = tmp_path / 'BENCHMARKS.md'
+    path.write_text('# Benchmarks\n\nold header\n\n## bench_rr.py (ok, 5 s, 2026-11-01)\n\n| rr old |\n\n'
+                    '## bench_er.py (ok, 9 s, 2026-11-01)\n\n| er old |\n| --- |\n')
+    old = run_all.read_sections(str(path))
+    assert [run_all.section_name(s) for s in old] == ['bench_rr.py', 'bench_er.py']
+    new = ['## bench_er.py (ok, 8 s, 2026-11-22)\n\n| er new |\n', '## bench_node_stop.py (ok, 3 s, 2026-11-22)\n\n| x |\n']
+    merged = run_all.merge_sections(old, new)
+    assert [run_all.section_name(s) for s in merged] == ['bench_rr.py', 'bench_er.py', 'bench_node_stop.py']
+    assert '| rr old |' in merged[0] and '| er new |' in merged[1] and 'er old' not in ''.join(merged)
+    assert run_all.read_sections(str(tmp_path / 'missing.md')) == []
