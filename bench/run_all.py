@@ -37,11 +37,12 @@ def read_sections(path):
     return ['## ' + part.rstrip('\n') + '\n' for part in text.split('\n## ')[1:]]
 
 
-def merge_sections(old, new):
-    """``old`` with the sections that ``new`` has run again replaced, and new ones appended in run order."""
+def merge_sections(old, new, order=()):
+    """``old`` with the sections that ``new`` has run again replaced; new ones join them; in ``order`` of names."""
     fresh = {section_name(s): s for s in new}
-    merged = [fresh.pop(section_name(s), s) for s in old]
-    return merged + [s for s in new if section_name(s) in fresh]
+    merged = [fresh.pop(section_name(s), s) for s in old] + [s for s in new if section_name(s) in fresh]
+    rank = {name: i for i, name in enumerate(order)}
+    return sorted(merged, key=lambda s: rank.get(section_name(s), len(rank)))
 
 
 def main(argv):
@@ -71,7 +72,7 @@ def main(argv):
               % (datetime.date.today().isoformat(), platform.platform(), os.cpu_count()))
     path = os.path.join(ROOT, 'BENCHMARKS.md')
     if only:    # a partial run replaces its own sections and keeps the others
-        sections = merge_sections(read_sections(path), sections)
+        sections = merge_sections(read_sections(path), sections, [os.path.basename(p) for p in scripts()])
     with open(path, 'w') as f:
         f.write(header + '\n'.join(sections))
     print('bench: wrote BENCHMARKS.md')

@@ -14,7 +14,7 @@ def test_a_partial_run_replaces_its_sections_and_keeps_the_rest(tmp_path):
     old = run_all.read_sections(str(path))
     assert [run_all.section_name(s) for s in old] == ['bench_rr.py', 'bench_er.py']
     new = ['## bench_er.py (ok, 8 s, 2026-11-22)\n\n| er new |\n', '## bench_node_stop.py (ok, 3 s, 2026-11-22)\n\n| x |\n']
-    merged = run_all.merge_sections(old, new)
-    assert [run_all.section_name(s) for s in merged] == ['bench_rr.py', 'bench_er.py', 'bench_node_stop.py']
-    assert '| rr old |' in merged[0] and '| er new |' in merged[1] and 'er old' not in ''.join(merged)
+    merged = run_all.merge_sections(old, new, ['bench_rr.py', 'bench_node_stop.py', 'bench_er.py'])
+    assert [run_all.section_name(s) for s in merged] == ['bench_rr.py', 'bench_node_stop.py', 'bench_er.py']
+    assert '| rr old |' in merged[0] and '| er new |' in merged[2] and 'er old' not in ''.join(merged)
     assert run_all.read_sections(str(tmp_path / 'missing.md')) == []
