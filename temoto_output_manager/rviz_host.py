@@ -174,6 +174,10 @@ class RvizHost:
         self.manager.removeAllDisplays()
         self.displays.clear()
         self._image_pool.clear()
+        # RViz asks "save changes?" in a modal dialog when its config counts as modified (a display changed
+        # after it had drawn a while). Nobody answers it headless: the host sat in it until its supervisor's
+        # SIGTERM, 3 s after the SIGINT (gdb: QDialog::exec in VisualizationFrame::prepareToExit).
+        self.frame.setWindowModified(False)
         self.frame.close()
         self.frame = None
         self.manager = None

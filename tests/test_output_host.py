@@ -179,13 +179,32 @@ def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_host_stops_cleanly_on_a_signal(procs, rospy_client, sig):
-    """librviz's roscpp installs its own SIGINT handler; the host must still quit Qt on SIGINT and SIGTERM."""
+    """librviz's roscpp installs its own SIGINT handler; the host must still quit Qt on SIGINT and SIGTERM.
+
+    With a display reconfigured first: RViz then counts its config as modified and, on close, asks
+    "save changes?" in a modal dialog that nobody headless answers (the host sat in it until its
+    supervisor's next signal)."""
     name = 'rviz_host_sig%d' % sig
     proc = procs.node('temoto_output_manager', 'rviz_host', name=name, namespace=NS,
                       params={'show_robot': 'false', 'show_grid': 'false'})
-    RvizHostClient('/%s/%s' % (NS, name)).wait_ready(20, failed=exit_reason(proc))
+    client = RvizHostClient('/%s/%s' % (NS, name))
+    client.wait_ready(20, failed=exit_reason(proc))
+    drawn = []
+    sub = rospy_client.Subscriber('/%s/temoto_output_manager/display_events' % NS, DisplayEvent,
+                                  lambda e: drawn.append(e) if e.event == DisplayEvent.FIRST_FRAME else None)
+    pub = sd.RepeatingPublisher('/om_test/sig_cloud', sd.cloud_msg(rgb=(255, 0, 255)), 15).start()
+    try:
+        client.add_display('rviz/PointCloud2', '/om_test/sig_cloud', name='changes the config')
+        wait_for(lambda: any(e.display_name == 'changes the config' for e in drawn), 15, 'the cloud drawn')
+        sent = pub.count       # a change made only after the display has drawn a while marks the config modified
+        wait_for(lambda: pub.count >= sent + 25, 15, 'the cloud to be drawn a while')
+        client.configure_display('changes the config', config='{Size (m): 0.05}')
+        client.remove_display('changes the config')
+    finally:
+        pub.stop()
+        sub.unregister()
     xvfb = [c for c in psutil.Process(proc.pid).children() if c.name() == 'Xvfb']
-    os.kill(proc.pid, sig)
+    os.kill(proc.pid, sig)                          # one signal, and nothing after it
     assert proc.proc.wait(timeout=10) == 0          # a hang here used to end only in SIGKILL
     wait_for(lambda: all(not x.is_running() or x.status() == psutil.STATUS_ZOMBIE for x in xvfb), 10,
              'its Xvfb to stop')
