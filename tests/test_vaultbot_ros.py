@@ -318,3 +318,20 @@ def test_unplug_stall_keeps_driver_alive_and_silent(procs, rospy_client, collect
     wait_for(lambda: time.monotonic() > t2 + 1.0, 3, 'a second quiet period')
     assert second.alive() and scans.count_after(t_quiet) == 0
     assert drv.stop(sigint_grace=10.0) == 0 and second.stop(sigint_grace=10.0) == 0
+
+
+def test_a_driver_advertises_before_it_finds_its_device_and_fails_clearly_without_one(procs, ros_master):
+    """Topics are advertised first, so that subscribers connect while the driver starts (RViz's roscpp
+    is slow to connect); with no simulation to find, the driver then fails like a real one: exit 1."""
+    from temoto_core.testing.master import master_proxy
+    proc = procs.node('vaultbot_sim', 'sick_driver', params={'startup_timeout': 3.0})
+    master = master_proxy(ros_master.uri)
+
+    def publishers(topic):
+        code, _, state = master.getSystemState('/test')
+        return dict(state[0]).get(topic, [])
+    wait_for(lambda: '/sick_driver' in publishers('/sick/scan') or not proc.alive(), 10, 'the scan advertised')
+    assert proc.alive(), 'advertised only after finding the device? log:\n%s' % proc.log()
+    wait_for(lambda: not proc.alive(), 15, 'the driver to give up on its device')
+    assert proc.returncode == 1
+    assert 'no device found' in proc.log()

@@ -28,7 +28,12 @@ EXIT_DEVICE_LOST = 1
 
 
 class DriverBase:
-    """Subclasses set `device` and implement publish(stamp) using self.scene."""
+    """Subclasses set `device` and implement publish(stamp) using self.scene.
+
+    Subclasses advertise their topics before calling this constructor, which waits for the sim and
+    loads the scene: subscribers (RViz's roscpp takes ~0.25 s to connect to a new publisher on a busy
+    machine) then connect meanwhile, and the first messages are not published to nobody.
+    """
 
     device = ''
     default_rate = 10.0
@@ -110,11 +115,15 @@ class DriverBase:
     def spin(self) -> None:
         period = 1.0 / self.rate
         next_t = time.monotonic()
+        first = True
         while ok():
             if self.cable.verdict == 'run':
                 stamp = rospy.Time.now()
                 self.pose_scene(stamp.to_sec())
                 self.publish(stamp)
+                if first:
+                    rospy.loginfo('%s: publishing at %.0f Hz', self.device, self.rate)
+                    first = False
             next_t += period
             delay = next_t - time.monotonic()
             if delay > 0:

@@ -19,10 +19,10 @@ class LaserDriver(DriverBase):
 
     def __init__(self):
         self.default_rate = self.spec.rate_hz
+        self.pub = rospy.Publisher(self.topic, LaserScan, queue_size=5, tcp_nodelay=True)   # first: see DriverBase
         super().__init__()
         self.threads = int(rospy.get_param('~ray_threads', 1))
         self.angles = self.spec.angle_min + np.arange(self.spec.beams) * self.spec.angle_increment
-        self.pub = rospy.Publisher(self.topic, LaserScan, queue_size=5, tcp_nodelay=True)
 
     def publish(self, stamp: rospy.Time) -> None:
         pose = self.scene.robot_link_pose(self.spec.frame)
@@ -47,12 +47,13 @@ class D435Driver(DriverBase):
     default_rate = D435.rate_hz
 
     def __init__(self):
-        self.intr = Intrinsics.from_hfov(D435.width, D435.height, D435.hfov_deg)
-        super().__init__()
-        self.projector = DepthProjector(self.intr, D435.range_min, D435.range_max)
+        # first: see DriverBase
         self.pub_points = rospy.Publisher('d435/depth_registered/points', PointCloud2, queue_size=2, tcp_nodelay=True)
         self.pub_image = rospy.Publisher('d435/color/image_raw', Image, queue_size=2, tcp_nodelay=True)
         self.pub_info = rospy.Publisher('d435/color/camera_info', CameraInfo, queue_size=2, tcp_nodelay=True)
+        self.intr = Intrinsics.from_hfov(D435.width, D435.height, D435.hfov_deg)
+        super().__init__()
+        self.projector = DepthProjector(self.intr, D435.range_min, D435.range_max)
 
     def make_scene(self):
         # rendering runs in a child process; see render_worker.py for why

@@ -31,6 +31,10 @@ PERIOD_SLACK = 0.1
 
 class StitcherNode:
     def __init__(self):
+        # Advertised first, before the kinematic model is built: subscribers (RViz's roscpp takes ~0.25 s
+        # to connect to a new publisher on a busy machine) connect meanwhile and get the first cloud.
+        self.pub = rospy.Publisher('laser_stitcher/cloud', PointCloud2, queue_size=2, tcp_nodelay=True)
+        self.published = False
         sim_ns = rospy.get_param('~sim_ns', '/vaultbot_sim').rstrip('/')
         urdf = rospy.get_param('~robot_urdf', rospy.get_param(sim_ns + '/robot_urdf', ROBOT_URDF))
         self.base_frame = rospy.get_param('~base_frame', 'base_link')
@@ -57,7 +61,6 @@ class StitcherNode:
         self.last_published: float | None = None    # stamp of the last cloud (rolling mode)
         self.hist = JointHistory()
         self.lock = threading.Lock()
-        self.pub = rospy.Publisher('laser_stitcher/cloud', PointCloud2, queue_size=2, tcp_nodelay=True)
         rospy.Subscriber('/joint_states', JointState, self._on_js, queue_size=50, tcp_nodelay=True)
         rospy.Subscriber('hokuyo/scan', LaserScan, self._on_scan, queue_size=50, tcp_nodelay=True)
 
@@ -79,6 +82,9 @@ class StitcherNode:
         if pts is not None and len(pts):
             self.pub.publish(cloud_message(pts, Header(stamp=scan.header.stamp, frame_id=self.base_frame),
                                            dense=True))
+            if not self.published:
+                self.published = True
+                rospy.loginfo('laser_stitcher: first cloud published (%d points)', len(pts))
 
     def _due(self, t: float):
         """The window's cloud when one is due at scan stamp ``t``, else None (caller holds the lock)."""
