@@ -42,6 +42,13 @@ def parse_config(text: str) -> Dict[str, Any]:
     return data
 
 
+def with_defaults(defaults: Dict[str, Any], text: str) -> str:
+    """``text``'s config over ``defaults``, as YAML text: the request's own properties win."""
+    merged = dict(defaults)
+    merged.update(parse_config(text))
+    return yaml.safe_dump(merged, default_flow_style=True, sort_keys=False).strip() if merged else ''
+
+
 def flatten(config: Dict[str, Any], prefix: Tuple[str, ...] = ()) -> List[Tuple[Tuple[str, ...], Any]]:
     """Nested mapping → [(property path, value)] in the given order."""
     items = []

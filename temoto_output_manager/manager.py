@@ -28,7 +28,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 
 from . import display_config
-from .display_types import UnknownDisplayType, check_topic_name, needs_topic, rviz_class_for
+from .display_types import DEFAULT_CONFIG, UnknownDisplayType, check_topic_name, needs_topic, rviz_class_for
 from .host_client import RvizHostClient, RvizHostError
 
 MANAGER_NAME = 'temoto_output_manager'
@@ -132,19 +132,19 @@ class OutputManager:
         try:
             if topic:
                 check_topic_name(topic)
-            display_config.parse_config(req.config)
+            config = display_config.with_defaults(DEFAULT_CONFIG.get(cls, {}), req.config)
         except ValueError as e:
             raise _error(ErrorCode.BAD_REQUEST, str(e)) from None
         pid = self._start_or_share_host()
         name = req.name.strip() or ('%s %s' % (req.type.strip(), topic)).strip()
         try:
             try:
-                shown = self.client.add_display(cls, topic, name=name, config=req.config)
+                shown = self.client.add_display(cls, topic, name=name, config=config)
             except RvizHostError as e:
                 if 'already exists' not in str(e) or req.name.strip():
                     raise
                 shown = self.client.add_display(cls, topic, name='%s #%d' % (name, resp.trr.resource_id),
-                                                config=req.config)
+                                                config=config)
         except RvizHostError as e:
             raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
         with self._lock:

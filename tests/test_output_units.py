@@ -82,6 +82,17 @@ def test_float32_echo_is_not_a_refusal():
     assert not dc.same_value('255; 255; 255', 'zz')
 
 
+def test_point_clouds_default_to_cheap_points_and_a_request_s_own_config_wins():
+    from temoto_output_manager.display_types import DEFAULT_CONFIG
+    defaults = DEFAULT_CONFIG['rviz/PointCloud2']
+    assert dc.parse_config(dc.with_defaults(defaults, '')) == {'Style': 'Points', 'Size (Pixels)': 3}
+    mine = dc.parse_config(dc.with_defaults(defaults, '{Style: Flat Squares, Size (m): 0.05}'))
+    assert mine == {'Style': 'Flat Squares', 'Size (Pixels)': 3, 'Size (m)': 0.05}
+    assert dc.with_defaults({}, '') == ''
+    with pytest.raises(dc.DisplayConfigError, match='YAML mapping'):
+        dc.with_defaults(defaults, '[1, 2]')
+
+
 def test_abstract_types_and_classes():
     assert rviz_class_for('point cloud') == 'rviz/PointCloud2' == rviz_class_for('depth image')
     assert rviz_class_for('robot_model') == 'rviz/RobotModel' and rviz_class_for('laser scan') == 'rviz/LaserScan'
