@@ -13,7 +13,8 @@ def test_a_partial_run_replaces_its_sections_and_keeps_the_rest(tmp_path):
                     '## bench_er.py (ok, 9 s, 2026-11-01)\n\n| er old |\n| --- |\n')
     old = run_all.read_sections(str(path))
     assert [run_all.section_name(s) for s in old] == ['bench_rr.py', 'bench_er.py']
-    new = ['## bench_er.py (ok, 8 s, 2026-11-22)\n\n| er new |\n', '## bench_node_stop.py (ok, 3 s, 2026-11-22)\n\n| x |\n']
+    new = ['## bench_er.py (ok, 8 s, 2026-11-22)\n\n| er new |\n',
+           '## bench_node_stop.py (ok, 3 s, 2026-11-22)\n\n| x |\n']
     merged = run_all.merge_sections(old, new, ['bench_rr.py', 'bench_node_stop.py', 'bench_er.py'])
     assert [run_all.section_name(s) for s in merged] == ['bench_rr.py', 'bench_node_stop.py', 'bench_er.py']
     assert '| rr old |' in merged[0] and '| er new |' in merged[2] and 'er old' not in ''.join(merged)

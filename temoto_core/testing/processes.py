@@ -132,7 +132,8 @@ class ProcessGroupLauncher:
     # -- start --------------------------------------------------------------------------------
     def command(self, argv: Sequence[str], name: str, env: Optional[Dict[str, str]] = None) -> ManagedProcess:
         """Any command, tracked and stopped like a node (no registration wait)."""
-        proc = ManagedProcess(argv, env or self.env, os.path.join(self.workdir, '%s.%d.log' % (name, len(self.processes))), name)
+        log = os.path.join(self.workdir, '%s.%d.log' % (name, len(self.processes)))
+        proc = ManagedProcess(argv, env or self.env, log, name)
         self.processes.append(proc)
         return proc
 
