@@ -144,3 +144,20 @@ def test_warm_setup_only_checks(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1].startswith('setup: ready in')
     assert 'installing' not in out.stdout and 'creating' not in out.stdout
+
+
+def test_env_sh_names_the_logging_config_rospy_would_find_so_it_skips_its_crawl(tmp_path):
+    """rospy crawls ROS_PACKAGE_PATH on every node start only to locate python_logging.conf."""
+    def sourced(**env):
+        base = {k: v for k, v in os.environ.items() if k not in ('ROS_PYTHON_LOG_CONFIG_FILE', 'ROS_HOME')}
+        out = subprocess.run(['bash', '-c', 'source "$1" && printf %s "$ROS_PYTHON_LOG_CONFIG_FILE"', '-',
+                              os.path.join(ROOT, 'env.sh')], env=dict(base, HOME=str(tmp_path), **env),
+                             capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, out.stderr
+        return out.stdout
+    assert sourced() == '/etc/ros/python_logging.conf'          # Debian's, as rospy finds it
+    own = tmp_path / 'ros_home' / 'config' / 'python_logging.conf'
+    own.parent.mkdir(parents=True)
+    own.write_text('[loggers]\n')
+    assert sourced(ROS_HOME=str(tmp_path / 'ros_home')) == str(own)      # ROS_HOME's comes first, as in rospy
+    assert sourced(ROS_PYTHON_LOG_CONFIG_FILE='/somewhere/mine.conf') == '/somewhere/mine.conf'
