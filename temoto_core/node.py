@@ -6,8 +6,8 @@ main thread is publishing at that moment, it may hold the non-reentrant lock of
 a queued publisher connection (``QueuedConnection._lock``, taken in
 ``write_data``), and the shutdown it runs closes that same connection and takes
 that lock again: the node deadlocks, ignores every later SIGINT and SIGTERM,
-and only SIGKILL ends it. A driver publishing at 25 Hz hit this in about one
-stop in ten under load (stack in the log of the CI run that found it).
+and only SIGKILL ends it. A driver publishing at 25 Hz hit this in CI, and in
+about one stop in ten when reproduced under load (faulthandler gave the stack).
 ``threading.Event.set`` from a handler has the same hazard while the main
 thread is in ``Event.wait``.
 
