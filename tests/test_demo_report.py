@@ -161,3 +161,17 @@ def test_report_cli_names_a_missing_bag(tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0
     assert 'nope.bag' in proc.stderr
+
+
+def test_the_default_run_folder_is_hidden_from_rospack(tmp_path, monkeypatch):
+    """runs/ sits in the repository, on ROS_PACKAGE_PATH: rospack must not walk every old run."""
+    import rospkg
+    from temoto_action_engine.demo.cli import default_run_dir
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / default_run_dir()
+    (run / 'ros' / 'log' / 'decoy').mkdir(parents=True)
+    (run / 'ros' / 'log' / 'decoy' / 'package.xml').write_text(
+        '<package format="2"><name>decoy_in_a_run</name><version>0.0.0</version><description>d</description>'
+        '<maintainer email="a@b.c">a</maintainer><license>BSD</license></package>')
+    assert (tmp_path / 'runs' / 'CATKIN_IGNORE').is_file()
+    assert rospkg.rospack.list_by_path('package.xml', str(tmp_path), {}) == []

@@ -44,12 +44,28 @@ def report_main(argv: Optional[List[str]] = None) -> int:
     return 0
 
 
+RUNS_DIR = 'runs'
+
+
+def default_run_dir() -> str:
+    """``runs/<timestamp>``; ``runs`` gets a CATKIN_IGNORE first.
+
+    The folder usually sits in the repository, which is on ROS_PACKAGE_PATH, and rospack would otherwise walk
+    every old run on every package lookup (each node start, rosrun and roslaunch).
+    """
+    os.makedirs(RUNS_DIR, exist_ok=True)
+    marker = os.path.join(RUNS_DIR, 'CATKIN_IGNORE')
+    if not os.path.exists(marker):
+        open(marker, 'w').close()
+    return os.path.join(RUNS_DIR, time.strftime('%Y%m%d_%H%M%S'))
+
+
 def record_main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog='temoto record', description='Record the failover topic set until Ctrl-C.')
     p.add_argument('--out', default='', help='bag path (default: runs/<timestamp>/failover.bag)')
     p.add_argument('--ns', default=T.DEFAULT_NS, help='TeMoto namespace (default: %(default)s)')
     args = p.parse_args(argv)
-    out = args.out or os.path.join('runs', time.strftime('%Y%m%d_%H%M%S'), 'failover.bag')
+    out = args.out or os.path.join(default_run_dir(), 'failover.bag')
     if os.path.isdir(out):
         out = os.path.join(out, 'failover.bag')
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
@@ -101,7 +117,7 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
         p.error('--stage-timeout must be positive')
     if args.live and not os.environ.get('DISPLAY'):
         p.error('--live needs a DISPLAY')
-    out = args.out or os.path.join('runs', time.strftime('%Y%m%d_%H%M%S'))
+    out = args.out or default_run_dir()
     opts = DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
                        modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
                        priority=priority, report=not args.no_report)
