@@ -42,6 +42,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_er_manager import master as er_master  # noqa: E402
 
 POLL = 0.02
 LAUNCH = 'er_bench_two.launch'
@@ -69,11 +70,12 @@ def wait_registered(master, names, proc, timeout=20.0):
     raise TimeoutError(', '.join(names))
 
 
-def node_pid(master, name):
-    code, _msg, uri = master.lookupNode('/bench', name)
-    if code != 1:
+def node_pid(master_uri, name):
+    uri = er_master.lookup_node(master_uri, name)
+    pid = er_master.node_pid(uri) if uri else None
+    if pid is None:
         raise RuntimeError('%s is not registered' % name)
-    return xmlrpc.client.ServerProxy(uri).getPid('/bench')[2]
+    return pid
 
 
 def stop_group(proc):
@@ -220,7 +222,7 @@ def main(argv=None):
             req = LoadProcess._request_class(action='ros_execute', package_name='temoto_er_manager',
                                              executable=LAUNCH, ros_namespace=ns)
             # the second node: the first is the response's pid, so this is the case a launch wrapper hid
-            launch_detect.append(detect_once(rr, req, lambda resp, ns=ns: node_pid(master, ns + '/beta')))
+            launch_detect.append(detect_once(rr, req, lambda resp, ns=ns: node_pid(ros.uri, ns + '/beta')))
             print('  launch detection %2d/%d: %.1f ms' % (i + 1, opts.kills, launch_detect[-1] * 1e3), flush=True)
         launch_er, launch_bare = [], []
         for i in range(opts.loads):

@@ -20,12 +20,12 @@ import statistics
 import sys
 import tempfile
 import time
-import xmlrpc.client
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from temoto_core.testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
+from temoto_er_manager import master as er_master  # noqa: E402
 
 NS = 'temoto'
 HOST = '/%s/rviz_host' % NS
@@ -33,12 +33,9 @@ TOPIC = '/bench/d435/points'
 
 
 def host_pid():
-    import rosgraph
-    try:
-        uri = rosgraph.Master('/bench').lookupNode(HOST)
-        return xmlrpc.client.ServerProxy(uri).getPid('/bench')[2]
-    except Exception:
-        return None
+    """The RViz host's pid, or None while no live host is registered."""
+    uri = er_master.lookup_node(os.environ['ROS_MASTER_URI'], HOST)
+    return er_master.node_pid(uri) if uri else None
 
 
 def first_frame_seconds(om, events, name_hint, t_call_wall):

@@ -5,7 +5,6 @@ import os
 import signal
 import threading
 import time
-import xmlrpc.client
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from PIL import Image as PILImage
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
+from temoto_er_manager import master as er_master
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient
 from temoto_output_manager.msg import DisplayEvent
@@ -59,12 +59,9 @@ def events(managers, rospy_client):
 
 
 def host_pid():
-    import rosgraph
-    try:
-        uri = rosgraph.Master('/pytest').lookupNode(HOST)
-        return xmlrpc.client.ServerProxy(uri).getPid('/pytest')[2]
-    except Exception:
-        return None
+    """The RViz host's pid, or None while no live host is registered."""
+    uri = er_master.lookup_node(os.environ['ROS_MASTER_URI'], HOST)
+    return er_master.node_pid(uri) if uri else None
 
 
 def service_registered(name):
