@@ -438,13 +438,25 @@ def test_consumer_dying_while_its_load_starts_leaks_nothing(manager, ros_master,
         assert node_pid('/slow_node') is None, 'the consumer dies while the load is still starting'
         os.killpg(consumer.pid, signal.SIGKILL)
         consumer.wait(5)
-        pid = wait_for(lambda: node_pid('/slow_node'), 10, 'slow node registered')
+        # The node's own log says when it is up (init_node done); polling the master instead could miss it,
+        # since the registrar may release the dead consumer's reference a few ms after the load completes.
+        pid = wait_for(lambda: _up_pid('/slow_node', manager), 10, 'slow node up')
         wait_for(lambda: pid_gone(pid), 20, 'process of the dead consumer stopped')
     finally:
         if consumer.poll() is None:
             os.killpg(consumer.pid, signal.SIGKILL)
             consumer.wait(5)
         log.close()
+
+
+def _up_pid(node_name, manager_proc):
+    """The pid er_test_node printed once ``node_name`` was up, from the ER Manager's per-process logs."""
+    marker = 'er_test_node %s: up, pid ' % node_name
+    for path in _er_logs(manager_proc):
+        for line in path.read_text().splitlines():
+            if line.startswith(marker):
+                return int(line[len(marker):])
+    return None
 
 
 def _er_logs(manager_proc):
