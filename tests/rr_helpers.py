@@ -18,7 +18,17 @@ class RegistrarNode:
         self.name = name
         self.process = procs.node('temoto_test_nodes', 'rr_node', name=name,
                                   params={'consumer_check_period': check_period})
-        rospy.wait_for_service('/%s/control' % name, timeout=20)
+        # the control service of this very process: after a restart under the same name the master may
+        # still name the dead incarnation's service for a moment
+        wait_for(self._answers, 20, 'the control service of %s' % name)
+
+    def _answers(self) -> bool:
+        try:
+            rospy.wait_for_service('/%s/control' % self.name, timeout=1.0)
+            self.command(op='counts')
+            return True
+        except (rospy.ROSException, rospy.ServiceException):
+            return False
 
     def command(self, **cmd) -> dict:
         # a fresh connection per command: each runs in its own service thread, so commands can overlap

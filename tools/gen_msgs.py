@@ -34,10 +34,13 @@ def search_path(root):
     return path
 
 
-def stale(defs, out_dir):
+def stale(defs, out_dir, newest_dependency=0.0):
+    """Whether a module is missing or older than its definition or than any project message it may embed:
+    genpy inlines the serialisation of nested messages, so a changed ``temoto_core/RMPRequest`` must
+    regenerate every service that carries it."""
     for d in defs:
         mod = os.path.join(out_dir, '_' + os.path.splitext(os.path.basename(d))[0] + '.py')
-        if not os.path.exists(mod) or os.path.getmtime(mod) < os.path.getmtime(d):
+        if not os.path.exists(mod) or os.path.getmtime(mod) < max(os.path.getmtime(d), newest_dependency):
             return True
     return not os.path.exists(os.path.join(out_dir, '__init__.py'))
 
@@ -83,11 +86,14 @@ def main(argv):
     write_msg_package_shims(root)
     search = search_path(root)
     generated = 0
-    for pkg, pkg_dir in project_packages(root).items():
+    packages = project_packages(root)
+    newest_msg = max((os.path.getmtime(m) for d in packages.values() for m in glob.glob(os.path.join(d, 'msg', '*.msg'))),
+                     default=0.0)
+    for pkg, pkg_dir in packages.items():
         for kind, gen_cls in (('msg', genpy.generator.MsgGenerator), ('srv', genpy.generator.SrvGenerator)):
             out_dir = os.path.join(pkg_dir, kind)
             defs = sorted(glob.glob(os.path.join(out_dir, '*.' + kind)))
-            if not defs or not (force or stale(defs, out_dir)):
+            if not defs or not (force or stale(defs, out_dir, newest_msg)):
                 continue
             rc = gen_cls().generate_messages(pkg, defs, out_dir, search)
             if rc:

@@ -23,8 +23,10 @@ reload) never delays the forwarding of the next status.
 """
 import copy
 import queue
+import socket
 import threading
 import time
+import urllib.parse
 import xmlrpc.client
 from typing import Callable, Dict, Hashable, List, Optional, Tuple
 
@@ -52,12 +54,15 @@ LOADING, ACTIVE, FAILED, UNLOADING, GONE = 'loading', 'active', 'failed', 'unloa
 
 
 class _Consumer:
-    __slots__ = ('status_topic', 'client_name', 'namespace')
+    """One consumer incarnation: a node is identified by its name *and* its XML-RPC URI, so a node that
+    restarts under the same name is a new consumer, and releasing the old one never touches it."""
+    __slots__ = ('status_topic', 'client_name', 'namespace', 'uri')
 
-    def __init__(self, status_topic: str, client_name: str, namespace: str) -> None:
+    def __init__(self, status_topic: str, client_name: str, namespace: str, uri: str = '') -> None:
         self.status_topic = status_topic
         self.client_name = client_name
         self.namespace = namespace
+        self.uri = uri          # '' until resolved at the master, for a client that does not send it
 
 
 class _Server:
@@ -144,7 +149,9 @@ class ResourceRegistrar:
         self._publishers_lock = threading.Lock()
         self._proxies: Dict[str, List[rospy.ServiceProxy]] = {}
         self._proxies_lock = threading.Lock()
-        self._consumer_uris: Dict[str, str] = {}
+        self._consumer_pids: Dict[str, int] = {}     # consumer URI -> the pid that first answered there
+        self._channel_users: Dict[str, int] = {}     # status topic -> consumers (and loads in flight) using it
+        self._channel_idle: Dict[str, float] = {}    # status topic -> when its last user left
         self._shutdown = False
 
         self._callbacks: 'queue.Queue' = queue.Queue()
@@ -152,7 +159,7 @@ class ResourceRegistrar:
                                                  daemon=True)
         self._callback_thread.start()
         self._header = RMPRequest(status_topic=self.status_topic, temoto_namespace=self.namespace,
-                                  client_name=rospy.get_name())
+                                  client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '')
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._on_status_msg, queue_size=1000,
                                             tcp_nodelay=True)
         self._registry_srv = rospy.Service('/%s/%s/registry' % (self.namespace, name), GetRegistry,
@@ -193,7 +200,23 @@ class ResourceRegistrar:
             self._validate_header(request.trr)
         except TemotoError as err:
             return self._failure_response(response, err)
-        consumer = _Consumer(request.trr.status_topic, request.trr.client_name, request.trr.temoto_namespace)
+        consumer = _Consumer(request.trr.status_topic, request.trr.client_name, request.trr.temoto_namespace,
+                             request.trr.client_uri)
+        # The consumer's status channel is connected before it is attached to anything: a FAILED raised
+        # the moment after it is attached must find a subscriber to go to (rospy drops what a publisher
+        # sends before its first connection). Every path below that does not attach the consumer gives
+        # the channel back.
+        self._acquire_channel(consumer.status_topic)
+        attached = False
+        try:
+            response = self._serve_load(server, request, response, consumer)
+            attached = response.trr.code == 0
+            return response
+        finally:
+            if not attached:
+                self._release_channel(consumer.status_topic)
+
+    def _serve_load(self, server: _Server, request, response, consumer: _Consumer):
         key = server.key(request)
         with self._lock:
             if self._shutdown:
@@ -220,7 +243,6 @@ class ResourceRegistrar:
         return self._load_new(server, query, external_id, consumer, request, response)
 
     def _load_new(self, server, query, external_id, consumer, request, response):
-        self._ensure_status_channel(consumer.status_topic)
         response.trr.resource_id = query.internal_id
         parents = getattr(self._tls, 'parents', None)
         if parents is None:
@@ -274,13 +296,6 @@ class ResourceRegistrar:
         out = _shallow_copy(query.response)
         out.trr = _shallow_copy(query.response.trr)
         out.trr.resource_id = external_id
-        if consumer.status_topic not in self._publishers:
-            # an equal request from a consumer we have not served yet: open its status channel first
-            self._lock.release()
-            try:
-                self._ensure_status_channel(consumer.status_topic)
-            finally:
-                self._lock.acquire()
         return out
 
     def _failure_response(self, response, error: TemotoError):
@@ -306,8 +321,9 @@ class ResourceRegistrar:
             if query is None:
                 raise self._error(ErrorCode.RESOURCE_NOT_FOUND, 'no resource %d on %s/%s: unknown or already unloaded'
                                   % (external_id, self.name, server_name))
-            del query.consumers[external_id]
+            consumer = query.consumers.pop(external_id)
             del self._server_by_external[(server_name, external_id)]
+            self._release_channel(consumer.status_topic)
             if query.consumers:
                 return
             query.state = UNLOADING
@@ -344,8 +360,9 @@ class ResourceRegistrar:
             if self._link_parent.get(local_id) is query:
                 del self._link_parent[local_id]
         if query.state in (GONE, UNLOADING):
-            for ext in list(query.consumers):
+            for ext, consumer in list(query.consumers.items()):
                 self._server_by_external.pop((query.server.name, ext), None)
+                self._release_channel(consumer.status_topic)
             query.consumers.clear()
 
     def send_status(self, internal_id: int, code: int, message: str, error_stack=None) -> None:
@@ -388,13 +405,22 @@ class ResourceRegistrar:
             consumers = list(query.consumers.items())
         stack_msgs = [f.to_msg() for f in stack]
         for external_id, consumer in consumers:
-            if not consumer.status_topic:
-                continue
-            msg = ResourceStatus(temoto_namespace=self.namespace, manager_name=self.name,
-                                 server_name=query.server.name, resource_id=external_id, status_code=code,
-                                 message=message, error_stack=stack_msgs)
-            msg.header.stamp = rospy.Time.now()
+            self._announce(consumer, query.server.name, external_id, code, message, stack_msgs)
+
+    def _announce(self, consumer: _Consumer, server_name: str, external_id: int, code: int, message: str,
+                  stack: list) -> None:
+        """Publish one status to one consumer (``stack``: ErrorFrames or Error messages)."""
+        if not consumer.status_topic:
+            return
+        msg = ResourceStatus(temoto_namespace=self.namespace, manager_name=self.name, server_name=server_name,
+                             resource_id=external_id, status_code=code, message=message,
+                             error_stack=[f.to_msg() if isinstance(f, ErrorFrame) else f for f in stack])
+        msg.header.stamp = rospy.Time.now()
+        try:
             self._publisher(consumer.status_topic).publish(msg)
+        except rospy.ROSException as err:     # rospy is shutting down: the consumer hears of it from the master
+            rospy.logwarn('%s: status %d for %s:%d to %s not sent: %s', self.prefix, code, server_name,
+                          external_id, consumer.status_topic, err)
 
     # ---------------------------------------------------------------- status channels
     def _publisher(self, topic: str) -> rospy.Publisher:
@@ -405,15 +431,20 @@ class ResourceRegistrar:
                                                                 tcp_nodelay=True)
             return pub
 
-    def _ensure_status_channel(self, topic: str) -> None:
-        """Make sure a status sent right after the load returns is not lost.
+    def _acquire_channel(self, topic: str) -> None:
+        """Count one more user of a consumer's status channel and make sure it is connected.
 
         A new rospy publisher drops what it publishes before the subscriber has
-        connected, so the first load from a consumer waits (bounded) for that
-        connection; later loads find it open.
+        connected, so the first request from a consumer waits (bounded) for that
+        connection; later requests find it open. Channels are counted so that the
+        publisher of a consumer that has gone (an action that ended) is unregistered
+        instead of kept for the life of the manager.
         """
         if not topic:
             return
+        with self._publishers_lock:
+            self._channel_users[topic] = self._channel_users.get(topic, 0) + 1
+            self._channel_idle.pop(topic, None)
         pub = self._publisher(topic)
         deadline = time.monotonic() + self._status_connect_timeout
         delay = 0.0005
@@ -422,6 +453,32 @@ class ResourceRegistrar:
             delay = min(delay * 2, 0.02)
         if pub.get_num_connections() == 0:
             rospy.logwarn('%s: no subscriber on status topic %s yet; statuses may be lost', self.prefix, topic)
+
+    def _release_channel(self, topic: str) -> None:
+        """One user fewer; an unused channel is unregistered by the consumer watch after a grace period
+        (long enough for a last status queued on it to go out)."""
+        if not topic:
+            return
+        with self._publishers_lock:
+            users = self._channel_users.get(topic, 0) - 1
+            if users > 0:
+                self._channel_users[topic] = users
+                return
+            self._channel_users.pop(topic, None)
+            self._channel_idle[topic] = time.monotonic()
+
+    def _reap_idle_channels(self, grace: float) -> None:
+        now = time.monotonic()
+        with self._publishers_lock:
+            idle = [t for t, since in self._channel_idle.items() if now - since >= grace]
+            pubs = []
+            for topic in idle:
+                del self._channel_idle[topic]
+                pub = self._publishers.pop(topic, None)
+                if pub is not None:
+                    pubs.append(pub)
+        for pub in pubs:
+            pub.unregister()
 
     # ================================================================================ client side
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[Callable[[StatusEvent], None]] = None,
@@ -676,47 +733,95 @@ class ResourceRegistrar:
             self._watch_thread.start()
 
     def _watch_consumers(self) -> None:
-        """Release references of consumer nodes that died without unloading.
+        """Release references of consumer incarnations that died without unloading.
 
-        A node killed with SIGKILL stays registered at the master, so liveness is
-        checked by calling the node's own XML-RPC API (``getPid``), as ``rosnode
-        ping`` does. Bound: ``consumer_check_period`` + 1 s of ping timeout.
+        A consumer is a node incarnation: its name and its XML-RPC URI. A node killed
+        with SIGKILL stays registered at the master, and a node restarted under the
+        same name gets a new URI, so liveness is asked of the incarnation's own URI
+        (``getPid``, as ``rosnode ping`` does), never of whatever the master now has
+        under the name. A refused connection, or another pid answering at the URI, is
+        death; a ping that times out is death only the second time in a row (a
+        loaded machine). Bound: 2 x (``consumer_check_period`` + 1 s of ping timeout).
+        Unused status channels are unregistered on the same beat.
         """
         master = xmlrpc_proxy(rosgraph.get_master_uri(), 1.0)
+        strikes: Dict[str, int] = {}
         while not self._stop_watch.wait(self.consumer_check_period):
+            self._reap_idle_channels(max(1.0, self.consumer_check_period))
+            self._resolve_consumer_uris(master)
             with self._lock:
-                holders: Dict[str, List[Tuple[str, int]]] = {}
+                holders: Dict[Tuple[str, str], List[Tuple[str, int]]] = {}
                 for (server_name, external_id), query in self._server_by_external.items():
-                    name = query.consumers[external_id].client_name
-                    if name:
-                        holders.setdefault(name, []).append((server_name, external_id))
-            for node, refs in holders.items():
-                if self._node_alive(master, node):
+                    consumer = query.consumers[external_id]
+                    if consumer.client_name and consumer.uri:
+                        holders.setdefault((consumer.client_name, consumer.uri), []).append(
+                            (server_name, external_id))
+            live_uris = {uri for _, uri in holders}
+            for uri in [u for u in self._consumer_pids if u not in live_uris]:
+                del self._consumer_pids[uri]
+            for uri in [u for u in strikes if u not in live_uris]:
+                del strikes[uri]
+            for (node, uri), refs in holders.items():
+                verdict = self._incarnation_alive(uri)
+                if verdict is None:
+                    strikes[uri] = strikes.get(uri, 0) + 1
+                    if strikes[uri] < 2:
+                        continue
+                elif verdict:
+                    strikes.pop(uri, None)
                     continue
-                rospy.logwarn('%s: consumer %s died; releasing its %d reference(s)', self.prefix, node, len(refs))
-                for server_name, external_id in refs:
-                    try:
-                        self._release_consumer(server_name, external_id)
-                    except TemotoError as err:
-                        rospy.logwarn('%s: releasing %s:%d of dead consumer %s: %s', self.prefix, server_name,
-                                      external_id, node, err)
+                strikes.pop(uri, None)
+                self._release_dead_consumer(node, uri, refs)
 
-    def _node_alive(self, master, node: str) -> bool:
-        uri = self._consumer_uris.get(node)
-        if uri is None:
+    def _release_dead_consumer(self, node: str, uri: str, refs: List[Tuple[str, int]]) -> None:
+        rospy.logwarn('%s: consumer %s (%s) died; releasing its %d reference(s)', self.prefix, node, uri, len(refs))
+        reason = 'released by %s: its consumer %s at %s is gone' % (self.prefix, node, uri)
+        for server_name, external_id in refs:
+            with self._lock:
+                query = self._server_by_external.get((server_name, external_id))
+                consumer = query.consumers.get(external_id) if query is not None else None
+            if consumer is None or consumer.uri != uri:
+                continue
+            # a release the holder did not ask for is announced to it (a new incarnation listening on the
+            # same status topic hears of an id it never held, and ignores it)
+            self._announce(consumer, server_name, external_id, ResourceStatus.FAILED, reason,
+                           [ErrorFrame(ErrorCode.RESOURCE_FAILED, self.subsystem, reason, self.prefix)])
             try:
-                code, _, uri = master.lookupNode(self.prefix, node)
-            except OSError:
-                return True   # master unreachable: no verdict, keep the references
-            if code != 1:
-                return False
-            self._consumer_uris[node] = uri
+                self._release_consumer(server_name, external_id)
+            except TemotoError as err:
+                rospy.logwarn('%s: releasing %s:%d of dead consumer %s: %s', self.prefix, server_name,
+                              external_id, node, err)
+
+    def _resolve_consumer_uris(self, master) -> None:
+        """A client that sent no URI (one not built on this registrar) is taken to be the incarnation the
+        master has under its name when first checked."""
+        with self._lock:
+            names = {c.client_name for q in self._server_by_internal.values() for c in q.consumers.values()
+                     if c.client_name and not c.uri}
+        for name in names:
+            try:
+                code, _, uri = master.lookupNode(self.prefix, name)
+            except (OSError, xmlrpc.client.Error):
+                return    # master unreachable: no verdict now
+            with self._lock:
+                for query in self._server_by_internal.values():
+                    for consumer in query.consumers.values():
+                        if consumer.client_name == name and not consumer.uri:
+                            # a name the master no longer knows is dead: a URI no node answers at says so
+                            consumer.uri = uri if code == 1 else 'http://unregistered%s/' % name
+
+    def _incarnation_alive(self, uri: str) -> Optional[bool]:
+        """True: the incarnation at ``uri`` answers; False: it is gone; None: no verdict (timed out)."""
         try:
-            code, _, _ = xmlrpc_proxy(uri, 1.0).getPid(self.prefix)
-            return code == 1
-        except (OSError, xmlrpc.client.Error):
-            self._consumer_uris.pop(node, None)
+            code, _, pid = xmlrpc_proxy(uri, 1.0).getPid(self.prefix)
+        except socket.timeout:
+            return None
+        except (OSError, xmlrpc.client.Error, ValueError):
             return False
+        if code != 1:
+            return False
+        first = self._consumer_pids.setdefault(uri, pid)
+        return first == pid     # another process now listening on a reused port is another incarnation
 
     # ================================================================================ introspection, lifetime
     def registry(self) -> RegistrySnapshot:
@@ -727,7 +832,7 @@ class ResourceRegistrar:
                 seen.add(id(query))
                 servers.append(ServerEntry(
                     server=query.server.name, internal_id=query.internal_id, state=query.state,
-                    consumers=[ConsumerEntry(ext, c.status_topic, c.client_name, c.namespace)
+                    consumers=[ConsumerEntry(ext, c.status_topic, c.client_name, c.namespace, c.uri)
                                for ext, c in sorted(query.consumers.items())],
                     links=list(query.links), request=encode_message(query.request),
                     response=encode_message(query.response) if query.response is not None else None,
@@ -825,6 +930,9 @@ class ResourceRegistrar:
         if trr.temoto_namespace and not _legal(trr.temoto_namespace):
             raise self._error(ErrorCode.BAD_REQUEST, 'trr.temoto_namespace %r is not a legal ROS name'
                               % trr.temoto_namespace)
+        if trr.client_uri and not _node_uri(trr.client_uri):
+            raise self._error(ErrorCode.BAD_REQUEST, 'trr.client_uri %r is not a node URI (http://host:port/)'
+                              % trr.client_uri)
 
 
 _IMMUTABLE = (str, int, float, bool, bytes, type(None))
@@ -868,6 +976,24 @@ def _legal(name: str, base: bool = False) -> bool:
     ok = bool(name) and (rosgraph.names.is_legal_base_name(name) if base else rosgraph.names.is_legal_name(name))
     if ok and len(known) < 10000:
         known.add(name)
+    return ok
+
+
+_NODE_URIS: set = set()
+
+
+def _node_uri(uri: str) -> bool:
+    """Whether ``uri`` has the form of a ROS node's XML-RPC URI (http://host:port/), remembered."""
+    if uri in _NODE_URIS:
+        return True
+    try:
+        parts = urllib.parse.urlsplit(uri)
+        ok = parts.scheme in ('http', 'https') and bool(parts.hostname) and parts.port is not None \
+            and len(uri) <= 512
+    except ValueError:
+        ok = False
+    if ok and len(_NODE_URIS) < 10000:
+        _NODE_URIS.add(uri)
     return ok
 
 

@@ -50,6 +50,7 @@ class ConsumerEntry:
     status_topic: str
     client_name: str
     namespace: str
+    client_uri: str = ''      # the consumer node's XML-RPC URI: with client_name, its incarnation
 
 
 @dataclasses.dataclass
