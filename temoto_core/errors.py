@@ -32,6 +32,7 @@ class ErrorCode(enum.IntEnum):
     DISPLAY_FAIL = 17
     ACTION_FAIL = 18
     SHUTDOWN = 19
+    NAME_TAKEN = 20             # a node name that a live node (or another managed process) already has
 
 
 class Subsystem(enum.IntEnum):

@@ -67,6 +67,7 @@ class ERManager:
                                             preload_modules=config.preload_modules if config.preload_python else None,
                                             preload_log=preload_log, preload_env=self.resolver.env)
         self._lock = threading.Lock()
+        self._names_lock = threading.Lock()              # held from choosing a request's node names to claiming them
         self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
         self._closing = False
         self.rr.add_server(SERVER, LoadProcess, self._load, self._unload)
@@ -82,21 +83,25 @@ class ERManager:
     def _load(self, req, res) -> None:
         rid = res.trr.resource_id
         client = req.trr.client_name or '?'
-        try:
-            lreq = validate_request(req.action, req.ros_namespace, req.package_name, req.executable, req.args,
-                                    self.config, base_ns=rospy.get_namespace())
-            plan = self.resolver.resolve(lreq, name_taken=self._name_taken)
-        except RequestRefused as e:
-            rospy.logwarn('%s: refused load_process from %s (%s %s %s %r): %s', NAME, client, req.action,
-                          req.package_name, req.executable, req.args, e)
-            raise
+        # names are chosen and claimed under one lock: two requests naming the same node must not both
+        # pass the check and then make the master shut one of them down
+        with self._names_lock:
+            try:
+                lreq = validate_request(req.action, req.ros_namespace, req.package_name, req.executable, req.args,
+                                        self.config, base_ns=rospy.get_namespace())
+                plan = self.resolver.resolve(lreq, name_taken=self._name_taken)
+                self._refuse_taken_names(plan)
+            except RequestRefused as e:
+                rospy.logwarn('%s: refused load_process from %s (%s %s %s %r): %s', NAME, client, req.action,
+                              req.package_name, req.executable, req.args, e)
+                raise
+            resource = Resource(rid, plan)
+            with self._lock:
+                if self._closing:
+                    raise TemotoError(ErrorCode.SHUTDOWN, Subsystem.ER_MANAGER, 'the ER Manager is shutting down')
+                self._resources[rid] = resource
         for warning in plan.warnings:
             rospy.logwarn('%s: %s', NAME, warning)
-        resource = Resource(rid, plan)
-        with self._lock:
-            if self._closing:
-                raise TemotoError(ErrorCode.SHUTDOWN, Subsystem.ER_MANAGER, 'the ER Manager is shutting down')
-            self._resources[rid] = resource
         try:
             self._set_params(plan)
             for spec in plan.specs:
@@ -215,9 +220,21 @@ class ERManager:
                 t.join()
         return [i for i in infos if i is not None]
 
+    def _refuse_taken_names(self, plan) -> None:
+        """A node name (set by ``__name``, the namespace, or a launch file) that a live node or another
+        managed process already has is refused: the master would shut the older node down."""
+        taken = [n for spec in plan.specs for n in spec.node_names if self._name_taken(n)]
+        if taken:
+            raise RequestRefused('NAME_TAKEN', '%s: node name %s is already in use by a live node or another '
+                                 'process of this manager; starting it would make the master shut that node '
+                                 'down (choose another __name or namespace)' % (plan.label, ', '.join(taken)))
+
     def _name_taken(self, full_name: str) -> bool:
-        for p in self.supervisor.processes():
-            if p.alive and full_name in p.spec.node_names:
+        with self._lock:
+            resources = list(self._resources.values())
+        for resource in resources:
+            # starting, running or stopping: its nodes are (or are about to be) at the master
+            if resource.state() != 'exited' and any(full_name in spec.node_names for spec in resource.plan.specs):
                 return True
         try:
             uri = master.lookup_node(self.master_uri, full_name)

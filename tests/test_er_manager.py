@@ -464,3 +464,47 @@ def _er_logs(manager_proc):
     argv = manager_proc.argv
     log_dir = [a.split(':=', 1)[1] for a in argv if a.startswith('_log_dir:=')][0]
     return [__import__('pathlib').Path(p) for p in glob.glob(os.path.join(log_dir, '*er_test_node.log'))]
+
+
+def test_a_node_name_in_use_by_a_live_node_is_refused_and_that_node_lives_on(consumers, rospy_client):
+    import rospy
+    from temoto_core.errors import ErrorCode
+    c = consumers()
+    own = rospy.get_name()            # this test process is a live node the request tries to take over
+    with pytest.raises(TemotoError) as err:
+        c.load('er_test_node', '__name:=%s' % own.lstrip('/'))
+    assert err.value.origin.code == ErrorCode.NAME_TAKEN and own in str(err.value)
+    # a namespace that makes the full name collide is caught the same way
+    held = c.load('er_test_node', '__name:=collide_me', ns='/tenant')
+    with pytest.raises(TemotoError, match='/tenant/collide_me is already in use'):
+        c.load('er_test_node', '__name:=collide_me _v:=2', ns='tenant')
+    # nothing changed: the first holder's node is registered by the same pid, and this process still is
+    assert node_pid('/tenant/collide_me') == held.pid and node_pid(own) == os.getpid()
+    assert registry()['server_queries'][0]['consumers'] and len(registry()['server_queries']) == 1
+    c.rr.unload(held.trr.resource_id)
+
+
+def test_two_different_requests_for_one_explicit_name_cannot_kill_each_other(consumers):
+    """``__name:=d _v:=1`` and ``__name:=d _v:=2`` at once: one starts, the other is refused (the master
+    used to shut the first down when the second registered)."""
+    import threading
+    c = consumers()
+    results = {}
+
+    def load(v):
+        try:
+            results[v] = c.load('er_test_node', '__name:=twin _v:=%d' % v)
+        except TemotoError as e:
+            results[v] = e
+    threads = [threading.Thread(target=load, args=(v,)) for v in (1, 2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    loaded = [r for r in results.values() if not isinstance(r, TemotoError)]
+    refused = [r for r in results.values() if isinstance(r, TemotoError)]
+    assert len(loaded) == 1 and len(refused) == 1, results
+    assert 'already in use' in str(refused[0])
+    assert node_pid('/twin') == loaded[0].pid and not c.failed()
+    c.rr.unload(loaded[0].trr.resource_id)
+    wait_for(lambda: pid_gone(loaded[0].pid), 10, 'the twin to stop')
