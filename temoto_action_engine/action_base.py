@@ -9,6 +9,10 @@ Life of an instance (one node of a running graph), driven by the graph runner:
    to the children. An *asynchronous* action runs its loop here, ``while self.action_ok(): ...``,
    until it is stopped (the default loop just waits for the stop).
 3. ``on_stop()``   always runs after ``on_start`` was entered, whatever happened.
+   An action that cannot go on (its resources are lost for good) calls ``fail(reason)`` from any
+   thread: its loop is stopped, and it ends FAILED with that reason, and its graph with it.
+   A resource requested without a failure policy of its own (``on_status=``) is reloaded by its
+   interface on FAILED; if that reload gives up, the action fails the same way.
 4. Then everything the instance requested is released: its manager interfaces are shut down
    and its own Resource Registrar (``action_<name>_<uid>``) unloads whatever it still holds.
 
@@ -80,6 +84,7 @@ class ActionBase:
         self._rr = None
         self._interfaces: dict = {}
         self._res_lock = threading.RLock()
+        self._failure: str | None = None
 
     # ------------------------------------------------------------------ hooks
     def on_start(self) -> None:
@@ -144,6 +149,24 @@ class ActionBase:
         """False once a stop was requested; a run loop must then return promptly."""
         return not self._stop.is_set() and not rospy.is_shutdown()
 
+    def fail(self, reason: str) -> None:
+        """End this action FAILED with ``reason`` (callable from any thread, e.g. a status callback).
+
+        The first reason is kept. The run loop sees ``action_ok()`` turn False, ``on_stop`` runs,
+        resources are released, and the graph reports FAILED with the reason.
+        """
+        with self._cond:
+            if self._failure is None:
+                self._failure = reason
+        self.log_err('failing: %s' % reason)
+        self.request_stop()
+
+    @property
+    def failure(self) -> str | None:
+        """Why this action failed (``fail``), or None."""
+        with self._cond:
+            return self._failure
+
     def request_stop(self) -> None:
         self._stop.set()
         with self._cond:
@@ -196,8 +219,13 @@ class ActionBase:
                 except (ImportError, AttributeError) as e:
                     raise ActionError('%s needs %s.%s, which is not available: %s'
                                       % (self.name, module_name, cls_name, e)) from None
-            self._interfaces[attr] = cls(self.rr)
-            return self._interfaces[attr]
+            itf = cls(self.rr)
+            if hasattr(itf, 'on_lost'):
+                # a resource that its interface's default policy could not replace fails the action
+                itf.on_lost = lambda resource_id, err, attr=attr: self.fail(
+                    'lost a %s resource (%d) for good: %s' % (attr.replace('_', ' '), resource_id, err))
+            self._interfaces[attr] = itf
+            return itf
 
     @property
     def sensor_manager(self):

@@ -15,7 +15,7 @@ from typing import Any, Callable
 import rospy
 
 from .action_base import ActionContext, default_rr_factory
-from .graph import ERROR, CANCELLED, GraphRun, NodeRun
+from .graph import FAILED, CANCELLED, GraphRun, NodeRun
 from .grounding import TOKEN_RE, Grounder, inflections, word_forms
 from .indexer import ActionIndex
 from .umrf import GraphSpec, UmrfError, parse_graph
@@ -73,9 +73,10 @@ class ActionEngine:
         self._publish_event(ev)
         if ev.get('event') == 'state':
             who = '%s_%s' % (ev['action'], ev['instance_id'])
-            if ev['state'] == ERROR:
+            if ev['state'] == FAILED:
                 self.feedback('%s failed: %s' % (ev['action'], ev['message']))
-            elif ev['state'] == CANCELLED and ev['message'] != 'graph stopped':
+            elif ev['state'] == CANCELLED and ev['message'] != 'graph stopped' and \
+                    not ev['message'].startswith('stopped: '):
                 self.feedback('%s did not start: %s' % (ev['action'], ev['message']))
             rospy.loginfo('graph %s: %s %s %s' % (ev['graph'], who, ev['state'], ev['message']))
 

@@ -9,7 +9,13 @@ Semantics (UMRF, as in the original engine):
 - siblings run in parallel; a node or the whole graph can be stopped;
 - a node that can no longer start (a required parent failed or stopped before releasing it,
   or an input never arrived) is CANCELLED with the reason, and so are its descendants;
-- the graph is finished when every node is FINISHED, ERROR or CANCELLED.
+- a node that fails (it raised, or it lost its resources for good and called ``fail``) ends
+  FAILED with the reason, and the graph fails with it: the nodes running at that moment are
+  stopped (what they do was asked together with what failed), the children that require the
+  failed node are cancelled, and only nodes that declared it an optional parent go on. So a
+  graph is never shown RUNNING with part of it dead and the rest carrying on as if it were not;
+- the graph is finished when every node is FINISHED, FAILED or CANCELLED; it is FAILED, with
+  the first failure as its reason, when any node failed.
 """
 from __future__ import annotations
 
@@ -26,9 +32,9 @@ WAITING = 'WAITING'
 RUNNING = 'RUNNING'
 STOP_REQUESTED = 'STOP_REQUESTED'
 FINISHED = 'FINISHED'
-ERROR = 'ERROR'
+FAILED = 'FAILED'
 CANCELLED = 'CANCELLED'
-TERMINAL = (FINISHED, ERROR, CANCELLED)
+TERMINAL = (FINISHED, FAILED, CANCELLED)
 
 
 class NodeRun:
@@ -42,6 +48,7 @@ class NodeRun:
         self.inputs = dict(spec.inputs)
         self.explicit = set(spec.inputs)    # inputs given in the graph win over parents' outputs
         self.released = False               # children may start
+        self.stop_reason = ''               # why a stop was requested
         self.action: ActionBase | None = None
         self.thread: threading.Thread | None = None
         self.started_at = None
@@ -74,6 +81,7 @@ class GraphRun:
         self._done = threading.Condition(self._lock)
         self.stopping = False
         self.finished = False
+        self.failure = ''                   # the first node failure: the graph's reason
         self.started_at = time.time()
         self.nodes: dict[str, NodeRun] = {}
         for key, n in spec.nodes.items():
@@ -140,12 +148,12 @@ class GraphRun:
         with self._lock:
             if not self.finished:
                 return 'STOPPING' if self.stopping else 'RUNNING'
-            return 'ERROR' if any(n.state == ERROR for n in self.nodes.values()) else 'FINISHED'
+            return FAILED if self.failure else FINISHED
 
     def to_json(self) -> dict:
         with self._lock:
             return {'graph_name': self.name, 'graph_description': self.spec.description,
-                    'state': self.state, 'started_at': self.started_at,
+                    'state': self.state, 'reason': self.failure, 'started_at': self.started_at,
                     'nodes': [n.to_json() for n in self.nodes.values()]}
 
     # ------------------------------------------------------------------ internals (lock held)
@@ -161,10 +169,23 @@ class GraphRun:
                         'instance_id': node.spec.instance_id, 'state': state, 'message': message})
         self._done.notify_all()
 
-    def _request_stop(self, node: NodeRun) -> None:
-        self._set_state(node, STOP_REQUESTED, 'stop requested')
+    def _request_stop(self, node: NodeRun, reason: str = 'stopped') -> None:
+        node.stop_reason = reason
+        self._set_state(node, STOP_REQUESTED, 'stop requested' if reason == 'stopped' else reason)
         if node.action is not None:
             node.action.request_stop()
+
+    def _fail(self, node: NodeRun, error: str) -> None:
+        """A node failed, and so does the graph: the nodes running now are stopped, and the children
+        that require this node are cancelled."""
+        self._set_state(node, FAILED, error)
+        if not self.failure:
+            self.failure = '%s failed: %s' % (node.key, error)
+        for other in self.nodes.values():
+            tolerates = other.spec.parents.get(node.key) is False      # declared this parent optional
+            if other.state == RUNNING and not tolerates:
+                self._request_stop(other, 'stopped: %s failed' % node.key)
+        self._cancel_descendants(node)
 
     def _missing_inputs(self, node: NodeRun) -> list[str]:
         desc = node.indexed.descriptor
@@ -192,8 +213,7 @@ class GraphRun:
             if k in node.inputs:
                 err = p.check(node.inputs[k])
                 if err:
-                    self._set_state(node, ERROR, err)
-                    self._cancel_descendants(node)
+                    self._fail(node, err)
                     return
         node.started_at = time.time()
         self._set_state(node, RUNNING)
@@ -227,7 +247,7 @@ class GraphRun:
         if not self.finished and all(n.state in TERMINAL for n in self.nodes.values()):
             self.finished = True
             self._done.notify_all()
-            self._emit_graph('graph_finished', state=self.state)
+            self._emit_graph('graph_finished', state=self.state, reason=self.failure)
             threading.Thread(target=self._on_finished, args=(self,), daemon=True).start()
 
     # ------------------------------------------------------------------ node thread
@@ -254,6 +274,7 @@ class GraphRun:
             if not asynchronous and action.action_ok():
                 with self._lock:
                     self._release(node)
+            error = action.failure
         except Exception as e:
             error = str(e) or type(e).__name__
             if action is not None:
@@ -269,13 +290,15 @@ class GraphRun:
                 problems = action.release_resources()
                 if problems and not error:
                     error = 'releasing resources: ' + '; '.join(problems)
+            if action is not None and not error:
+                error = action.failure      # set by fail(), maybe while it was being stopped
             with self._lock:
                 node.ended_at = time.time()
                 stopped = node.state == STOP_REQUESTED
                 if error:
-                    self._set_state(node, ERROR, error)
+                    self._fail(node, error)
                 else:
-                    self._set_state(node, FINISHED, 'stopped' if stopped else '')
+                    self._set_state(node, FINISHED, (node.stop_reason or 'stopped') if stopped else '')
                 for ckey in node.spec.children:
                     child = self.nodes[ckey]
                     if child.state == WAITING:

@@ -5,12 +5,13 @@ again with the same request; the ranking then prefers another tracker or
 detection method. ``register_update_callback(cb)`` replaces it.
 """
 import dataclasses
-from typing import Dict, Optional, Sequence
+from typing import Callable, Dict, Optional, Sequence
 
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import Subsystem
 from temoto_core.interface import ManagerInterface
+from temoto_core.rr import StatusEvent
 from temoto_context_manager.manager import NAME
 from temoto_context_manager.srv import LoadTracker, TrackObject
 
@@ -37,15 +38,22 @@ class ContextManagerInterface(ManagerInterface):
     MANAGER = NAME
     SUBSYSTEM = Subsystem.CONTEXT_MANAGER
 
-    def load_tracker(self, category: str, output_types: Sequence[str] = ()) -> TrackerResult:
+    def load_tracker(self, category: str, output_types: Sequence[str] = (),
+                     on_status: Optional[Callable[[StatusEvent], None]] = None) -> TrackerResult:
+        """Start the best tracker of ``category``; ``on_status`` is this request's failure policy."""
         resp = self._load('load_tracker', LoadTracker._request_class(
-            tracker_category=category, output_topics=[KeyValue(t, '') for t in output_types]))
+            tracker_category=category, output_topics=[KeyValue(t, '') for t in output_types]), on_status)
         return TrackerResult(resp.trr.resource_id, resp.tracker_name, resp.pipe_id,
                              {kv.key: kv.value for kv in resp.output_topics})
 
-    def track_object(self, object_name: str) -> TrackedObject:
-        """Start tracking a known object; returns once poses flow on ``topic``."""
-        resp = self._load('track_object', TrackObject._request_class(object_name=object_name))
+    def track_object(self, object_name: str,
+                     on_status: Optional[Callable[[StatusEvent], None]] = None) -> TrackedObject:
+        """Start tracking a known object; returns once poses flow on ``topic``.
+
+        ``on_status``: this request's failure policy (a failure anywhere below, down to the camera's
+        driver, reaches it as FAILED).
+        """
+        resp = self._load('track_object', TrackObject._request_class(object_name=object_name), on_status)
         return TrackedObject(resp.trr.resource_id, resp.object_name, resp.object_topic, resp.detection_method,
                              resp.tracker_name, resp.pipe_id)
 

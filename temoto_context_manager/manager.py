@@ -27,6 +27,7 @@ import rospy
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.fallback import first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.srv import GetRegistry, GetRegistryResponse
@@ -98,27 +99,24 @@ class ContextManager:
             raise TemotoError(ErrorCode.NO_TRACKERS_FOUND, SUB, 'no %r tracker gives %s (they give: %s)'
                               % (category, ', '.join(wanted), '; '.join('%s: %s' % (t.name, ', '.join(t.output_types))
                                                                         for t in trackers)))
-        tried = []
-        for tracker in matching:
+
+        def attempt(tracker):
             pipe = _Pipe(tracker, rr, 'pipe_%d_at_%s' % (next(_pipe_numbers), self.namespace))
             try:
-                topics = self._build(pipe)
-            except TemotoError as err:
-                tracker.reliability.failure()
+                return pipe, self._build(pipe)
+            except TemotoError:
                 self._release(pipe, 'rolling back tracker %s' % tracker.name)
-                rospy.logwarn('%s: tracker %s failed: %s', NAME, tracker.name, err)
-                tried.append('%s: %s' % (tracker.name, err))
-                continue
-            tracker.reliability.success()
-            with self._lock:
-                self._pipes[(rr.name, res.trr.resource_id)] = pipe
-            res.tracker_name = tracker.name
-            res.pipe_id = pipe.pipe_id
-            res.output_topics = [KeyValue(t, topics[t]) for t in (wanted or tracker.output_types)]
-            rospy.loginfo('%s: tracker %s (%s) running as %s', NAME, tracker.name, category, pipe.pipe_id)
-            return
-        raise TemotoError(ErrorCode.NO_TRACKERS_FOUND, SUB, 'no %r tracker left: every one failed (%s)'
-                          % (category, '; '.join(tried)))
+                raise
+        tracker, (pipe, topics) = first_that_works(
+            matching, attempt, what='a %r tracker' % category, subsystem=SUB, code=ErrorCode.NO_TRACKERS_FOUND,
+            name=lambda t: t.name, reliability=lambda t: t.reliability,
+            on_failure=lambda t: rospy.logwarn('%s: tracker %s failed: %s', NAME, t.name, t.error))
+        with self._lock:
+            self._pipes[(rr.name, res.trr.resource_id)] = pipe
+        res.tracker_name = tracker.name
+        res.pipe_id = pipe.pipe_id
+        res.output_topics = [KeyValue(t, topics[t]) for t in (wanted or tracker.output_types)]
+        rospy.loginfo('%s: tracker %s (%s) running as %s', NAME, tracker.name, category, pipe.pipe_id)
 
     def _build(self, pipe: _Pipe) -> Dict[str, str]:
         topics: Dict[str, str] = {}
@@ -204,28 +202,22 @@ class ContextManager:
             raise TemotoError(ErrorCode.BAD_REQUEST, SUB, 'unknown object %r (known objects: %s)'
                               % (name, ', '.join(sorted(self.catalogue.objects)) or 'none'))
         methods = sorted(obj.detection_methods, key=lambda m: -self._method(name, m).value)
-        tried = []
-        for method in methods:
+
+        def attempt(method):
             request = LoadTracker._request_class(tracker_category=method, output_topics=[KeyValue('pose', '')])
-            try:
-                resp = self.rr.call(TRACKER_RR, 'load_tracker', request, status_cb=self._on_tracker_status,
-                                    namespace=self.namespace)
-            except TemotoError as err:
-                self._method(name, method).failure()
-                tried.append('%s: %s' % (method, err))
-                continue
-            self._method(name, method).success()
-            with self._lock:
-                self._object_of_tracker[resp.trr.resource_id] = (name, method)
-                self._objects[res.trr.resource_id] = (name, method, resp.trr.resource_id)
-            res.object_name = name
-            res.object_topic = next(kv.value for kv in resp.output_topics if kv.key == 'pose')
-            res.detection_method = method
-            res.tracker_name = resp.tracker_name
-            res.pipe_id = resp.pipe_id
-            return
-        raise TemotoError(ErrorCode.NO_TRACKERS_FOUND, SUB, 'cannot track %r: every detection method failed (%s)'
-                          % (name, '; '.join(tried)))
+            return self.rr.call(TRACKER_RR, 'load_tracker', request, status_cb=self._on_tracker_status,
+                                namespace=self.namespace)
+        method, resp = first_that_works(methods, attempt, what='tracking %r' % name, subsystem=SUB,
+                                        code=ErrorCode.NO_TRACKERS_FOUND,
+                                        reliability=lambda m: self._method(name, m))
+        with self._lock:
+            self._object_of_tracker[resp.trr.resource_id] = (name, method)
+            self._objects[res.trr.resource_id] = (name, method, resp.trr.resource_id)
+        res.object_name = name
+        res.object_topic = next(kv.value for kv in resp.output_topics if kv.key == 'pose')
+        res.detection_method = method
+        res.tracker_name = resp.tracker_name
+        res.pipe_id = resp.pipe_id
 
     def _untrack_object(self, req, res) -> None:
         with self._lock:

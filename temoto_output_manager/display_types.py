@@ -8,7 +8,8 @@ from __future__ import annotations
 import re
 from typing import Any, Dict, FrozenSet, Optional
 
-#: The original's type table (temoto_original.md §4.1) plus `point cloud` and `tf`.
+#: The original's type table plus `point cloud`, `tf` and the types that the bundled actions and trackers
+#: produce (poses, marker arrays, odometry).
 #: Types whose RViz plugins are not packaged for Debian (camera sphere, MoveIt) are left out.
 ABSTRACT_TYPES: Dict[str, str] = {
     'point cloud': 'rviz/PointCloud2',
@@ -17,7 +18,13 @@ ABSTRACT_TYPES: Dict[str, str] = {
     'image': 'rviz/Image',
     'robot_model': 'rviz/RobotModel',
     'marker': 'rviz/Marker',
+    'marker array': 'rviz/MarkerArray',
     'path': 'rviz/Path',
+    'pose': 'rviz/Pose',
+    'pose stamped': 'rviz/Pose',
+    'pose array': 'rviz/PoseArray',
+    'point stamped': 'rviz/PointStamped',
+    'odometry': 'rviz/Odometry',
     'tf': 'rviz/TF',
 }
 

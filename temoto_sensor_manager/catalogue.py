@@ -37,6 +37,8 @@ from temoto_core.reliability import DEFAULT_PRIOR, Reliability
 
 STALL_PERIODS = 3.0
 MIN_STALL_TIMEOUT = 0.1
+# A started driver's first message: its start-up (the allowance) plus this many of its periods.
+FIRST_DATA_PERIODS = 10.0
 _ENTRY_KEYS = {'name', 'type', 'package', 'executable', 'args', 'reliability', 'rate', 'stall_timeout',
                'description', 'output_topics', 'input_topics'}
 _TOPIC_KEYS = {'topic', 'arg', 'remap', 'rate', 'stall_timeout'}
@@ -66,6 +68,17 @@ class TopicSpec:
         if self.rate > 0:
             return max(STALL_PERIODS / self.rate, MIN_STALL_TIMEOUT)
         return 0.0
+
+    def first_data_limit(self, allowance: float, cap: float) -> float:
+        """Seconds a driver that has just registered has to send its first message here.
+
+        From the nominal rate: ``allowance`` (the driver's own start-up) plus ten periods, never
+        more than ``cap``. A device that is silent from its start then costs a few seconds, not
+        the cap (which is what a topic of unknown rate gets).
+        """
+        if self.rate > 0:
+            return min(cap, allowance + FIRST_DATA_PERIODS / self.rate)
+        return cap
 
 
 @dataclasses.dataclass

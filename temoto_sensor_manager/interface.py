@@ -8,12 +8,13 @@ another device and the consumer keeps listening on the same topics.
 """
 import copy
 import dataclasses
-from typing import Dict, List, Mapping, Optional, Sequence, Union
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Union
 
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import Subsystem, TemotoError
 from temoto_core.interface import ManagerInterface
+from temoto_core.rr import StatusEvent
 from temoto_sensor_manager.manager import NAME, SERVER
 from temoto_sensor_manager.srv import LoadSensor
 
@@ -66,17 +67,20 @@ class SensorManagerInterface(ManagerInterface):
         self._results: Dict[int, SensorResult] = {}
 
     def start_sensor(self, sensor_type: str, output_topics: TopicsArg = None, package_name: str = '',
-                     executable: str = '', input_topics: TopicsArg = None) -> SensorResult:
+                     executable: str = '', input_topics: TopicsArg = None,
+                     on_status: Optional[Callable[[StatusEvent], None]] = None) -> SensorResult:
         """Start the best sensor of ``sensor_type``; return once its data flows.
 
         ``output_topics``: a list of topic types (any names), or a dict type -> wanted name ('' for any).
+        ``on_status``: this request's failure policy (every status of the sensor goes to it); without it,
+        the interface's default applies (reload the same request, with its topics pinned).
         Raises TemotoError (e.g. SENSOR_NOT_FOUND with the known types) on failure.
         """
         request = LoadSensor._request_class(sensor_type=sensor_type, package_name=package_name,
                                             executable=executable,
                                             output_topics=_key_values(output_topics, 'output_topics'),
                                             input_topics=_key_values(input_topics, 'input_topics'))
-        return _result(self._load(SERVER, request))
+        return _result(self._load(SERVER, request, on_status))
 
     def stop_sensor(self, resource_id: int) -> None:
         """Release a sensor started by this interface (its driver stops when nobody else holds it)."""
@@ -86,8 +90,8 @@ class SensorManagerInterface(ManagerInterface):
                 self._granted.pop(id(entry[1]), None)
         self._unload(resource_id)
 
-    def _load(self, server: str, request):
-        response = super()._load(server, request)
+    def _load(self, server: str, request, on_status=None):
+        response = super()._load(server, request, on_status)
         with self._lock:
             self._granted[id(request)] = {kv.key: kv.value for kv in response.output_topics}
             self._results[response.trr.resource_id] = _result(response)

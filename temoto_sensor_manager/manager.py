@@ -17,12 +17,13 @@ The stalled driver is stopped when the consumer unloads the failed sensor
 import json
 import threading
 import time
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import rospy
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.fallback import Tried, first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.srv import GetRegistry, GetRegistryResponse
@@ -37,6 +38,9 @@ SERVER = 'start_sensor'
 ER_MANAGER = 'temoto_er_manager'
 ER_SERVER = 'load_process'
 SUB = Subsystem.SENSOR_MANAGER
+# seconds a registered driver may take to start publishing (load its model, connect to the simulation)
+# before its rate counts
+DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 
 
 def sensor_key(request) -> tuple:
@@ -95,9 +99,11 @@ class SensorManager:
     """Serves ``/<ns>/temoto_sensor_manager/start_sensor`` and ``.../catalogue`` (JSON)."""
 
     def __init__(self, catalogue: Catalogue, rr: Optional[ResourceRegistrar] = None, namespace: Optional[str] = None,
-                 first_data_timeout: float = 20.0, er_manager: str = ER_MANAGER) -> None:
+                 first_data_timeout: float = 20.0, er_manager: str = ER_MANAGER,
+                 first_data_allowance: float = DEFAULT_FIRST_DATA_ALLOWANCE) -> None:
         self.catalogue = catalogue
-        self.first_data_timeout = first_data_timeout
+        self.first_data_timeout = first_data_timeout      # the cap, and the limit of a topic of unknown rate
+        self.first_data_allowance = first_data_allowance
         self.er_manager = er_manager
         self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB)
         self._lock = threading.Lock()
@@ -118,30 +124,28 @@ class SensorManager:
     def _load(self, req, res) -> None:
         query = validate(req.sensor_type, req.package_name, req.executable,
                          [(kv.key, kv.value) for kv in req.output_topics])
-        tried = []
-        for entry in candidates(self.catalogue, query):
+
+        def attempt(entry: SensorEntry) -> Tuple[LaunchPlan, _Held]:
             launch = plan(entry, query)
-            try:
-                held = self._start(entry, launch, res.trr.resource_id)
-            except TemotoError as err:
-                if err.code != ErrorCode.SERVICE_REQ_FAIL:   # the ER Manager being away says nothing of the device
-                    entry.reliability.failure()
-                rospy.logwarn('%s: candidate %s for %r failed (reliability now %.3f): %s', NAME, entry.name,
-                              query.sensor_type, entry.reliability.value, err)
-                tried.append('%s: %s' % (entry.name, err))
-                continue
-            entry.reliability.success()
-            self.watchdog.arm(held.probes)
-            res.sensor_name = entry.name
-            res.package_name = entry.package
-            res.executable = entry.executable
-            res.output_topics = [KeyValue(k, v) for k, v in launch.topics.items()]
-            res.input_topics = [KeyValue(k, v) for k, v in sorted(entry.input_topics.items())]
-            rospy.loginfo('%s: %r served by %s (%s), data flowing on %s', NAME, query.sensor_type, entry.name,
-                          entry.executable, ', '.join(launch.topics.values()))
-            return
-        raise TemotoError(ErrorCode.SENSOR_NOT_FOUND, SUB, 'no candidate left for a %r sensor: every match failed '
-                          '(%s)' % (query.sensor_type, '; '.join(tried)))
+            return launch, self._start(entry, launch, res.trr.resource_id)
+
+        def report(tried: Tried) -> None:
+            rospy.logwarn('%s: candidate %s for %r failed (reliability now %.3f): %s', NAME, tried.name,
+                          query.sensor_type, tried.candidate.reliability.value, tried.error)
+        entry, (launch, held) = first_that_works(
+            candidates(self.catalogue, query), attempt, what='a %r sensor' % query.sensor_type, subsystem=SUB,
+            code=ErrorCode.SENSOR_NOT_FOUND, name=lambda e: e.name, reliability=lambda e: e.reliability,
+            # the ER Manager being away says nothing of the device
+            counts_against=lambda err: getattr(err, 'code', None) != ErrorCode.SERVICE_REQ_FAIL,
+            on_failure=report)
+        self.watchdog.arm(held.probes)
+        res.sensor_name = entry.name
+        res.package_name = entry.package
+        res.executable = entry.executable
+        res.output_topics = [KeyValue(k, v) for k, v in launch.topics.items()]
+        res.input_topics = [KeyValue(k, v) for k, v in sorted(entry.input_topics.items())]
+        rospy.loginfo('%s: %r served by %s (%s), data flowing on %s', NAME, query.sensor_type, entry.name,
+                      entry.executable, ', '.join(launch.topics.values()))
 
     def _start(self, entry: SensorEntry, launch: LaunchPlan, internal_id: int) -> _Held:
         """Start one candidate's driver and wait for its first data; then link the process to the sensor.
@@ -177,7 +181,9 @@ class SensorManager:
             attempt.fail(early)
         linked_id = None
         try:
-            deadline = time.monotonic() + self.first_data_timeout
+            limit = max(entry.output_topics[key].first_data_limit(self.first_data_allowance, self.first_data_timeout)
+                        for key in launch.topics)
+            deadline = time.monotonic() + limit
             with attempt.cond:
                 while not attempt.failure and not all(p.first.is_set() for p in probes):
                     remaining = deadline - time.monotonic()
@@ -190,7 +196,7 @@ class SensorManager:
             silent = [p.topic for p in probes if not p.first.is_set()]
             if silent:
                 raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
-                                  '(pid %d) started' % (entry.name, ', '.join(silent), self.first_data_timeout,
+                                  '(pid %d) started' % (entry.name, ', '.join(silent), limit,
                                                         trial.pid))
             linked = self.rr.call(self.er_manager, ER_SERVER, request, status_cb=self._on_process_status)
             linked_id = linked.trr.resource_id

@@ -171,10 +171,10 @@ def test_failure_cancels_required_children_only(env):
         node('emit', 2, {'tag': 'optional'}, parents=[('fail', 0, False)]),
         node('emit', 3, {'tag': 'grandchild'})]})
     assert run.wait(10) == []
-    assert states(run) == {'fail_0': 'ERROR', 'emit_1': 'CANCELLED', 'emit_2': 'FINISHED', 'emit_3': 'CANCELLED'}
+    assert states(run) == {'fail_0': 'FAILED', 'emit_1': 'CANCELLED', 'emit_2': 'FINISHED', 'emit_3': 'CANCELLED'}
     assert run.nodes['fail_0'].message == 'boom: the device is gone'
     assert 'fail_0' in run.nodes['emit_1'].message
-    assert run.state == 'ERROR'
+    assert run.state == 'FAILED'
     assert rrs.made[0].shut_down             # a failed action's resources are released too
     assert any('fail failed: boom' in f for f in feedback)
     assert [t for _, t, _ in log] == ['optional']
@@ -243,7 +243,7 @@ def test_stop_action_from_the_bundled_plugins(tmp_path, plugins):
         assert stopper.nodes['stop_0'].action.outputs == {'stopped': ['holder/hold_0']}
         assert holder.nodes['hold_0'].state == 'FINISHED' and rrs.made[0].shut_down
         _, again = engine.say('stop hold')
-        assert again.wait(15) == [] and again.nodes['stop_0'].state == 'ERROR'
+        assert again.wait(15) == [] and again.nodes['stop_0'].state == 'FAILED'
         assert 'nothing running matches' in again.nodes['stop_0'].message
     finally:
         engine.shutdown(10)

@@ -1,9 +1,9 @@
 """show_environment's failover policy against stand-in sensor and output managers (in-process).
 
 The managers here follow the interface contract the action is written against:
-SensorManagerInterface(rr).start_sensor(type, output_topics={key: ''}) -> .sensor_name/.output_topics/
-.resource_id, .stop_sensor(id), .register_update_callback(cb); OutputManagerInterface(rr).show_in_rviz(
-type, topic, name='') -> id, .hide(id). The end-to-end run against the real managers and simulation
+SensorManagerInterface(rr).start_sensor(type, output_topics={key: ''}, on_status=cb) -> .sensor_name/
+.output_topics/.resource_id, .stop_sensor(id); OutputManagerInterface(rr).show_in_rviz(type, topic, name='',
+config='', on_status=cb) -> id, .hide(id). Statuses are typed StatusEvents, given to each request's own cb. The end-to-end run against the real managers and simulation
 belongs to the integration suite.
 """
 import itertools
@@ -15,6 +15,7 @@ import pytest
 from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.testing import FakeRegistrarFactory
+from temoto_core.rr.status import Status, StatusEvent
 from temoto_core.testing.wait import wait_for
 
 VAULTBOT = [  # name, type, topics
@@ -35,7 +36,7 @@ class Devices:
         self.configs = {}            # display id -> the RViz properties it was shown with
         self.log = []
         self.ids = itertools.count(1)
-        self.callbacks = []
+        self.policies = {}           # resource or display id -> the request's on_status
         self.stop_gate = threading.Event()   # cleared: stop_sensor blocks (a slow driver unload)
         self.stop_gate.set()
         self.start_gate = threading.Event()  # cleared: start_sensor blocks (a driver starting)
@@ -47,11 +48,15 @@ class Devices:
         with self.lock:
             self.plugged.discard(name)
             self.failed_before.add(name)
-            victims = [rid for rid, n in self.active.items() if n == name]
-            cbs = list(self.callbacks)
-        for rid in victims:
-            for cb in cbs:
-                cb(SimpleNamespace(resource_id=rid, code=1, message='%s unplugged' % name))
+            victims = [(rid, self.policies[rid]) for rid, n in self.active.items() if n == name]
+        for rid, cb in victims:
+            cb(status(rid, Status.FAILED, '%s unplugged' % name))
+
+    def crash_display(self, did):
+        """The RViz host of a display dies: FAILED to that display's holder."""
+        with self.lock:
+            cb = self.policies[did]
+        cb(status(did, Status.FAILED, 'rviz host crashed'))
 
     def plug(self, name):
         with self.lock:
@@ -62,17 +67,14 @@ class FakeSensorManager:
     def __init__(self, devices, rr):
         self.d = devices
 
-    def register_update_callback(self, cb):
-        with self.d.lock:
-            self.d.callbacks.append(cb)
-
-    def start_sensor(self, sensor_type, output_topics):
+    def start_sensor(self, sensor_type, output_topics, on_status=None):
         assert self.d.start_gate.wait(10), 'start_sensor gate never opened'
         with self.d.lock:
             for name, stype, topics in VAULTBOT:
                 if stype == sensor_type and name in self.d.plugged and set(output_topics) <= set(topics):
                     rid = next(self.d.ids)
                     self.d.active[rid] = name
+                    self.d.policies[rid] = on_status
                     self.d.log.append(('start', name))
                     return SimpleNamespace(sensor_name=name, resource_id=rid,
                                            output_topics={k: topics[k] for k in output_topics})
@@ -104,9 +106,10 @@ class FakeOutputManager:
     def __init__(self, devices, rr):
         self.d = devices
 
-    def show_in_rviz(self, display_type, topic, name='', config=''):
+    def show_in_rviz(self, display_type, topic, name='', config='', on_status=None):
         with self.d.lock:
             did = 1000 + next(self.d.ids)
+            self.d.policies[did] = on_status
             self.d.shown[did] = (display_type, topic)
             self.d.configs[did] = config
             self.d.log.append(('show', display_type, topic))
@@ -129,6 +132,11 @@ def setup():
                              'output_manager': lambda rr: FakeOutputManager(devices, rr)})
     yield engine, devices, events, feedback
     engine.shutdown(10)
+
+
+def status(rid, code, message):
+    return StatusEvent(resource_id=rid, code=code, message=message, error_stack=[], rr_name='fake',
+                       server_name='fake', namespace='temoto', stamp=0.0)
 
 
 def of(events, kind):
@@ -164,7 +172,9 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
     wait_for(lambda: len(of(events, 'retry')) >= 3, 10, 'retries while everything is unplugged')
     wait_for(lambda: displayed(devices) == [], 10, 'the last display hidden')
     assert any('every sensor failed' in f for f in feedback)
-    backoffs = [e['retry_in_s'] for e in of(events, 'all_failed')]
+    # the fourth all_failed follows the third retry: wait for it rather than read it as the retry lands
+    backoffs = [e['retry_in_s'] for e in wait_for(lambda: len(of(events, 'all_failed')) >= 4 and
+                                                  of(events, 'all_failed'), 10, 'four rounds of all_failed')]
     assert backoffs[:4] == [0.05, 0.1, 0.2, 0.2]                     # bounded exponential backoff
 
     devices.plug('hokuyo')
@@ -197,8 +207,8 @@ def test_the_substitute_is_shown_before_the_failed_sensor_is_released(setup):
         log = list(devices.log)
     assert ('start', 'hokuyo') in log and ('show', 'point cloud', '/stitcher/cloud') in log
     assert ('stop', 'd435') not in log            # the failed sensor is still being released
-    # its display went first, only after the substitute's was up
-    assert log.index(('hide', 'point cloud', '/d435/points')) > log.index(('show', 'point cloud', '/stitcher/cloud'))
+    # its frozen view went off screen at once, without waiting for the substitute
+    assert log.index(('hide', 'point cloud', '/d435/points')) < log.index(('show', 'point cloud', '/stitcher/cloud'))
     devices.stop_gate.set()
     wait_for(lambda: ('stop', 'd435') in devices.log, 10, 'the failed sensor released')
     assert devices.log.count(('stop', 'd435')) == 1 and devices.log.count(('hide', 'point cloud', '/d435/points')) == 1
@@ -282,8 +292,8 @@ def test_a_status_for_a_released_resource_is_ignored(setup):
     _, run = engine.say('show the environment')
     wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
     action = run.nodes['show_environment_0'].action
-    action.post(SimpleNamespace(resource_id=424242, code=1, message='stale'))
-    action.post(SimpleNamespace(resource_id=action.active.resource_id, code=2, message='just an update'))
+    action.post(status(424242, Status.FAILED, 'stale'))
+    action.post(status(action.active.resource_id, Status.UPDATE, 'just an update'))
     devices.unplug('d435')
     wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
     assert len(of(events, 'sensor_failed')) == 1
@@ -298,7 +308,7 @@ def test_bad_priority_parameter_fails_the_action_clearly(setup):
     _, run = engine.say('show the environment')
     assert run.wait(10) == []
     node = run.nodes['show_environment_0']
-    assert node.state == 'ERROR' and "display_key 'cloud_data'" in node.message
+    assert node.state == 'FAILED' and "display_key 'cloud_data'" in node.message
     assert devices.log == []
 
 
@@ -311,3 +321,33 @@ def test_display_config_reaches_the_output_manager_as_yaml():
     assert yaml.safe_load(choice.display_config) == {'Size (m)': 0.05, 'Color': '255; 120; 0'}
     with pytest.raises(ActionError, match='display_config'):
         parse_priority([dict(entry, display_config=[1, 2])])
+
+
+def test_a_failed_view_is_hidden_before_the_substitute_is_asked_for(setup):
+    """A frozen last frame must not look live: the failed display goes off screen first."""
+    engine, devices, events, _ = setup
+    engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    devices.start_gate.clear()          # the substitute's driver is slow to start
+    devices.unplug('d435')
+    wait_for(lambda: ('hide', 'point cloud', '/d435/points') in devices.log, 10, 'the failed view hidden')
+    assert not any(e[0] == 'start' and e[1] == 'hokuyo' for e in devices.log), 'hidden before the substitute'
+    devices.start_gate.set()
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+
+
+def test_a_display_failure_reaches_the_action_and_the_same_sensor_is_shown_again(setup):
+    engine, devices, events, _ = setup
+    _, run = engine.say('show the environment')
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    action = run.nodes['show_environment_0'].action
+    failed_display = action.active.display_id
+    devices.crash_display(failed_display)
+    restored = wait_for(lambda: of(events, 'display_restored'), 10, 'the display shown again')
+    assert restored[0]['sensor_name'] == 'd435' and action.active.display_id != failed_display
+    assert of(events, 'sensor_failed')[0]['failed_part'] == 'display'
+    wait_for(lambda: failed_display not in devices.shown, 10, 'the failed display released')
+    assert list(devices.shown.values()) == [('point cloud', '/d435/points')]
+    assert [e for e in devices.log if e[0] == 'start'] == [('start', 'd435')], 'no failover for a display crash'
+    run.stop(10)
+    assert devices.shown == {} and devices.active == {}, 'nothing held after the stop'

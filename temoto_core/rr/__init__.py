@@ -1,6 +1,6 @@
 """The Resource Registrar (DESIGN.md, "Resource Registrar semantics")."""
 from temoto_core.rr.registrar import ResourceRegistrar
 from temoto_core.rr.registry import RegistrySnapshot
-from temoto_core.rr.status import StatusEvent
+from temoto_core.rr.status import Status, StatusEvent
 
-__all__ = ['ResourceRegistrar', 'RegistrySnapshot', 'StatusEvent']
+__all__ = ['ResourceRegistrar', 'RegistrySnapshot', 'Status', 'StatusEvent']

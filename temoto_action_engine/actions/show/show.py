@@ -1,4 +1,9 @@
-"""show: put any topic on the operator's screen through the Output Manager, until stopped."""
+"""show: put any topic on the operator's screen through the Output Manager, until stopped.
+
+The display is requested with this action's own failure policy: when it fails (its RViz host
+crashed), it is requested once more (a new host starts); if that fails too, the action ends
+FAILED with the reason, so a graph never says it shows something that is not on screen.
+"""
 import time
 
 import rospy
@@ -13,6 +18,8 @@ DISPLAY_TYPES = {
     'visualization_msgs/Marker': 'marker',
     'visualization_msgs/MarkerArray': 'marker array',
     'geometry_msgs/PoseStamped': 'pose',
+    'geometry_msgs/PoseArray': 'pose array',
+    'geometry_msgs/PointStamped': 'point stamped',
     'nav_msgs/Path': 'path',
     'nav_msgs/Odometry': 'odometry',
 }
@@ -34,9 +41,28 @@ class Show(ActionBase):
                                   % topic)
 
     def on_start(self):
-        topic = self.input('topic')
-        display = self.input('display_type') or self.display_type_of(topic)
-        self.display_id = self.output_manager.show_in_rviz(display, topic)
-        self.set_output('topic', topic)
-        self.event('showing', topic=topic, display_type=display)
-        self.feedback('showing %s as %s' % (topic, display))
+        self.topic = self.input('topic')
+        self.display = self.input('display_type') or self.display_type_of(self.topic)
+        self.display_id = self.output_manager.show_in_rviz(self.display, self.topic, on_status=self.post)
+        self.set_output('topic', self.topic)
+        self.event('showing', topic=self.topic, display_type=self.display)
+        self.feedback('showing %s as %s' % (self.topic, self.display))
+
+    def execute(self):
+        while self.action_ok():
+            ev = self.next_item(3600.0)
+            if ev is None or not self.action_ok() or ev.resource_id != self.display_id or not ev.failed:
+                continue
+            self.event('display_failed', topic=self.topic, display_type=self.display, message=ev.message)
+            try:
+                self.output_manager.hide(self.display_id)
+            except Exception as e:
+                self.log_warn('releasing the failed display: %s' % e)
+            try:
+                self.display_id = self.output_manager.show_in_rviz(self.display, self.topic, on_status=self.post)
+            except Exception as e:
+                self.fail('the display of %s failed (%s) and could not be shown again: %s'
+                          % (self.topic, ev.message, e))
+                return
+            self.event('display_restored', topic=self.topic, display_type=self.display)
+            self.feedback('the display of %s failed (%s); showing it again' % (self.topic, ev.message))

@@ -4,11 +4,16 @@ The original ``ShowEnv`` task stepped through depth camera -> Hokuyo -> Sick in 
 status callback and never released the failed sensors. This port:
 - takes the priority list from the engine parameter ``~actions/show_environment/sensor_priority``
   (default: the VaultBot's, from the paper's section 4);
-- on a FAILED status of the active sensor (or its display) requests the next entry and shows it
-  through the Output Manager first, and only then releases the failed sensor and its display, on a
+- states its own failure policy with each request (``on_status=``): a FAILED of the sensor or of
+  its display comes to this action's run loop, never to an interface's default reload;
+- on a FAILED of the active sensor, hides its display at once (a frozen last frame must not look
+  live), requests the next entry and shows it, and only then releases the failed sensor, on a
   background thread: unloading a stalled driver can take seconds (SIGINT, then SIGTERM), and the
   operator's view must not wait for it. Each failed pair is released exactly once, and on_stop
   waits for the releases still running, so a stopped action holds nothing;
+- on a FAILED of the display alone (the RViz host crashed), shows the same sensor again (the
+  Output Manager starts a new host); only if that fails does it fail over to the next entry;
+- tries the entries with ``temoto_core.fallback.first_that_works``, the same loop the managers use;
 - asks for the display on the topic the sensor will most likely get (the Sensor Manager's
   catalogue ranking) while the sensor starts, instead of after: RViz then subscribes while the
   driver starts, and draws its first message at once. A wrong guess is hidden and the right
@@ -25,8 +30,8 @@ import time
 from dataclasses import dataclass
 
 from temoto_action_engine.action_base import ActionBase, ActionError
-
-FAILED = 1      # temoto_core/ResourceStatus.FAILED (wire contract)
+from temoto_core.errors import Subsystem
+from temoto_core.fallback import NoCandidateLeft, first_that_works
 RELEASE_JOIN_S = 30.0   # on_stop waits this long for each background release (an unload is bounded itself)
 GUESS_JOIN_S = 30.0     # how long the right guess may still take once the sensor is up
 CATALOGUE_TIMEOUT_S = 0.5
@@ -90,8 +95,7 @@ class SpeculativeDisplay:
                     self.topic = topic
                     settled = self._settled
                 if not settled:
-                    did = self.action.omi.show_in_rviz(self.choice.display_type, topic, name=self.choice.label,
-                                                       config=self.choice.display_config)
+                    did = self.action.show(self.choice, topic)
         except Exception as e:          # only a guess: the display is requested after the sensor then
             self.action.log_info('no early display for %s: %s' % (self.choice.label, e))
         with self._lock:
@@ -167,8 +171,6 @@ class ShowEnvironment(ActionBase):
         self.releases: list[threading.Thread] = []   # background releases of failed sensors
         self.smi = self.sensor_manager
         self.omi = self.output_manager
-        # Replaces the interface's default policy (reload the same request), as ShowEnv did.
-        self.smi.register_update_callback(self.post)
         self.activate_from(0)     # sets the output 'topic' when a sensor is up (children start after this)
 
     def execute(self):
@@ -197,65 +199,98 @@ class ShowEnvironment(ActionBase):
 
     # ------------------------------------------------------------------ steps
     def handle_status(self, ev) -> None:
-        rid = getattr(ev, 'resource_id', None)
-        code = getattr(ev, 'code', getattr(ev, 'status_code', None))
-        message = getattr(ev, 'message', '')
+        rid = ev.resource_id
         a = self.active
         if a is None or rid not in (a.resource_id, a.display_id):
-            self.log_info('status %s for resource %s, which is not in use any more; ignored' % (code, rid))
+            self.log_info('status %s for resource %s, which is not in use any more; ignored' % (ev.code.name, rid))
             return
-        if code != FAILED:
-            self.log_info('status %s for %s: %s' % (code, a.sensor_name, message))
+        if not ev.failed:
+            self.log_info('status %s for %s: %s' % (ev.code.name, a.sensor_name, ev.message))
             return
+        display_only = rid == a.display_id and rid != a.resource_id
         self.event('sensor_failed', sensor_name=a.sensor_name, sensor_type=a.choice.sensor_type,
-                   label=a.choice.label, priority_index=a.index, message=message,
-                   failed_part='display' if rid == a.display_id and rid != a.resource_id else 'sensor')
-        # The substitute first: the failed pair is released once the new display is up (or none is).
+                   label=a.choice.label, priority_index=a.index, message=ev.message,
+                   failed_part='display' if display_only else 'sensor')
+        if display_only and self.reshow(a, ev.message):
+            return
+        # The failed view goes off screen at once; the substitute comes next; the failed sensor is
+        # released once the substitute is up (or none is).
         self.active = None
+        self.hide_in_background(a)
         self.activate_from(a.index + 1)
         self.release_in_background(a)
 
+    def reshow(self, a: Active, why: str) -> bool:
+        """The display of a healthy sensor failed: show the same topic again (a new RViz host)."""
+        failed_display, a.display_id = a.display_id, None
+        self.release_display_in_background(failed_display, a.choice.label)
+        try:
+            a.display_id = self.show(a.choice, a.topic)
+        except Exception as e:
+            self.event('display_failed', sensor_name=a.sensor_name, label=a.choice.label,
+                       priority_index=a.index, message=str(e))
+            return False
+        self.event('display_restored', sensor_name=a.sensor_name, label=a.choice.label, priority_index=a.index,
+                   topic=a.topic, message=why)
+        self.feedback('the display of the %s failed (%s); showing it again' % (a.choice.label, why))
+        return True
+
+    def show(self, choice: SensorChoice, topic: str):
+        """A display of ``topic`` whose failures come to this action's run loop."""
+        return self.omi.show_in_rviz(choice.display_type, topic, name=choice.label, config=choice.display_config,
+                                     on_status=self.post)
+
     def activate_from(self, start: int) -> None:
         """Bring up the first entry from ``start`` on that works; on none, schedule a retry."""
-        for i in range(start, len(self.priority)):
-            if not self.action_ok():
-                return
-            choice = self.priority[i]
-            guess = SpeculativeDisplay(self, choice) if self.speculative else None
-            try:
-                result = self.smi.start_sensor(choice.sensor_type,
-                                               output_topics={k: '' for k in choice.output_topics})
-            except Exception as e:
-                if guess is not None:
-                    guess.discard()
-                self.event('sensor_unavailable', sensor_type=choice.sensor_type, label=choice.label,
-                           priority_index=i, message=str(e))
-                continue
-            topic = dict(result.output_topics).get(choice.display_key, '')
-            display_id = guess.take(topic) if guess is not None else None
-            try:
-                if not topic:
-                    raise ActionError('the sensor gave no %r topic' % choice.display_key)
-                if display_id is None:
-                    display_id = self.omi.show_in_rviz(choice.display_type, topic, name=choice.label,
-                                                       config=choice.display_config)
-            except Exception as e:
-                self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
-                           priority_index=i, message=str(e))
-                self._stop_sensor(result.resource_id)
-                continue
-            self.active = Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
-            self.set_output('topic', topic)       # the topic shown now (list_graphs reports it)
-            recovered = self.retry_at is not None
-            self.retry_at = None
-            self.backoff = self.retry_initial
-            self.event('sensor_active', sensor_name=result.sensor_name, sensor_type=choice.sensor_type,
-                       label=choice.label, priority_index=i, topic=topic, display_type=choice.display_type)
-            self.feedback('%sshowing the %s (%s) as %s on %s' % ('a sensor is back: ' if recovered else '',
-                                                                 choice.label, result.sensor_name,
-                                                                 choice.display_type, topic))
+        try:
+            _, self.active = first_that_works(
+                range(start, len(self.priority)), self._activate, what='the operator\'s view',
+                subsystem=Subsystem.ACTION_ENGINE, name=lambda i: self.priority[i].label,
+                keep_going=self.action_ok, errors=(Exception,))
+        except NoCandidateLeft:
+            if self.action_ok():
+                self._schedule_retry()
             return
-        # Every entry failed: say so, keep watching with a bounded backoff.
+        a = self.active
+        self.set_output('topic', a.topic)       # the topic shown now (list_graphs reports it)
+        recovered = self.retry_at is not None
+        self.retry_at = None
+        self.backoff = self.retry_initial
+        self.event('sensor_active', sensor_name=a.sensor_name, sensor_type=a.choice.sensor_type,
+                   label=a.choice.label, priority_index=a.index, topic=a.topic, display_type=a.choice.display_type)
+        self.feedback('%sshowing the %s (%s) as %s on %s' % ('a sensor is back: ' if recovered else '',
+                                                             a.choice.label, a.sensor_name,
+                                                             a.choice.display_type, a.topic))
+
+    def _activate(self, i: int) -> Active:
+        """Entry ``i``: its sensor, then its display; raises (after rolling back) when either fails."""
+        choice = self.priority[i]
+        guess = SpeculativeDisplay(self, choice) if self.speculative else None
+        try:
+            result = self.smi.start_sensor(choice.sensor_type, output_topics={k: '' for k in choice.output_topics},
+                                           on_status=self.post)
+        except Exception as e:
+            if guess is not None:
+                guess.discard()
+            self.event('sensor_unavailable', sensor_type=choice.sensor_type, label=choice.label,
+                       priority_index=i, message=str(e))
+            raise
+        topic = dict(result.output_topics).get(choice.display_key, '')
+        display_id = guess.take(topic) if guess is not None else None
+        try:
+            if not topic:
+                raise ActionError('the sensor gave no %r topic' % choice.display_key)
+            if display_id is None:
+                display_id = self.show(choice, topic)
+        except Exception as e:
+            self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
+                       priority_index=i, message=str(e))
+            self._stop_sensor(result.resource_id)
+            raise
+        return Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
+
+    def _schedule_retry(self) -> None:
+        """Every entry failed: say so, keep watching with a bounded backoff."""
         delay = self.backoff
         self.retry_at = time.monotonic() + delay
         self.backoff = min(self.backoff * 2.0, self.retry_max)
@@ -268,16 +303,28 @@ class ShowEnvironment(ActionBase):
         a, self.active = self.active, None
         self._release(a)
 
-    def release_in_background(self, a: Active) -> None:
-        """Release a failed sensor and its display without holding up the run loop."""
+    def _in_background(self, target, name: str, *args) -> None:
         self.releases = [t for t in self.releases if t.is_alive()]
-        thread = threading.Thread(target=self._release, args=(a,), daemon=True,
-                                  name='release of %s (%s)' % (a.sensor_name, a.choice.label))
+        thread = threading.Thread(target=target, args=args, daemon=True, name=name)
         self.releases.append(thread)
         thread.start()
 
+    def hide_in_background(self, a: Active) -> None:
+        """Take a failed sensor's view off the screen now, without holding up the failover."""
+        display_id, a.display_id = a.display_id, None
+        self.release_display_in_background(display_id, a.choice.label)
+
+    def release_display_in_background(self, display_id, label: str) -> None:
+        if display_id is not None:
+            self._in_background(self.hide_display, 'hide the display of %s' % label, display_id, label)
+
+    def release_in_background(self, a: Active) -> None:
+        """Release a failed sensor (and its display, unless hidden already) without holding up the run loop."""
+        self._in_background(self._release, 'release of %s (%s)' % (a.sensor_name, a.choice.label), a)
+
     def _release(self, a: Active) -> None:
-        self.hide_display(a.display_id, '%s (%s)' % (a.choice.label, a.sensor_name))
+        if a.display_id is not None:
+            self.hide_display(a.display_id, '%s (%s)' % (a.choice.label, a.sensor_name))
         self._stop_sensor(a.resource_id)
 
     def hide_display(self, display_id, what: str) -> None:
