@@ -30,7 +30,7 @@ def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
 
 def _parser(prog: str, help_text: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=help_text)
-    p.add_argument('--ns', default=DEFAULT_NS, help='TeMoto namespace (default: %(default)s)')
+    p.add_argument('--ns', '--namespace', dest='ns', default=DEFAULT_NS, help='TeMoto namespace (default: %(default)s)')
     return p
 
 

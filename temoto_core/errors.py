@@ -104,9 +104,14 @@ class TemotoError(Exception):
         return self.stack[0]
 
     def __str__(self) -> str:
+        """What failed here, then where it started, once; then the hops in between, newest first."""
         if len(self.stack) <= 1:
             return self.message
-        return '%s (caused by: %s)' % (self.message, ' <- '.join(f.message for f in reversed(self.stack[:-1])))
+        text = '%s: %s' % (self.message, self.stack[0].message)
+        middle = [f.message for f in reversed(self.stack[1:-1]) if f.message != self.message]
+        if middle:
+            text += ' (through: %s)' % ' <- '.join(middle)
+        return text
 
     def __repr__(self) -> str:
         return 'TemotoError(%s, %s, %r, %d frames)' % (_name(ErrorCode, self.code), _name(Subsystem, self.subsystem),

@@ -56,7 +56,7 @@ def format_table(snap: RegistrySnapshot) -> str:
 def main(argv: List[str]) -> int:
     parser = argparse.ArgumentParser(prog='temoto registry', description=__doc__)
     parser.add_argument('rr', nargs='?', help='registrar name (default: every registrar in the namespace)')
-    parser.add_argument('--namespace', default='temoto')
+    parser.add_argument('--namespace', '--ns', dest='namespace', default='temoto')
     parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
     args = parser.parse_args(argv)
     import rosgraph

@@ -246,6 +246,10 @@ class ERManager:
     # -- failures ----------------------------------------------------------------------------------
 
     def _on_exit(self, proc: ManagedProcess, info: ExitInfo) -> None:
+        if proc.spec.node_names:
+            # a node that died without unregistering would stay in `rosnode list` with its topics
+            threading.Thread(target=self._cleanup_master, args=(list(proc.spec.node_names),),
+                             name='er-master-cleanup', daemon=True).start()
         resource: Optional[Resource] = getattr(proc, 'resource', None)
         if resource is None or self._closing:
             return
@@ -266,6 +270,17 @@ class ERManager:
             rospy.logwarn('%s: could not report the exit of pid %d: %s', NAME, proc.pid, e)
         if others:                            # after the report: stopping takes up to the grace periods
             threading.Thread(target=self._stop_all, args=(others,), name='er-stop-rest', daemon=True).start()
+
+    def _cleanup_master(self, node_names: list) -> None:
+        for name in node_names:
+            try:
+                gone = master.cleanup_dead_node(self.master_uri, name)
+            except Exception as e:          # the master being away must not take the manager down
+                rospy.logwarn('%s: cleaning up %s at the master: %s', NAME, name, e)
+                continue
+            if gone:
+                rospy.loginfo('%s: %s died without unregistering; removed its %d registration(s) from the master',
+                              NAME, name, gone)
 
     # -- introspection and shutdown ------------------------------------------------------------------
 

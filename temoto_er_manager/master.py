@@ -89,3 +89,32 @@ def registered_nodes(master_uri: str, timeout: float = 1.0) -> set[str]:
             for _topic, nodes in section:
                 names.update(nodes)
     return names
+
+
+def cleanup_dead_node(master_uri: str, node_name: str, timeout: float = 1.0) -> int:
+    """Unregister what a dead node left at the master, as ``rosnode cleanup`` does for one node.
+
+    A node that is SIGKILLed (or crashes) never unregisters, so it stays in ``rosnode list`` and its
+    topics look served. Nothing is touched unless the name is registered *and* nobody answers at its
+    URI: a new incarnation under the same name is left alone. Returns how many registrations went.
+    """
+    uri = lookup_node(master_uri, node_name, timeout)
+    if uri is None or node_pid(uri, timeout) is not None:
+        return 0
+    master = _proxy(master_uri, timeout)
+    code, _msg, (publishers, subscribers, services) = master.getSystemState(CALLER_ID)
+    if code != 1:
+        return 0
+    calls = [('unregisterPublisher', topic, uri) for topic, nodes in publishers if node_name in nodes]
+    calls += [('unregisterSubscriber', topic, uri) for topic, nodes in subscribers if node_name in nodes]
+    for service, nodes in services:
+        if node_name in nodes:
+            scode, _smsg, service_uri = master.lookupService(CALLER_ID, service)
+            if scode == 1:
+                calls.append(('unregisterService', service, service_uri))
+    if calls:
+        multi = xmlrpc.client.MultiCall(master)
+        for method, name, api in calls:
+            getattr(multi, method)(node_name, name, api)
+        multi()
+    return len(calls)

@@ -1,7 +1,7 @@
 """Start, watch, stop and reap child processes. No ROS in here.
 
 Why it looks like this (each point fixes a flaw of the original, see
-shared/reference/temoto_original.md §2):
+the original):
 
 - **No shell.** A child is started from an argv list; nothing is ever parsed by
   ``/bin/sh``.

@@ -1,7 +1,7 @@
 """Which displays exist: the abstract TeMoto display types and the RViz classes.
 
 RViz itself accepts any class name and silently creates a placeholder display
-for an unknown one (rviz_notes.md §3), so every name is validated here first.
+for an unknown one, so every name is validated here first.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The Output Manager: displays in the operator's RViz as Resource Registrar resources.
 
-Architecture kept from the original (temoto_original.md §4.2): RViz is a
+Architecture kept from the original: RViz is a
 process started through the ER Manager, and every display resource holds a
 reference to it. Concretely, ``load_rviz_plugin``'s load callback
 

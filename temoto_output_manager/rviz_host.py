@@ -1,11 +1,11 @@
 """The RViz host: a real librviz VisualizationFrame embedded in this process.
 
 Every method of :class:`RvizHost` touches RViz and must run on the Qt main
-thread (rviz_notes.md §6.6); :class:`MainThreadCaller` carries calls there from
+thread; :class:`MainThreadCaller` carries calls there from
 rospy's service threads. The ROS side (services, event topic) is in
 host_node.py; this class only knows RViz and Qt.
 
-Settings that keep it light on 2 cores (rviz_notes.md §5): anti-aliasing off
+Settings that keep it light on 2 cores: anti-aliasing off
 (ctypes call before ``frame.initialize()``), Frame Rate capped. Image displays
 are never deleted (each delete leaks ~7 MB): removed ones are disabled and
 kept in a pool for the next Image display.

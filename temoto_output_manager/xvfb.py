@@ -1,7 +1,7 @@
 """A private Xvfb for a headless RViz host.
 
-RViz (Ogre over GLX) needs an X server; Qt's offscreen platform is not enough
-(reference/rviz_notes.md §2). When there is no DISPLAY the host starts its own
+RViz (Ogre over GLX) needs an X server; Qt's offscreen platform is not enough.
+When there is no DISPLAY the host starts its own
 Xvfb and owns its whole lifetime:
 
 - the display number is picked by Xvfb itself (``-displayfd``): it claims the

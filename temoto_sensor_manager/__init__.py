@@ -1,1 +1,1 @@
-"""TeMoto Sensor Manager: sensors as ranked, failing-over resources (DESIGN.md, issue 6)."""
+"""TeMoto Sensor Manager: sensors as ranked, failing-over resources."""

@@ -15,7 +15,7 @@ TIMEOUT = 3.0
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='temoto sensors', description='The Sensor Manager\'s catalogue.')
-    ap.add_argument('--ns', default='temoto', help='TeMoto namespace (default temoto)')
+    ap.add_argument('--ns', '--namespace', dest='ns', default='temoto', help='TeMoto namespace (default temoto)')
     sub = ap.add_subparsers(dest='cmd')
     sub.add_parser('list', help='the running manager\'s sensors (the default)')
     c = sub.add_parser('check', help='validate catalogue files without ROS')

@@ -6,7 +6,7 @@ import pytest
 
 from temoto_action_engine import cli
 from temoto_action_engine.testing import write_plugin
-from temoto_core.testing.wait import wait_for
+from temoto_core.wait import wait_for
 
 NS = 'aetest'
 HOLD = '''

@@ -11,7 +11,7 @@ from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.testing import FakeRegistrarFactory, write_plugin
 from temoto_action_engine.umrf import UmrfError
-from temoto_core.testing.wait import wait_for
+from temoto_core.wait import wait_for
 
 EMIT = '''
 from temoto_action_engine.action_base import ActionBase

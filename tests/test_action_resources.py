@@ -9,7 +9,7 @@ import threading
 import pytest
 
 from temoto_action_engine.testing import write_plugin
-from temoto_core.testing.wait import wait_for
+from temoto_core.wait import wait_for
 
 NS = 'aeres'
 ENGINE = 'ae_resources_engine'

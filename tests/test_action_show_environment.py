@@ -16,7 +16,7 @@ from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.testing import FakeRegistrarFactory
 from temoto_core.rr.status import Status, StatusEvent
-from temoto_core.testing.wait import wait_for
+from temoto_core.wait import wait_for
 
 VAULTBOT = [  # name, type, topics
     ('d435', 'depth camera', {'camera_data': '/d435/points', 'camera_info': '/d435/info'}),

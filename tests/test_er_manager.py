@@ -508,3 +508,17 @@ def test_two_different_requests_for_one_explicit_name_cannot_kill_each_other(con
     assert node_pid('/twin') == loaded[0].pid and not c.failed()
     c.rr.unload(loaded[0].trr.resource_id)
     wait_for(lambda: pid_gone(loaded[0].pid), 10, 'the twin to stop')
+
+
+def test_a_crashed_node_is_removed_from_the_master(consumers):
+    """`rosnode list` must not show a driver that died: its registrations are cleaned up (a SIGKILLed node
+    never unregisters itself)."""
+    c = consumers()
+    r = c.load('er_test_node', '__name:=crash_and_vanish')
+    assert '/crash_and_vanish' in er_master.registered_nodes(master_uri())
+    os.kill(r.pid, signal.SIGKILL)
+    wait_for(lambda: c.failed(), 10, 'FAILED at the consumer')
+    wait_for(lambda: '/crash_and_vanish' not in er_master.registered_nodes(master_uri()), 10,
+             'the dead node to leave the master')
+    assert er_master.lookup_node(master_uri(), '/crash_and_vanish') is None
+    c.rr.unload(r.trr.resource_id)

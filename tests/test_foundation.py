@@ -7,7 +7,7 @@ import textwrap
 import uuid
 
 from temoto_core.testing import leftover_processes, wait_for
-from temoto_core.testing.master import connected
+from temoto_core.master import connected
 from temoto_core.testing.pytest_plugin import FORCED_TOKEN_ENV
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -70,7 +70,7 @@ def test_a_node_publishing_flat_out_from_its_main_thread_always_exits_cleanly(pr
 
 def test_a_spinning_node_stops_on_sigterm_and_runs_its_shutdown_hooks(procs, ros_master):
     """rr_node spins in temoto_core.node.spin(); SIGTERM must end it through rospy's shutdown."""
-    from temoto_core.testing.master import master_proxy
+    from temoto_core.master import master_proxy
     node = procs.node('temoto_test_nodes', 'rr_node', name='spinner')
     master = master_proxy(ros_master.uri)
     assert '/spinner' in _node_names(master)
@@ -94,7 +94,7 @@ def _node_names(master):
 def test_a_spinning_node_also_ends_when_rospy_is_shut_down_from_outside(procs, ros_master):
     """`rosnode kill` calls the node's slave API: spin() must return then too, with no signal at all."""
     import xmlrpc.client
-    from temoto_core.testing.master import master_proxy
+    from temoto_core.master import master_proxy
     node = procs.node('temoto_test_nodes', 'rr_node', name='killed_remotely')
     code, _, uri = master_proxy(ros_master.uri).lookupNode('/test', '/killed_remotely')
     assert code == 1

@@ -61,6 +61,18 @@ def test_failed_load_rolls_back_sub_resources(chain):
         assert registry_empty(node)
 
 
+def test_a_failure_is_said_once_then_its_chain(chain):
+    """The error text names where the failure started exactly once (each hop used to repeat the whole
+    text of the hop below it), then the hops it took, newest first."""
+    a, b, c = chain
+    res = a.call('rr_b', 'cam', [('nested', 'rr_c/load_test/driver'), ('fail', 'raise')])
+    text = res['error']
+    assert text.count('refused cam on purpose') == 1, text
+    assert text.startswith('/temoto/rr_b/load_test refused the request: refused cam on purpose'), text
+    assert 'loading load_test failed' in text
+    assert len(res['stack']) >= 3
+
+
 def test_failed_status_during_a_load_fails_that_load(chain):
     a, b, c = chain
     res = a.call('rr_b', 'cam', [('nested', 'rr_c/load_test/driver'), ('fail_during_load', '1')])

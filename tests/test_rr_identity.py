@@ -1,4 +1,4 @@
-"""Consumer identity and status delivery at the edges (DESIGN.md, RR semantics 6, 7 and 9).
+"""Consumer identity and status delivery at the edges (docs/architecture.md: identity, status channels).
 
 A consumer is a node *incarnation* (its name and its XML-RPC URI), never only a
 name; a status raised at any moment after a load is answered reaches the

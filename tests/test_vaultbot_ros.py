@@ -323,7 +323,7 @@ def test_unplug_stall_keeps_driver_alive_and_silent(procs, rospy_client, collect
 def test_a_driver_advertises_before_it_finds_its_device_and_fails_clearly_without_one(procs, ros_master):
     """Topics are advertised first, so that subscribers connect while the driver starts (RViz's roscpp
     is slow to connect); with no simulation to find, the driver then fails like a real one: exit 1."""
-    from temoto_core.testing.master import master_proxy
+    from temoto_core.master import master_proxy
     proc = procs.node('vaultbot_sim', 'sick_driver', params={'startup_timeout': 3.0})
     master = master_proxy(ros_master.uri)
 

@@ -1,7 +1,7 @@
 """Building the ROS messages the sim and drivers publish, from numpy arrays.
 
-Clouds are numpy structured arrays serialised with tobytes() (stack_notes §10:
-1.7 ms for 77k points, against 11+ ms for point_cloud2.create_cloud).
+Clouds are numpy structured arrays serialised with tobytes(): 1.7 ms for 77k points,
+against 11+ ms for point_cloud2.create_cloud.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Facts about the VaultBot's devices and its hold pose, in one place.
 
-Sensor figures are the datasheet ones (shared/reference/vaultbot.md). The hold
+Sensor figures are the devices' datasheet ones. The hold
 pose was found with kinematics.solve_tool_pose: the D435 sits at about
 (0.62, 0.32, 1.12) m in base_link looking ahead, pitched 8 degrees down, and the
 Hokuyo at (0.62, -0.32, 1.05) m with its scan plane's x axis (= wrist_3 axis)

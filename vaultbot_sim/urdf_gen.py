@@ -18,7 +18,7 @@ from typing import Iterable
 
 PI = math.pi
 
-# --- datasheet figures (shared/reference/vaultbot.md) -------------------------
+# --- datasheet figures (the devices' public datasheets) -------------------------
 HUSKY_LENGTH, HUSKY_WIDTH, HUSKY_HEIGHT = 0.990, 0.670, 0.390
 WHEEL_RADIUS, WHEEL_WIDTH = 0.165, 0.099
 WHEELBASE, TRACK = 0.512, 0.571

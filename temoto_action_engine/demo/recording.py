@@ -13,8 +13,8 @@ import sys
 import xmlrpc.client
 from typing import Dict, List, Optional
 
-from temoto_core.testing.processes import ManagedProcess, stop_process_group
-from temoto_core.testing.wait import wait_for
+from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.wait import wait_for
 
 from . import topics as T
 

@@ -157,7 +157,7 @@ class Demo:
         return [default[PRIORITY_ENTRIES[name][0]] for name in self.opts.priority]
 
     def start(self) -> None:
-        from temoto_core.testing.master import RosMaster
+        from temoto_core.master import RosMaster
         from .recording import Recording
         from .stack import Stack, load_launch
         os.makedirs(self.opts.out_dir, exist_ok=True)
@@ -195,7 +195,7 @@ class Demo:
 
     def _wait_services(self, env: Dict[str, str]) -> None:
         import rosgraph
-        from temoto_core.testing.wait import wait_for
+        from temoto_core.wait import wait_for
         master = rosgraph.Master('/temoto_demo')
         wanted = T.manager_services(self.opts.namespace)
 
@@ -210,8 +210,8 @@ class Demo:
 
     def _wait_connected(self, env: Dict[str, str]) -> None:
         """The engine and the recorder hear the chatter; the recorder hears the screenshots and stages."""
-        from temoto_core.testing.master import connected
-        from temoto_core.testing.wait import wait_for
+        from temoto_core.master import connected
+        from temoto_core.wait import wait_for
         from .recording import RECORDER_NODE
         uri = env['ROS_MASTER_URI']
         pairs = [('/temoto_action_engine', T.chatter(self.opts.namespace)), (RECORDER_NODE, T.chatter(self.opts.namespace)),
@@ -357,7 +357,7 @@ class Demo:
 
     # ------------------------------------------------------------------ teardown
     def stop(self) -> List[tuple]:
-        from temoto_core.testing.processes import kill_leftovers, leftover_processes
+        from temoto_core.processes import kill_leftovers, leftover_processes
         if self.recording is not None:
             try:
                 self.recording.stop()

@@ -16,8 +16,8 @@ import xmlrpc.client
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
-from temoto_core.testing.processes import ManagedProcess, stop_process_group
-from temoto_core.testing.wait import wait_for
+from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.wait import wait_for
 
 # Seconds of SIGINT grace per node: the engine stops its graphs (stop_timeout_s 15 s at worst) and
 # the managers unload what they hold; everything else exits at once.

@@ -50,5 +50,5 @@ def message_key(msg: genpy.Message, skip: str = '') -> Hashable:
 
 
 def request_key(request: genpy.Message) -> Hashable:
-    """The default equality of resource requests (DESIGN.md, RR semantics 1)."""
+    """The default equality of resource requests (docs/architecture.md)."""
     return message_key(request, skip=HEADER_FIELD)

@@ -529,10 +529,10 @@ class ResourceRegistrar:
         try:
             response = self._invoke(service, query, request, timeout)
             if response.trr.code != 0:
+                # the remote stack says what failed, once; this hop only adds where it was asked
                 error = TemotoError.from_msgs(response.trr.error_stack, response.trr.message,
                                               ErrorCode.RESOURCE_FAILED, self.subsystem)
-                error = error.extended(error.code, self.subsystem, '%s refused the request: %s'
-                                       % (service, response.trr.message), self.prefix)
+                error = error.extended(error.code, self.subsystem, '%s refused the request' % service, self.prefix)
         except TemotoError as err:
             error = err
         with self._lock:
@@ -642,8 +642,8 @@ class ResourceRegistrar:
                                self.prefix)
         if response.code != 0:
             raise TemotoError.from_msgs(response.error_stack, response.message).extended(
-                ErrorCode.RESOURCE_UNLOAD_FAIL, self.subsystem, 'unloading %s resource %d failed: %s'
-                % (_target_name(query.target), query.external_id, response.message), self.prefix)
+                ErrorCode.RESOURCE_UNLOAD_FAIL, self.subsystem, 'unloading %s resource %d failed'
+                % (_target_name(query.target), query.external_id), self.prefix)
 
     def _release_quietly(self, local_id: int, why: str) -> None:
         try:

@@ -7,11 +7,10 @@ Everything started here carries the environment variable
 *they* start (an ER Manager's children, RViz's Xvfb), which is what lets
 :func:`leftover_processes` find a leak at any depth by scanning ``/proc``.
 """
-from temoto_core.testing.master import RosMaster, free_port, master_proxy
-from temoto_core.testing.processes import (ManagedProcess, ProcessGroupLauncher, leftover_processes,
-                                           SESSION_ENV)
+from temoto_core.master import RosMaster, free_port, master_proxy
+from temoto_core.processes import ManagedProcess, ProcessGroupLauncher, leftover_processes, SESSION_ENV
 from temoto_core.testing.bag import BagRecorder
-from temoto_core.testing.wait import wait_for
+from temoto_core.wait import wait_for
 from temoto_core.testing.interfaces import made_interfaces
 from temoto_core.testing.status import FirstFailure
 

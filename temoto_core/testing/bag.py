@@ -4,8 +4,8 @@ import subprocess
 import xmlrpc.client
 from typing import Dict, Optional, Sequence
 
-from temoto_core.testing.processes import ManagedProcess, stop_process_group
-from temoto_core.testing.wait import wait_for
+from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.wait import wait_for
 
 # The C++ recorder exits 0 on SIGINT; the Python `rosbag record` wrapper leaves
 # a correctly closed bag too but exits 1 with a traceback.

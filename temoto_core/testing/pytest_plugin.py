@@ -15,8 +15,8 @@ import uuid
 import pytest
 
 from temoto_core.testing.bag import BagRecorder
-from temoto_core.testing.master import RosMaster
-from temoto_core.testing.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
+from temoto_core.master import RosMaster
+from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
 
 # A test that runs an inner pytest session passes this so it knows the inner token.
 FORCED_TOKEN_ENV = 'TEMOTO_TEST_SESSION_FORCE'

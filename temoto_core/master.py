@@ -1,4 +1,4 @@
-"""A private roscore on a free loopback port."""
+"""A private roscore on a free loopback port (the demo's and the tests'), and master queries."""
 import os
 import socket
 import subprocess
@@ -7,7 +7,7 @@ import time
 import xmlrpc.client
 from typing import Dict, Optional
 
-from temoto_core.testing.processes import SESSION_ENV, stop_process_group
+from temoto_core.processes import SESSION_ENV, stop_process_group
 
 ROSCORE_START_TIMEOUT = 10.0
 

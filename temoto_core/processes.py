@@ -1,5 +1,6 @@
-"""Subprocesses for tests: nodes and launch files, registered before a test
-goes on, and always stopped by process group."""
+"""Child processes of the tools (``temoto demo``, ``temoto record``) and of the tests: commands,
+nodes and launch files, waited on until registered, always stopped by process group, and a
+census of what outlived them (by the session token every child inherits)."""
 import os
 import signal
 import subprocess
