@@ -21,6 +21,7 @@ COMMANDS = {
     'demo': ('temoto_action_engine.demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration'),
     'record': ('temoto_action_engine.demo.cli:record_main', 'record the failover topic set to a bag'),
     'report': ('temoto_action_engine.demo.cli:report_main', 'make the report of a recorded run from its bag'),
+    'replay': ('temoto_action_engine.demo.replay:replay_main', 'show the views of a recorded run again in RViz'),
 }
 
 

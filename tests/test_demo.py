@@ -78,3 +78,77 @@ def test_report_files_exist_and_screenshots_show_data(demo_run):
         # a scan is a few thin lines: a real but small share of the 960x600 view
         assert diff_fraction(shots[name], shots['empty_view']) > 0.0005, name
     assert diff_fraction(shots['arm_cloud'], shots['rgbd']) > 0.005
+
+
+BAG_BUDGET_BYTES = 30 * 1024 * 1024
+
+
+def bag_topics(bag):
+    from pathlib import Path
+    from rosbags.highlevel import AnyReader
+    with AnyReader([Path(str(bag))]) as reader:
+        counts = {}
+        for c in reader.connections:
+            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+    return counts
+
+
+def test_the_bag_holds_every_displayed_stream_with_tf_and_the_robot_within_its_budget(demo_run):
+    _, out, _ = demo_run
+    from temoto_action_engine.demo import topics as T
+    bag = out / 'failover.bag'
+    counts = bag_topics(bag)
+    for stream in ('/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan'):
+        assert counts.get(T.STREAMS_PREFIX + stream, 0) > 0, 'no %s in the bag: %s' % (stream, sorted(counts))
+    assert counts.get('/tf', 0) > 0 and counts.get('/tf_static', 0) >= 1
+    assert counts.get(T.ROBOT_DESCRIPTION) == 1
+    assert bag.stat().st_size <= BAG_BUDGET_BYTES, '%.1f MB' % (bag.stat().st_size / 1e6)
+
+
+def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros_master):
+    """The instruction, the cables and the registrars' statuses are in the bag under inert names: a plain
+    `rosbag play` publishes none of the topics a live stack listens to (it used to start a graph and
+    unplug a live driver)."""
+    import rospy
+    from std_msgs.msg import Header, String
+    from vaultbot_sim.msg import DeviceStates
+    from temoto_core.msg import ResourceStatus
+    from temoto_core.testing import wait_for
+    from temoto_action_engine.demo import topics as T
+    _, out, _ = demo_run
+    bag = out / 'failover.bag'
+    counts = bag_topics(bag)
+    assert not [t for t in counts if T.acts_on_a_live_system(t)], sorted(counts)
+    assert counts.get(T.inert_name('/temoto/human_chatter')) == 1
+    heard = []
+    subs = [rospy.Subscriber('/temoto/human_chatter', String, heard.append),
+            rospy.Subscriber('/vaultbot_sim/device_states', DeviceStates, heard.append),
+            rospy.Subscriber('/temoto/temoto_sensor_manager/status', ResourceStatus, heard.append)]
+    ticks = []
+    subs.append(rospy.Subscriber(T.TICKS, Header, ticks.append))
+    try:
+        # -d: the player's own pause after advertising, so that subscribers are connected when it plays
+        play = subprocess.run(['rosbag', 'play', '-q', '-r', '4', '-d', '1', str(bag)], env=ros_master.env,
+                              capture_output=True, text=True, timeout=120)
+        assert play.returncode == 0, play.stderr[-2000:]
+        wait_for(lambda: ticks, 10, 'the played ticks')
+    finally:
+        for sub in subs:
+            sub.unregister()
+    assert heard == []
+
+
+def test_temoto_replay_shows_the_three_views_again_on_a_master_of_its_own(demo_run, tmp_path):
+    _, out, _ = demo_run
+    from temoto_action_engine.demo.report import diff_fraction
+    master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'DISPLAY')
+    env = {k: v for k, v in os.environ.items() if k not in master_vars}   # it needs no master: it makes one
+    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'replay', str(out / 'failover.bag'),
+                           '--out', str(tmp_path)], env=env, capture_output=True, text=True, timeout=DEMO_TIMEOUT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    shots = sorted(tmp_path.glob('replay_*.png'))
+    assert [p.name for p in shots] == ['replay_1_d435_depth_registered_points.png',
+                                       'replay_2_laser_stitcher_cloud.png', 'replay_3_sick_scan.png']
+    views = [p.read_bytes() for p in shots]
+    # each view differs from the next: the failed view went, the substitute came
+    assert diff_fraction(views[0], views[1]) > 0.005 and diff_fraction(views[1], views[2]) > 0.0005

@@ -3,8 +3,10 @@
 Modules, one idea each:
 - ``topics``    the names the demo uses and records (one place, so record, run and report agree);
 - ``relay``     a small node that reports every frame of the displayed sensor streams (a tick) and
-                republishes them throttled, so the bag stays small but the timing stays exact;
+                republishes them for the bag (scans and small clouds whole, the camera cloud decimated);
 - ``recording`` the C++ bag recorder plus the relay, for ``temoto demo`` and ``temoto record``;
+- ``bagfile``   renames a closed bag's inputs (instruction, cables, statuses) so a plain play is inert;
+- ``replay``    ``temoto replay``: the recorded views shown again in RViz, on a master of its own;
 - ``stack``     roscore and the nodes of ``launch/demo.launch``, one process group each,
                 stopped in reverse order;
 - ``scenario``  the stages: say, wait for a first frame, screenshot, unplug, ...;

@@ -17,6 +17,7 @@ from temoto_core.processes import ManagedProcess, stop_process_group
 from temoto_core.wait import wait_for
 
 from . import topics as T
+from .bagfile import make_inert
 
 RECORDER = '/usr/lib/rosbag/record'
 RECORDER_NODE = '/temoto_demo_record'
@@ -56,7 +57,9 @@ class Recording:
                                      '__name:=' + RELAY_NODE.lstrip('/'), '_temoto_namespace:=' + self.namespace,
                                      '_streams:=' + ','.join(self.streams)],
                                     self.env, os.path.join(self.log_dir, 'relay.log'), 'relay')
-        wanted = set(T.fixed_topics(self.namespace))
+        # what the relay announces (the sim's /tf topics are recorded whenever they exist)
+        wanted = {t for t in T.fixed_topics(self.namespace) if t not in ('/tf', '/tf_static')}
+        wanted |= {T.STREAMS_PREFIX + t for t in T.STREAM_TYPES}
 
         def relay_ready():
             if not self.relay.alive():
@@ -78,7 +81,8 @@ class Recording:
         return self
 
     def stop(self) -> str:
-        """Stop the recorder first (it closes the bag), then the relay."""
+        """Stop the recorder first (it closes the bag), then the relay; then give the bag's inputs inert
+        names, so that playing it cannot act on a live stack."""
         rc = None
         if self.recorder is not None:
             rc = stop_process_group(self.recorder.proc, sigint_grace=10.0)
@@ -88,4 +92,5 @@ class Recording:
             self.relay = None
         if not os.path.exists(self.bag_path):
             raise RuntimeError('no bag was written at %s (recorder rc %s)' % (self.bag_path, rc))
+        make_inert(self.bag_path, self.namespace)
         return self.bag_path

@@ -1,16 +1,17 @@
-"""The stream relay: exact frame timing of the displayed sensor streams, at a few bytes per frame.
+"""The stream relay: exact frame timing of the displayed sensor streams, and the streams themselves.
 
-A bag of the raw streams would be hundreds of MB (the D435 cloud is ~1.6 MB at 30 Hz). The report
-needs two things from them: *when* each frame arrived (for the timeline and the display gap) and a
-sample of the data (for replay). So for every message on a displayed topic this node publishes a
-``std_msgs/Header`` tick (``frame_id`` = the source topic, ``stamp`` = arrival time), and it
-republishes the message itself under ``/temoto_demo/throttled/<topic>`` at a low rate.
-Messages are taken as ``rospy.AnyMsg`` and only the throttled ones are deserialised.
+For every message on a displayed topic this node publishes a ``std_msgs/Header`` tick
+(``frame_id`` = the source topic, ``stamp`` = arrival time), which the report's timeline and display
+gaps come from, and republishes the message under ``/temoto_demo/streams/<topic>`` for the bag:
+scans and small clouds (the stitched LIDAR cloud) at full rate, a large cloud (the D435's, 1.6 MB
+at 30 Hz) at 5 Hz with every second point in both directions, anything else at 5 Hz. Messages are
+taken as ``rospy.AnyMsg`` and only the recorded ones are deserialised. It also publishes, latched,
+the robot description the views were drawn with, so that ``temoto replay`` can draw the robot.
 
-It also *announces* the recorded topics that may not exist yet (the RViz host's display events
-appear only when the Output Manager starts it): a publisher that never publishes makes the topic
-known to the master, so a recorder subscribes at once instead of at its next 1 s master poll and
-misses no early event.
+It *announces* the recorded topics that may not exist yet (the RViz host's display events appear
+only when the Output Manager starts it; a stream only when its driver runs): a publisher that never
+publishes makes the topic known to the master, so a recorder subscribes at once instead of at its
+next 1 s master poll and misses nothing early.
 
 Run: ``python -m temoto_action_engine.demo.relay _temoto_namespace:=temoto``.
 """
@@ -20,30 +21,52 @@ import threading
 import time
 from typing import Dict, Iterable, Optional
 
+import numpy as np
+
 from . import topics as T
+
+NOT_ANNOUNCED = ('/tf', '/tf_static', T.TICKS, T.ROBOT_DESCRIPTION)   # published by others, or by us for real
+ROBOT_DESCRIPTION_WAIT_S = 60.0
+
+
+def decimate_cloud(cloud, step: int) -> None:
+    """Keep every ``step``-th point of a PointCloud2 in both directions (in place)."""
+    point_step = cloud.point_step
+    data = np.frombuffer(cloud.data, np.uint8)
+    if cloud.height > 1:
+        grid = data.reshape(cloud.height, cloud.row_step)[:, :cloud.width * point_step]
+        kept = grid.reshape(cloud.height, cloud.width, point_step)[::step, ::step]
+        cloud.height, cloud.width = kept.shape[0], kept.shape[1]
+    else:
+        kept = data[:cloud.width * point_step].reshape(cloud.width, point_step)[::step * step]
+        cloud.width = kept.shape[0]
+    cloud.row_step = cloud.width * point_step
+    cloud.data = kept.tobytes()
 
 
 class StreamRelay:
     def __init__(self, namespace: str = T.DEFAULT_NS, streams: Iterable[str] = T.DEFAULT_STREAMS,
                  follow_displays: bool = True, announce: bool = True) -> None:
         import rospy
+        from roslib.message import get_message_class
         from std_msgs.msg import Header
         self._rospy = rospy
         self._lock = threading.Lock()
         self._subs: Dict[str, object] = {}
-        self._throttled: Dict[str, object] = {}
+        self._recorded: Dict[str, object] = {}
         self._last_sample: Dict[str, float] = {}
         self._classes: Dict[str, object] = {}
         self._ticks = rospy.Publisher(T.TICKS, Header, queue_size=500, tcp_nodelay=True)
         self._announced = []
         if announce:
-            from roslib.message import get_message_class
             for topic, type_name in T.fixed_topics(namespace).items():
-                if topic == T.TICKS:
-                    continue
                 cls = get_message_class(type_name)
-                if cls is not None:
+                if cls is not None and topic not in NOT_ANNOUNCED:
                     self._announced.append(rospy.Publisher(topic, cls, queue_size=1))
+            for topic, type_name in T.STREAM_TYPES.items():
+                self._recorder_for(topic, get_message_class(type_name))
+        threading.Thread(target=self._publish_robot_description, daemon=True,
+                         name='relay-robot-description').start()
         for s in streams:
             self.watch(s)
         if follow_displays:
@@ -52,7 +75,7 @@ class StreamRelay:
                                             queue_size=100)
 
     def watch(self, topic: str) -> None:
-        """Tick and sample ``topic`` from now on (idempotent)."""
+        """Tick and record ``topic`` from now on (idempotent)."""
         topic = '/' + topic.strip('/')
         with self._lock:
             if topic in self._subs or topic.startswith(T.DEMO_NS + '/'):
@@ -64,6 +87,13 @@ class StreamRelay:
         if ev.topic:
             self.watch(ev.topic)
 
+    def _recorder_for(self, topic: str, cls):
+        with self._lock:
+            pub = self._recorded.get(topic)
+            if pub is None and cls is not None:
+                pub = self._recorded[topic] = self._rospy.Publisher(T.STREAMS_PREFIX + topic, cls, queue_size=50)
+            return pub
+
     def _on_message(self, msg, topic: str) -> None:
         now = time.time()
         from std_msgs.msg import Header
@@ -71,8 +101,14 @@ class StreamRelay:
         tick.stamp = self._rospy.Time.from_sec(now)
         self._ticks.publish(tick)
         type_name = (getattr(msg, '_connection_header', None) or {}).get('type', '')
-        period = 1.0 / T.THROTTLE_HZ.get(type_name, T.DEFAULT_THROTTLE_HZ)
-        if now - self._last_sample.get(topic, 0.0) < period:
+        big_cloud = type_name == 'sensor_msgs/PointCloud2' and len(msg._buff) > T.BIG_CLOUD_BYTES
+        if big_cloud:
+            rate = T.BIG_CLOUD_HZ
+        elif type_name in ('sensor_msgs/LaserScan', 'sensor_msgs/PointCloud2'):
+            rate = 0.0                                  # every message: a few kB each
+        else:
+            rate = T.OTHER_HZ
+        if rate and now - self._last_sample.get(topic, 0.0) < 1.0 / rate:
             return
         cls = self._message_class(type_name)
         if cls is None:
@@ -80,10 +116,20 @@ class StreamRelay:
         self._last_sample[topic] = now
         full = cls()
         full.deserialize(msg._buff)
-        pub = self._throttled.get(topic)
-        if pub is None:
-            pub = self._throttled[topic] = self._rospy.Publisher(T.THROTTLED_PREFIX + topic, cls, queue_size=2)
-        pub.publish(full)
+        if big_cloud:
+            decimate_cloud(full, T.DECIMATE)
+        self._recorder_for(topic, cls).publish(full)
+
+    def _publish_robot_description(self) -> None:
+        from std_msgs.msg import String
+        pub = self._rospy.Publisher(T.ROBOT_DESCRIPTION, String, queue_size=1, latch=True)
+        deadline = time.monotonic() + ROBOT_DESCRIPTION_WAIT_S
+        while not self._rospy.is_shutdown() and time.monotonic() < deadline:
+            urdf = self._rospy.get_param('/robot_description', '')
+            if urdf:
+                pub.publish(String(data=urdf))
+                return
+            time.sleep(0.5)        # the simulation sets it when it starts; polled, bounded
 
     def _message_class(self, type_name: str) -> Optional[object]:
         if type_name not in self._classes:

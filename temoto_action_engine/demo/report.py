@@ -70,7 +70,7 @@ class Run:
     display: List[DisplayEv] = field(default_factory=list)
     actions: List[dict] = field(default_factory=list)
     ticks: Dict[str, List[float]] = field(default_factory=dict)
-    throttled: Dict[str, int] = field(default_factory=dict)
+    streams: Dict[str, int] = field(default_factory=dict)      # recorded messages per displayed stream
     screenshots: List[Tuple[float, str, bytes]] = field(default_factory=list)
     stages: List[dict] = field(default_factory=list)
     topics: Dict[str, Tuple[str, int]] = field(default_factory=dict)
@@ -94,13 +94,13 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
     with AnyReader([Path(bag_path)]) as reader:
         run.start, run.end = reader.start_time * 1e-9, reader.end_time * 1e-9
         for c in reader.connections:
-            kind, n = run.topics.get(c.topic, (c.msgtype, 0))
-            run.topics[c.topic] = (kind, n + c.msgcount)
+            kind, n = run.topics.get(T.live_name(c.topic), (c.msgtype, 0))
+            run.topics[T.live_name(c.topic)] = (kind, n + c.msgcount)
         for conn, bag_ns, raw in reader.messages():
-            topic, bag_t = conn.topic, bag_ns * 1e-9
-            if topic.startswith(T.THROTTLED_PREFIX + '/'):
-                src = topic[len(T.THROTTLED_PREFIX):]
-                run.throttled[src] = run.throttled.get(src, 0) + 1
+            topic, bag_t = T.live_name(conn.topic), bag_ns * 1e-9
+            if topic.startswith(T.STREAMS_PREFIX + '/'):
+                src = topic[len(T.STREAMS_PREFIX):]
+                run.streams[src] = run.streams.get(src, 0) + 1
                 continue
             msg = reader.deserialize(raw, conn.msgtype)
             if topic == T.TICKS:

@@ -6,6 +6,7 @@ written with.
 """
 from __future__ import annotations
 
+import re
 from typing import Dict, List
 
 DEFAULT_NS = 'temoto'
@@ -16,16 +17,27 @@ SET_DEVICE_STATE = SIM_NS + '/set_device_state'
 # Published by the demo's own relay / orchestrator (not by any TeMoto subsystem).
 DEMO_NS = '/temoto_demo'
 TICKS = DEMO_NS + '/ticks'                  # std_msgs/Header per frame: frame_id = source topic, stamp = arrival
-THROTTLED_PREFIX = DEMO_NS + '/throttled'   # THROTTLED_PREFIX + source topic: the stream at a low rate
+STREAMS_PREFIX = DEMO_NS + '/streams'       # STREAMS_PREFIX + source topic: a displayed stream, as recorded
 SCREENSHOTS = DEMO_NS + '/screenshots'      # sensor_msgs/CompressedImage (png); frame_id = stage name
 STAGES = DEMO_NS + '/stages'                # std_msgs/String JSON: what the orchestrator did and when
+ROBOT_DESCRIPTION = DEMO_NS + '/robot_description'   # std_msgs/String, latched: the URDF the views were drawn with
+# Inputs that act on a live system (an instruction, a cable, a status into a registrar) are kept in the
+# bag under this prefix, so that a plain `rosbag play` cannot start a graph, unplug a device or fail a
+# resource; `temoto report` and `temoto replay` read them back under their own names.
+INERT_PREFIX = DEMO_NS + '/recorded'
 
 # The VaultBot's displayed streams (temoto_sensor_manager/config/vaultbot.yaml); the relay also follows
 # whatever the Output Manager displays, so other sensors are covered as they appear.
 DEFAULT_STREAMS = ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan']
-# Throttle rates (Hz) by message type: clouds are MBs, scans a few kB.
-THROTTLE_HZ = {'sensor_msgs/PointCloud2': 1.0, 'sensor_msgs/LaserScan': 5.0}
-DEFAULT_THROTTLE_HZ = 2.0
+STREAM_TYPES = {'/d435/depth_registered/points': 'sensor_msgs/PointCloud2',
+                '/laser_stitcher/cloud': 'sensor_msgs/PointCloud2', '/sick/scan': 'sensor_msgs/LaserScan'}
+# How a displayed stream is recorded: every message, except clouds larger than BIG_CLOUD_BYTES (the D435's
+# is 1.6 MB at 30 Hz), which are kept at BIG_CLOUD_HZ with every DECIMATE-th point in both directions.
+BIG_CLOUD_BYTES = 256 * 1024
+BIG_CLOUD_HZ = 5.0
+DECIMATE = 2
+# Any other message type of a displayed stream (images, markers, ...) is recorded at most this often.
+OTHER_HZ = 5.0
 
 
 def chatter(ns: str = DEFAULT_NS) -> str:
@@ -60,13 +72,30 @@ def fixed_topics(ns: str = DEFAULT_NS) -> Dict[str, str]:
         TICKS: 'std_msgs/Header',
         SCREENSHOTS: 'sensor_msgs/CompressedImage',
         STAGES: 'std_msgs/String',
+        ROBOT_DESCRIPTION: 'std_msgs/String',
+        '/tf': 'tf2_msgs/TFMessage',
+        '/tf_static': 'tf2_msgs/TFMessage',
     }
 
 
 def record_regexes(ns: str = DEFAULT_NS) -> List[str]:
     """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``)."""
     exact = ['^%s$' % t.replace('.', r'\.') for t in fixed_topics(ns)]
-    return exact + ['^%s$' % status_regex(ns), '^%s/.*' % THROTTLED_PREFIX]
+    return exact + ['^%s$' % status_regex(ns), '^%s/.*' % STREAMS_PREFIX]
+
+
+def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
+    """Whether a recorded topic, played back under its own name, would drive a live stack."""
+    return topic in (chatter(ns), DEVICE_STATES) or re.match('^%s$' % status_regex(ns), topic) is not None
+
+
+def inert_name(topic: str) -> str:
+    return INERT_PREFIX + topic
+
+
+def live_name(topic: str) -> str:
+    """The name a bag topic had on the live system (undoes :func:`inert_name`)."""
+    return topic[len(INERT_PREFIX):] if topic.startswith(INERT_PREFIX + '/') else topic
 
 
 # Managers' services the demo waits for before it speaks (the wire contract's names).
