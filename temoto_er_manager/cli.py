@@ -53,7 +53,8 @@ def _uptime(seconds: float) -> str:
 
 def ps_main(argv: Optional[list] = None) -> int:
     parser = argparse.ArgumentParser(prog='temoto ps', description=__doc__.split('\n')[0])
-    parser.add_argument('--namespace', '--ns', '-n', dest='namespace', default='temoto', help='TeMoto namespace (default: temoto)')
+    parser.add_argument('--namespace', '--ns', '-n', dest='namespace', default='temoto',
+                        help='TeMoto namespace (default: temoto)')
     parser.add_argument('--json', action='store_true', help='print the rows as JSON')
     parser.add_argument('--timeout', type=float, default=3.0, help='seconds to wait for the manager')
     args = parser.parse_args(argv)

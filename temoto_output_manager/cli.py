@@ -20,7 +20,8 @@ def _client(args) -> RvizHostClient:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--namespace', '--ns', '-n', dest='namespace', default='temoto', help='TeMoto namespace (default: temoto)')
+    parser.add_argument('--namespace', '--ns', '-n', dest='namespace', default='temoto',
+                        help='TeMoto namespace (default: temoto)')
     parser.add_argument('--timeout', type=float, default=3.0, help='seconds to wait for the RViz host')
 
 

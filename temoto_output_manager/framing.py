@@ -96,3 +96,8 @@ def robot_view(urdf_xml: Optional[str], fixed_frame: str = 'base_link') -> Orbit
     size = float(np.linalg.norm(hi - lo))
     return OrbitView(focal_point=tuple(round(float(v), 3) for v in center),
                      distance=round(max(2.0, 1.6 * size), 3))
+
+
+#: The operator's view of the VaultBot's surroundings: from behind and above the robot, looking ahead at
+#: the data its sensors see (what the demo and `temoto replay` show, and what a host starts with by default).
+OPERATOR_VIEW = {'Distance': 7.5, 'Yaw': 3.14159, 'Pitch': 0.6, 'Focal Point': [2.2, 0.0, 0.4]}

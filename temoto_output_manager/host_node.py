@@ -26,6 +26,7 @@ from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, Configure
 
 from . import display_config
 from .display_types import MESSAGE_TYPE, UnknownDisplayType, check_rviz_class, check_topic_name, needs_topic
+from .framing import OPERATOR_VIEW
 from .rviz_host import HostError, HostSettings, MainThreadCaller, RvizHost
 
 SERVICE_NAMES = ('add_display', 'remove_display', 'configure_display', 'set_view', 'screenshot', 'list_displays')
@@ -190,6 +191,18 @@ def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bo
     return host.frame_count() >= frames
 
 
+def _initial_view(value) -> dict:
+    """``~initial_view``: 'operator' (behind and above the robot, looking ahead: the default), 'robot' (frame
+    the whole robot), or a mapping of view properties."""
+    if value == 'operator':
+        return dict(OPERATOR_VIEW)
+    if value == 'robot':
+        return {}
+    if isinstance(value, dict):
+        return dict(value)
+    raise SystemExit("~initial_view must be 'operator', 'robot' or a mapping of view properties, got %r" % (value,))
+
+
 def main(argv=None) -> int:
     """Entry point of nodes/rviz_host: headless by default, RViz on the Qt main thread."""
     from .xvfb import ensure_display
@@ -206,7 +219,8 @@ def main(argv=None) -> int:
             height=int(rospy.get_param('~height', 600)),
             robot_description=str(rospy.get_param('~robot_description', 'robot_description')),
             show_robot=bool(rospy.get_param('~show_robot', True)),
-            show_grid=bool(rospy.get_param('~show_grid', True)))
+            show_grid=bool(rospy.get_param('~show_grid', True)),
+            initial_view=_initial_view(rospy.get_param('~initial_view', 'operator')))
         namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
         if settings.frame_rate < 1 or settings.frame_rate > 60:
             raise SystemExit('~frame_rate must be 1..60, got %d' % settings.frame_rate)

@@ -27,7 +27,7 @@ from rviz import bindings as rviz
 from . import display_config
 from .display_types import PROBED_CLASSES, check_rviz_class, installed_rviz_classes, topic_property
 from .first_frame import FirstFrameWatch, received_count
-from .framing import OrbitView, robot_view
+from .framing import OPERATOR_VIEW, OrbitView, robot_view
 
 log = logging.getLogger('temoto_output_manager.rviz_host')
 
@@ -98,6 +98,7 @@ class HostSettings:
     robot_description: str = 'robot_description'
     show_robot: bool = True
     show_grid: bool = True
+    initial_view: Dict[str, Any] = field(default_factory=lambda: dict(OPERATOR_VIEW))   # {}: frame the robot
     watch_period_ms: int = 5          # sampling period while a display waits for its first frame
 
 
@@ -152,7 +153,10 @@ class RvizHost:
             self._add_builtin('rviz/Grid', BUILTIN_GRID, {})
         if self.settings.show_robot:
             self._add_builtin('rviz/RobotModel', BUILTIN_ROBOT, {'Robot Description': self.settings.robot_description})
-        self.frame_robot()
+        if self.settings.initial_view:
+            self.apply_view(self.settings.initial_view)     # looking at the data, not at the robot
+        else:
+            self.frame_robot()
         self._watch_timer = QtCore.QTimer()
         self._watch_timer.timeout.connect(self._sample_first_frames)
         self._watch_timer.start(self.settings.watch_period_ms)

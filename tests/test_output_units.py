@@ -143,3 +143,12 @@ def test_xvfb_picks_a_free_display_and_stops_cleanly():
         a.stop()
         b.stop()
     assert not a.running() and not os.path.exists('/tmp/.X11-unix/X%s' % da[1:])
+
+
+def test_the_host_starts_looking_at_the_data_unless_told_otherwise():
+    from temoto_output_manager.framing import OPERATOR_VIEW
+    from temoto_output_manager.host_node import _initial_view
+    assert _initial_view('operator') == OPERATOR_VIEW and _initial_view('robot') == {}
+    assert _initial_view({'Distance': 3.0}) == {'Distance': 3.0}
+    with pytest.raises(SystemExit, match="'operator', 'robot'"):
+        _initial_view('sideways')

@@ -26,6 +26,34 @@ if [ -n "$missing" ]; then
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${pkgs[@]}" >/dev/null
 fi
 
+# 1b. Debian packages from the release's backports suite (tools/apt-backports.txt says why), from the same
+# archive as the system's own sources: no host is named here
+mapfile -t bpo < <(grep -v -E '^\s*(#|$)' tools/apt-backports.txt)
+suite="$(. /etc/os-release && echo "${VERSION_CODENAME:-bookworm}")-backports"
+stale=""
+for p in "${bpo[@]}"; do
+  case "$(dpkg-query -W -f='${Version}' "$p" 2>/dev/null || true)" in *~bpo*) ;; *) stale="$stale $p" ;; esac
+done
+if [ -n "$stale" ]; then
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "error: packages from $suite are missing and installing them needs root: run 'sudo make setup' (missing:$stale)" >&2
+    exit 1
+  fi
+  if ! grep -rqs -- "$suite" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+    uri=$(awk '$1 == "URIs:" {print $2; exit}' /etc/apt/sources.list.d/debian.sources 2>/dev/null || true)
+    [ -n "$uri" ] || uri=$(awk '$1 == "deb" && $2 ~ /^http/ {print $2; exit}' /etc/apt/sources.list 2>/dev/null || true)
+    if [ -z "$uri" ]; then
+      echo "error: cannot find the Debian archive in the apt sources to add $suite from" >&2
+      exit 1
+    fi
+    printf 'Types: deb\nURIs: %s\nSuites: %s\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n' \
+      "$uri" "$suite" > /etc/apt/sources.list.d/temoto-backports.sources
+  fi
+  echo "setup: installing from $suite:$stale"
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends -t "$suite" "${bpo[@]}" >/dev/null
+fi
+
 # 2. venv from Debian's interpreter, so that Debian's rospy and pip packages meet
 if [ ! -x "$venv/bin/python" ]; then
   echo "setup: creating the venv from /usr/bin/python3..."

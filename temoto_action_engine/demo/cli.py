@@ -29,7 +29,8 @@ def report_main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog='temoto report', description='Make the report of a recorded run from its bag.')
     p.add_argument('bag', help='a bag recorded by temoto demo or temoto record')
     p.add_argument('--out', default='', help='folder for report.md and its images (default: beside the bag)')
-    p.add_argument('--ns', '--namespace', dest='ns', default=T.DEFAULT_NS, help='TeMoto namespace of the run (default: %(default)s)')
+    p.add_argument('--ns', '--namespace', dest='ns', default=T.DEFAULT_NS,
+                   help='TeMoto namespace of the run (default: %(default)s)')
     args = p.parse_args(argv)
     if not os.path.isfile(args.bag):
         print('temoto report: no bag file at %s' % args.bag, file=sys.stderr)
@@ -63,7 +64,8 @@ def default_run_dir() -> str:
 def record_main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog='temoto record', description='Record the failover topic set until Ctrl-C.')
     p.add_argument('--out', default='', help='bag path (default: runs/<timestamp>/failover.bag)')
-    p.add_argument('--ns', '--namespace', dest='ns', default=T.DEFAULT_NS, help='TeMoto namespace (default: %(default)s)')
+    p.add_argument('--ns', '--namespace', dest='ns', default=T.DEFAULT_NS,
+                   help='TeMoto namespace (default: %(default)s)')
     args = p.parse_args(argv)
     out = args.out or os.path.join(default_run_dir(), 'failover.bag')
     if os.path.isdir(out):

@@ -27,7 +27,6 @@ from . import topics as T
 
 DISPLAY_CLASSES = {'sensor_msgs/msg/PointCloud2': 'rviz/PointCloud2', 'sensor_msgs/msg/LaserScan': 'rviz/LaserScan'}
 HOST_NAME = 'replay_rviz_host'
-VIEW = 'Distance: 7.5\nYaw: 3.14159\nPitch: 0.6\nFocal Point: [2.2, 0.0, 0.4]\n'
 PLAY_DELAY_S = 2.0          # the player's own pause after advertising: RViz subscribes meanwhile
 DRAWN_FRAMES = 3            # frames drawn after a switch before its screenshot
 
@@ -117,7 +116,6 @@ class Replay:
                                   timeout=60)
         host = RvizHostClient('/temoto/' + HOST_NAME)
         host.wait_ready(60, failed=lambda: None if host_proc.alive() else 'the RViz host exited:\n' + host_proc.log())
-        host.set_view(VIEW)
         names = {}
         for s in streams:
             cls = DISPLAY_CLASSES.get(s.msgtype)
