@@ -140,5 +140,5 @@ def test_a_manager_drops_the_status_channel_of_a_consumer_that_left(owner, rospy
     client.call('rr_id_owner', 'load_test', Req(name='briefly_held'))
     assert published_by_owner(client.status_topic)
     client.shutdown()
-    wait_for(lambda: not published_by_owner(client.status_topic), 10,
+    wait_for(lambda: not published_by_owner(client.status_topic), 30,
              'the owner to unregister its publisher of %s' % client.status_topic)

@@ -49,6 +49,10 @@ STATUS_CODES = (ResourceStatus.OK, ResourceStatus.FAILED, ResourceStatus.UPDATE)
 # A status can overtake the service response that announces its resource; it is
 # parked this long for the response to arrive.
 PENDING_STATUS_TTL = 10.0
+# An unused status channel is unregistered after this long: long enough for a consumer that comes back at
+# once (a reload, the next step of a loop) to find it still connected, short enough that the channels of
+# ended actions do not pile up.
+CHANNEL_GRACE = 5.0
 
 LOADING, ACTIVE, FAILED, UNLOADING, GONE = 'loading', 'active', 'failed', 'unloading', 'gone'
 
@@ -747,7 +751,7 @@ class ResourceRegistrar:
         master = xmlrpc_proxy(rosgraph.get_master_uri(), 1.0)
         strikes: Dict[str, int] = {}
         while not self._stop_watch.wait(self.consumer_check_period):
-            self._reap_idle_channels(max(1.0, self.consumer_check_period))
+            self._reap_idle_channels(max(CHANNEL_GRACE, self.consumer_check_period))
             self._resolve_consumer_uris(master)
             with self._lock:
                 holders: Dict[Tuple[str, str], List[Tuple[str, int]]] = {}
