@@ -112,7 +112,9 @@ def test_chatter_with_wake_word_runs_a_graph_and_stop_graph_ends_it(engine, rosp
     resp = stop(graph_name='hold_emit')
     assert resp.code == 0, resp.message
     assert graph_names(list_graphs)['hold_emit']['state'] == 'FINISHED'
-    assert engine.node_state('hold_emit', 'hold_0') == 'FINISHED'
+    # the events topic delivers the node's last state after the service answered: wait for it
+    wait_for(lambda: engine.node_state('hold_emit', 'hold_0') == 'FINISHED', 10,
+             'hold_0 FINISHED on the events topic')
     resp = stop(graph_name='hold_emit')
     assert resp.code == 1 and 'no running graph' in resp.message
 
