@@ -42,8 +42,8 @@ def test_stop_is_intentional_and_reaped(sup, tmp_path):
     proc = sup.start(spec(tmp_path, ['sleep', '60']))
     sup.wait_ready(proc, None, 0.05)
     assert proc.state == 'running'
-    # a generous SIGINT grace: beside two CPU hogs, the fixture's 1 s was once not enough for the reaper to
-    # record the exit, and SIGTERM went out; what is checked is the order, not the speed
+    # a generous SIGINT grace: beside two CPU hogs, as a worker's first test, the child was twice still there
+    # when the fixture's 1 s ran out, and SIGTERM ended it; what is checked is the order, not the speed
     info = sup.stop(proc, sigint_grace=10.0)
     assert info.intentional and info.returncode == -signal.SIGINT
     assert gone(proc.pid), 'stopped child must be reaped, not a zombie'
