@@ -57,6 +57,13 @@ _log = logging.getLogger('temoto_er_manager.supervisor')
 _PR_SET_PDEATHSIG = 1
 _libc = ctypes.CDLL(None, use_errno=True)
 _prctl = _libc.prctl          # resolved before any fork: the child must not load anything
+_signal = _libc.signal        # likewise: the C library's own signal(), callable between fork and exec
+_signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
+_signal.restype = ctypes.c_void_p
+_SIG_DFL = None               # NULL
+# A child must answer the stop signals whatever its parent does with them: a manager started from a
+# script's background job inherits SIGINT ignored, and its children would then only stop at SIGTERM.
+_STOP_SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
 
 
 class SupervisorError(Exception):
@@ -318,6 +325,8 @@ class ProcessSupervisor:
         death_signal = self.death_signal
 
         def in_child():                       # runs between fork and exec: no allocation, no imports
+            for sig in _STOP_SIGNALS:
+                _signal(sig, _SIG_DFL)
             if death_signal:
                 _prctl(_PR_SET_PDEATHSIG, death_signal, 0, 0, 0)
                 if os.getppid() != parent:    # the manager died before prctl took effect

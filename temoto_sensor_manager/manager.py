@@ -39,7 +39,7 @@ ER_MANAGER = 'temoto_er_manager'
 ER_SERVER = 'load_process'
 SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)
-# before its rate counts
+# before its rate counts; the VaultBot's simulated drivers need 0.4 to 0.9 s (BENCHMARKS.md, bench_sim.py)
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 
 

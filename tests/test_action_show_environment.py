@@ -181,7 +181,8 @@ def test_fails_over_down_the_priority_list_and_waits_for_a_device_to_return(setu
     wait_for(lambda: len(of(events, 'sensor_active')) == 4, 10, 'a sensor back after retry')
     assert of(events, 'sensor_active')[3]['sensor_name'] == 'hokuyo'
     assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
-    assert any('a sensor is back' in f for f in feedback)
+    # the feedback sentence follows the event that the wait above saw
+    wait_for(lambda: any('a sensor is back' in f for f in feedback), 10, 'the feedback that a sensor is back')
 
     # every failed sensor and its display were released, and each only once
     log = devices.log
