@@ -101,7 +101,8 @@ def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_a
             time.sleep(0.02)
         assert done.wait(1.0)
         assert [f[0] for f in fired] == ['quiet']
-        assert 0.15 <= fired[0][1] < 0.4 and fired[0][2] - start < 0.4
+        # after the limit (0.15 s); the upper bound only catches a watchdog that waits for the loop to end
+        assert 0.15 <= fired[0][1] < 1.0 and fired[0][2] - start < 1.0
         busy.armed = False                              # disarmed (unloaded): never fires
         time.sleep(0.3)
         assert [f[0] for f in fired] == ['quiet']
