@@ -73,6 +73,15 @@ class RosMaster:
             os.environ[k] = env[k]
         return saved
 
+    @staticmethod
+    def restore_process(saved: Dict[str, Optional[str]]) -> None:
+        """Put back what :meth:`point_this_process` replaced."""
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
     def start(self, attempts: int = 3) -> 'RosMaster':
         errors = []
         for _ in range(attempts):

@@ -102,11 +102,7 @@ class Replay:
         try:
             self._show_on(rospy, RvizHostClient, launcher, streams, timeout)
         finally:
-            for key, value in saved_env.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
+            master.restore_process(saved_env)
 
     def _show_on(self, rospy, RvizHostClient, launcher: ProcessGroupLauncher, streams: List[Stream],
                  timeout: float) -> None:

@@ -35,11 +35,7 @@ def ros_master(tmp_path_factory, session_token):
     saved = master.point_this_process()
     yield master
     master.stop()
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
+    master.restore_process(saved)
     leaked = kill_leftovers(session_token)
     if leaked:
         pytest.fail('processes outlived the test session (killed now): %s' % leaked, pytrace=False)
