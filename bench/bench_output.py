@@ -25,7 +25,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from temoto_core.testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
-from temoto_er_manager import master as er_master  # noqa: E402
+from temoto_core import master_lookup as er_master  # noqa: E402
 
 NS = 'temoto'
 HOST = '/%s/rviz_host' % NS

@@ -16,6 +16,7 @@ SERVICE_WAIT_S = 5.0
 
 
 def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
+    """A caller of the engine's service ``name``: it waits for it, and turns every failure into one line."""
     import rospy
     full = '/%s/action_engine/%s' % (ns.strip('/'), name)
     try:
@@ -25,7 +26,15 @@ def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
                          % (full, ns)) from None
     except rospy.ROSInterruptException:
         raise SystemExit(1) from None
-    return rospy.ServiceProxy(full, srv_type)
+    proxy = rospy.ServiceProxy(full, srv_type)
+
+    def call(**request):
+        try:
+            return proxy(**request)
+        except (rospy.ServiceException, rospy.ROSException) as e:
+            # the engine went away mid-call, or refused the call: one line, never a traceback
+            raise SystemExit('error: %s failed: %s' % (full, e)) from None
+    return call
 
 
 def _parser(prog: str, help_text: str) -> argparse.ArgumentParser:

@@ -2,6 +2,11 @@
 
 The ROS node (``ros_engine.py``) only turns topics and services into calls on this class,
 so everything here is testable in-process with fake registrars.
+
+Graphs run either in this process (``GraphRun``, one thread per node: for tests with fake
+registrars) or, given a ``WorkerPool``, each in a worker process of its own (``WorkerGraph``),
+which is what the node does: a plugin that crashes or ignores a stop then costs its own graph,
+never the engine. Both have the same face, so nothing below depends on where a graph runs.
 """
 from __future__ import annotations
 
@@ -18,6 +23,8 @@ from .action_base import ActionContext, default_rr_factory
 from .graph import FAILED, CANCELLED, GraphRun, NodeRun
 from .grounding import TOKEN_RE, Grounder, inflections, word_forms
 from .indexer import ActionIndex
+from .isolation import WorkerGraph, WorkerPool
+from . import worker_protocol as wp
 from .umrf import GraphSpec, UmrfError, parse_graph
 
 EVERYTHING = {'everything', 'all', 'every', 'anything'}
@@ -28,7 +35,7 @@ class ActionEngine:
                  action_config: dict | None = None, rr_factory: Callable[[str], Any] | None = None,
                  publish_event: Callable[[dict], None] | None = None,
                  publish_feedback: Callable[[str], None] | None = None, history: int = 20,
-                 interface_factories: dict | None = None):
+                 interface_factories: dict | None = None, workers: WorkerPool | None = None):
         self.index = index
         self.namespace = namespace
         self.wake_words = [w for w in wake_words if w]
@@ -44,6 +51,7 @@ class ActionEngine:
         self._uids = itertools.count(1)
         self._grounder = None
         self._closed = False
+        self.workers = workers
 
     # ------------------------------------------------------------------ index
     def reindex(self) -> dict:
@@ -106,18 +114,40 @@ class ActionEngine:
     def start_graph(self, graph) -> GraphRun:
         """Validate a UMRF graph (JSON text or dict) and start it. Raises UmrfError, changing nothing."""
         spec: GraphSpec = parse_graph(graph, self.index)
+        worker = self.workers.take() if self.workers is not None else None    # may wait for a start
         with self._lock:
             if self._closed:
+                if worker is not None:
+                    worker.close()
                 raise RuntimeError('the engine is shutting down')
             base, n = spec.name, 1
             while spec.name in self._graphs:
                 n += 1
                 spec.name = '%s_%d' % (base, n)
-            run = GraphRun(spec, self.index, self._make_context, self._on_event, self._graph_finished)
+            if worker is None:
+                run = GraphRun(spec, self.index, self._make_context, self._on_event, self._graph_finished)
+            else:
+                run = WorkerGraph(spec, self.index, worker, dict(self.action_config), self._on_event,
+                                  self.feedback, self._graph_finished, self._serve_worker_request)
             self._graphs[spec.name] = run
             self._finished.pop(spec.name, None)
         run.start()
         return run
+
+    def _serve_worker_request(self, run: WorkerGraph, msg: dict) -> None:
+        """A graph in a worker asks the engine (the ``stop`` action stops actions of other graphs)."""
+        op, result, error = msg.get('op'), None, ''
+        try:
+            if op == 'stop_actions':
+                timeout = min(max(float(msg.get('timeout', 15.0)), 0.0), 120.0)
+                result = self.stop_actions(str(msg.get('target', '')), exclude_graph=run.name, timeout=timeout)
+            elif op == 'running_actions':
+                result = self.running_actions(exclude_graph=run.name)
+            else:
+                error = 'unknown request %r' % (op,)
+        except (TypeError, ValueError, RuntimeError) as e:
+            error = '%s failed: %s' % (op, e)
+        run.worker.send(op=wp.REPLY, id=msg.get('id'), result=result, error=error)
 
     def _make_context(self, node: NodeRun, run: GraphRun) -> ActionContext:
         return ActionContext(
@@ -142,6 +172,9 @@ class ActionEngine:
         if run is None:
             return False, 'no running graph %r (running: %s)' % (name, ', '.join(known) or 'none')
         left = run.stop(timeout)
+        if left and isinstance(run, WorkerGraph):
+            return False, ('graph %s: %s did not stop within %.0f s; its worker process was ended, and what it '
+                           'held is released' % (name, ', '.join(left), timeout))
         if left:
             return False, 'graph %s: %s did not stop within %.0f s' % (name, ', '.join(left), timeout)
         return True, 'graph %s stopped' % name
@@ -194,14 +227,22 @@ class ActionEngine:
         for run, node in chosen:
             if run.stop_node(node.key, timeout):
                 stopped.append('%s/%s' % (run.name, node.key))
+            else:       # a worker graph was ended; an in-process one is still stopping
+                stopped.append('%s/%s (did not stop within %.0f s)' % (run.name, node.key, timeout))
         return stopped
 
     def shutdown(self, timeout: float = 15.0) -> None:
+        """Stop every graph, all at once, each within ``timeout`` s; then the spare workers."""
         with self._lock:
             self._closed = True
             runs = list(self._graphs.values())
-        for r in runs:
-            r.stop(timeout)
+        stoppers = [threading.Thread(target=r.stop, args=(timeout,), daemon=True) for r in runs]
+        for t in stoppers:
+            t.start()
+        for t in stoppers:
+            t.join()
+        if self.workers is not None:
+            self.workers.shutdown()
 
     @staticmethod
     def dumps(obj) -> str:

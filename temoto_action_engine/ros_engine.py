@@ -9,6 +9,10 @@ Services:
 - ``/<ns>/action_engine/stop_graph``   StopGraph
 - ``/<ns>/action_engine/list_graphs``  ListGraphs
 - ``/<ns>/action_engine/list_actions`` ListActions (``reindex`` scans the folders again)
+Parameters besides the namespace: ``~action_paths``, ``~wake_words``, ``~actions`` (per-action
+settings), ``~include_bundled_actions``, ``~stop_timeout_s`` (15: the grace a stopped graph gets
+before its worker is ended), ``~isolate_graphs`` (true: each graph in a worker process of its
+own) and ``~spare_workers`` (1: workers started ahead, so a graph starts without waiting).
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ from temoto_core.node import on_signals
 
 from .engine import ActionEngine
 from .indexer import ActionIndex
+from .isolation import WorkerPool
 from .umrf import UmrfError
 
 MAX_TEXT = 2000            # characters of an instruction
@@ -52,8 +57,12 @@ class ActionEngineNode:
         self.feedback_pub = rospy.Publisher(base + '/feedback', String, queue_size=50)
         self.events_pub = rospy.Publisher(base + '/events', String, queue_size=200)
         index = ActionIndex(paths, include_bundled=bool(rospy.get_param('~include_bundled_actions', True)))
+        workers = None
+        if bool(rospy.get_param('~isolate_graphs', True)):
+            workers = WorkerPool(self.namespace, self.stop_timeout, spares=int(rospy.get_param('~spare_workers', 1)))
         self.engine = ActionEngine(index, namespace=self.namespace, wake_words=wake, action_config=actions_cfg,
-                                   publish_event=self._publish_event, publish_feedback=self._publish_feedback)
+                                   publish_event=self._publish_event, publish_feedback=self._publish_feedback,
+                                   workers=workers)
         self.engine.reindex()
         from .srv import ListActions, ListGraphs, StartGraph, StopGraph
         self._services = [

@@ -31,7 +31,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_core.rr import ResourceRegistrar
 
-from . import master
+from temoto_core import master_lookup as master
 from .policy import ERConfig, RequestRefused, validate_request
 from .resolve import Resolver
 from .resource import Resource

@@ -171,3 +171,20 @@ def test_launch_file_loads_the_config(procs, rospy_client):
     priority = rospy_client.get_param('/temoto_action_engine/actions/show_environment/sensor_priority')
     assert [p['sensor_type'] for p in priority] == ['depth camera', 'lidar', 'lidar']
     assert [p['display_key'] for p in priority] == ['camera_data', 'cloud_data', 'lidar_data']
+
+
+def test_cli_says_in_one_line_when_the_engine_fails_a_call(rospy_client, capsys):
+    """An engine that dies or errs during a call gives one line and exit status, never a traceback."""
+    from temoto_action_engine.srv import StartGraph
+
+    def broken(req):
+        raise RuntimeError('the engine fell over')
+    service = rospy_client.Service('/aecli/action_engine/start_graph', StartGraph, broken)
+    try:
+        with pytest.raises(SystemExit) as stop:
+            cli.say(['--ns', 'aecli', 'hold', 'your', 'breath'])
+    finally:
+        service.shutdown()
+    message = str(stop.value.code)
+    assert message.startswith('error: /aecli/action_engine/start_graph failed:') and '\n' not in message, message
+    assert 'Traceback' not in capsys.readouterr().err

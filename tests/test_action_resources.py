@@ -1,8 +1,12 @@
 """Each action instance owns a real Resource Registrar: what it loads is released when it ends.
 
-Processes: a test RR server (LoadTestResource), the engine node, and this test (chatter, services).
+Processes: a test RR server (LoadTestResource), the engine node, its graph workers (one process
+per graph), and this test (chatter, services). Plugins that crash their worker or ignore a stop
+show what isolation guarantees: the engine lives on, the graph ends FAILED with the reason, and
+what the graph held is released.
 """
 import json
+import os
 import sys
 import threading
 
@@ -61,6 +65,38 @@ class Grab(ActionBase):
             if ev is not None:
                 self.event('resource_status', code=ev.code, message=ev.message, resource_id=ev.resource_id)
 '''
+CRASH = '''
+import ctypes
+import os
+from temoto_action_engine.action_base import ActionBase
+from temoto_core.srv import LoadTestResourceRequest
+
+class Crash(ActionBase):
+    def execute(self):
+        self.rr.call('test_server', 'load_test', LoadTestResourceRequest(name=self.input('name')))
+        self.event('holding', name=self.input('name'), pid=os.getpid())
+        if self.input('how') == 'exit':
+            os._exit(3)
+        ctypes.string_at(0)      # a crash in C: SIGSEGV
+'''
+WEDGE = '''
+import time
+from temoto_action_engine.action_base import ActionBase
+from temoto_core.srv import LoadTestResourceRequest
+
+class Wedge(ActionBase):
+    def on_start(self):
+        self.rr.call('test_server', 'load_test', LoadTestResourceRequest(name=self.input('name')))
+        self.event('holding', name=self.input('name'))
+
+    def execute(self):
+        print('a plugin printing to stdout does not disturb its worker')
+        while True:              # ignores every stop
+            time.sleep(0.05)
+'''
+STOP_TIMEOUT_S = 3.0
+# a killed worker's references are released by the server's consumer watch: 2 x (check period + 1 s)
+CONSUMER_DEATH_BOUND_S = 2 * (2.0 + 1.0)
 
 
 @pytest.fixture
@@ -70,6 +106,8 @@ def world(procs, rospy_client, tmp_path):
     write_plugin(str(plugins), 'grab', GRAB, effect='asynchronous',
                  inputs={'name': {'pvf_type': 'string'}}, outputs={'payload': {'pvf_type': 'string'}},
                  grounding={'verbs': ['grab', 'hold'], 'parameters': {'name': {'any': True}}})
+    write_plugin(str(plugins), 'crash', CRASH, inputs={'name': {'pvf_type': 'string'}, 'how': {'pvf_type': 'string'}})
+    write_plugin(str(plugins), 'wedge', WEDGE, effect='asynchronous', inputs={'name': {'pvf_type': 'string'}})
     server = tmp_path / 'rr_test_server.py'
     server.write_text(SERVER)
     srv_proc = procs.command([sys.executable, str(server), NS], 'rr_test_server')
@@ -77,7 +115,8 @@ def world(procs, rospy_client, tmp_path):
     if rospy_client.has_param('/' + ENGINE):
         rospy_client.delete_param('/' + ENGINE)      # private params outlive a node on the shared master
     engine = procs.node('temoto_action_engine', 'temoto_action_engine', name=ENGINE,
-                        params={'temoto_namespace': NS, 'action_paths': str(plugins)})
+                        params={'temoto_namespace': NS, 'action_paths': str(plugins),
+                                'stop_timeout_s': STOP_TIMEOUT_S})
     rospy_client.wait_for_service('/%s/test_server/load_test' % NS, timeout=20)
     rospy_client.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=20)
     events, lock = [], threading.Lock()
@@ -86,11 +125,18 @@ def world(procs, rospy_client, tmp_path):
         with lock:
             events.append(json.loads(msg.data))
 
+    feedback = []
+
+    def on_feedback(msg):
+        with lock:
+            feedback.append(msg.data)
+
     sub = rospy_client.Subscriber('/%s/action_engine/events' % NS, String, on_event)
+    fb_sub = rospy_client.Subscriber('/%s/action_engine/feedback' % NS, String, on_feedback)
     chatter = rospy_client.Publisher('/%s/human_chatter' % NS, String, queue_size=10)
     fail = rospy_client.Publisher('/%s/test_server/fail' % NS, String, queue_size=10)
-    wait_for(lambda: sub.get_num_connections() and chatter.get_num_connections() and fail.get_num_connections(),
-             20, 'topics connected')
+    wait_for(lambda: sub.get_num_connections() and fb_sub.get_num_connections() and chatter.get_num_connections()
+             and fail.get_num_connections(), 20, 'topics connected')
 
     class World:
         def say(self, text):
@@ -103,10 +149,14 @@ def world(procs, rospy_client, tmp_path):
             with lock:
                 return [e for e in events if e.get('event') == kind]
 
+        def feedback_with(self, *words):
+            with lock:
+                return [f for f in feedback if all(w in f for w in words)]
+
         engine_proc = engine
 
     yield World()
-    for x in (sub, chatter, fail):
+    for x in (sub, fb_sub, chatter, fail):
         x.unregister()
 
 
@@ -132,7 +182,9 @@ def grab_and_check(rospy, world, text='grab the cake', thing='cake'):
     held = registry(rospy, rr_name)['client_queries']
     assert sorted(q['summary']['name'] for q in held) == [thing, thing + '_extra']
     consumers = [c['client_name'] for q in registry(rospy, 'test_server')['server_queries'] for c in q['consumers']]
-    assert consumers == ['/' + ENGINE, '/' + ENGINE]
+    # the graph runs in a worker process of the engine's, a node of its own: that node holds them
+    assert len(set(consumers)) == 1 and len(consumers) == 2, consumers
+    assert consumers[0].startswith('/%s_worker_' % ENGINE), consumers
     return rr_name
 
 
@@ -159,3 +211,76 @@ def test_engine_shutdown_releases_the_resources_of_running_actions(world, rospy_
     grab_and_check(rospy_client, world, 'hold the pie', 'pie')
     assert world.engine_proc.stop() is not None           # SIGINT: the node stops its graphs first
     assert served(rospy_client) == []
+
+
+def start_graph(rospy, action, **inputs):
+    from temoto_action_engine.srv import StartGraph
+    graph = {'graph_name': action, 'actions': [{'name': action, 'input_parameters': {
+        k: {'pvf_type': 'string', 'pvf_value': v} for k, v in inputs.items()}}]}
+    resp = rospy.ServiceProxy('/%s/action_engine/start_graph' % NS, StartGraph)(graph_json=json.dumps(graph), text='')
+    assert resp.code == 0, resp.message
+    return resp.graph_name
+
+
+def graphs(rospy):
+    from temoto_action_engine.srv import ListGraphs
+    return {g['graph_name']: g for g in json.loads(
+        rospy.ServiceProxy('/%s/action_engine/list_graphs' % NS, ListGraphs)().json)}
+
+
+def pid_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize('how, reason', [('exit', 'exited with code 3'), ('segv', 'killed by SIGSEGV')])
+def test_a_plugin_that_kills_its_process_fails_its_graph_and_the_engine_lives_on(world, rospy_client, how, reason):
+    from temoto_core import master_lookup
+    name = start_graph(rospy_client, 'crash', name='cake', how=how)
+    (held,) = wait_for(lambda: world.events('holding'), 20, 'the plugin to hold its resource')
+    worker = graphs(rospy_client)[name]['worker_pid']
+    assert held['pid'] == worker != world.engine_proc.pid
+    (query,) = registry(rospy_client, 'test_server')['server_queries']
+    (worker_node,) = [c['client_name'] for c in query['consumers']]
+    wait_for(lambda: graphs(rospy_client)[name]['state'] == 'FAILED', 20, 'the graph to end FAILED')
+    g = graphs(rospy_client)[name]
+    assert reason in g['reason'] and 'worker process died' in g['reason'], g
+    assert [n['state'] for n in g['nodes']] == ['FAILED']
+    assert world.feedback_with('crash failed', reason)
+    assert world.engine_proc.alive()
+    wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the dead graph\'s resource released')
+    consumers_left = [q for q in registry(rospy_client, 'test_server')['server_queries']]
+    assert consumers_left == []
+    # the dead worker's node is gone from the master, and the engine still runs graphs
+    master = os.environ['ROS_MASTER_URI']
+    wait_for(lambda: master_lookup.lookup_node(master, worker_node) is None, 20, 'the dead worker to leave the master')
+    grab_and_check(rospy_client, world, 'grab the pie', 'pie')
+
+
+def test_an_action_that_ignores_stop_is_ended_after_the_grace_and_its_resource_released(world, rospy_client):
+    from temoto_action_engine.srv import StopGraph
+    name = start_graph(rospy_client, 'wedge', name='cake')
+    wait_for(lambda: world.events('holding'), 20, 'the plugin to hold its resource')
+    worker = graphs(rospy_client)[name]['worker_pid']
+    assert served(rospy_client) == ['cake']
+    resp = rospy_client.ServiceProxy('/%s/action_engine/stop_graph' % NS, StopGraph)(graph_name=name)
+    assert resp.code == 1, resp.message
+    assert 'wedge_0 did not stop within 3 s' in resp.message and 'ended' in resp.message, resp.message
+    g = graphs(rospy_client)[name]
+    assert g['state'] == 'FAILED' and 'did not stop within 3 s' in g['reason'], g
+    assert not pid_alive(worker)
+    # SIGTERM lets the worker release what it holds before it goes; the consumer watch is the backstop
+    wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the wedged graph\'s resource released')
+    assert world.engine_proc.alive()
+
+
+def test_the_stop_action_ends_an_action_that_ignores_it(world, rospy_client):
+    start_graph(rospy_client, 'wedge', name='cake')
+    wait_for(lambda: world.events('holding'), 20, 'the plugin to hold its resource')
+    world.say('stop the wedge')
+    wait_for(lambda: world.feedback_with('stop: stopped', 'wedge_0', 'did not stop within 3 s'), 30,
+             'the stop action to say it ended the wedged action')
+    wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the wedged graph\'s resource released')

@@ -17,7 +17,7 @@ from PIL import Image
 from std_msgs.msg import String
 
 from temoto_core.testing import wait_for
-from temoto_er_manager import master as er_master
+from temoto_core import master_lookup as er_master
 from temoto_output_manager.host_client import RvizHostClient, host_node_name
 from temoto_sensor_manager.testing import (NS, managers_idle, set_cable, start_context_manager, start_er_manager,
                                            start_sensor_manager, start_sim)

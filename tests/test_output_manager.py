@@ -13,7 +13,7 @@ from PIL import Image as PILImage
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
-from temoto_er_manager import master as er_master
+from temoto_core import master_lookup as er_master
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient
 from temoto_output_manager.msg import DisplayEvent

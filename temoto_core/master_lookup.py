@@ -13,7 +13,9 @@ from typing import Iterable
 
 from temoto_core.xmlrpc_util import proxy
 
-CALLER_ID = '/temoto_er_manager'
+CALLER_ID = '/temoto_master_lookup'
+# rospy subscribes to this on a node's first log message (rospy.impl.rosout, get_param_cached)
+ROSPY_PARAM_SUBSCRIPTIONS = ('/rosout_disable_topics_generation',)
 
 
 def _proxy(uri: str, timeout: float) -> xmlrpc.client.ServerProxy:
@@ -116,5 +118,9 @@ def cleanup_dead_node(master_uri: str, node_name: str, timeout: float = 1.0) -> 
         multi = xmlrpc.client.MultiCall(master)
         for method, name, api in calls:
             getattr(multi, method)(node_name, name, api)
+        # the master forgets a node only once it holds nothing at all, parameter subscriptions
+        # included: without this, a dead rospy node that ever logged stays known to lookupNode
+        for key in ROSPY_PARAM_SUBSCRIPTIONS:
+            multi.unsubscribeParam(node_name, uri, key)
         multi()
     return len(calls)
