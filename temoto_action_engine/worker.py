@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 import threading
+import traceback
 from typing import IO
 
 import rospy
@@ -207,7 +208,13 @@ def _read_commands(stream: IO[bytes], worker: GraphWorker) -> None:
         if msg is None:
             rospy.logerr('graph worker: a line from the engine is not a JSON object: %r' % line[:200])
             continue
-        worker.handle(msg)
+        try:
+            worker.handle(msg)
+        except Exception as e:      # a bug here must end the graph with a reason, not wedge the worker
+            rospy.logerr('graph worker: handling %r failed: %s\n%s' % (msg.get('op'), e, traceback.format_exc()))
+            if worker.run is None:
+                worker.out.send(kind=wp.REFUSED, message='the worker failed to start it: %s' % e)
+                worker.done.set()
     worker.engine_gone()
 
 

@@ -98,16 +98,20 @@ class LaunchPlan:
 def plan(entry: SensorEntry, query: SensorQuery) -> LaunchPlan:
     """Remapping for the requested names: launch files get ``arg:=name``, nodes ``default:=name``.
 
-    With no topic requested the response lists every topic of the sensor.
+    Every catalogued topic of the entry is set, not only the requested ones: a topic left at the
+    driver's default would collide with another device run by the same driver (a second camera
+    would publish its image on the first camera's name). The response lists the requested
+    topics, or every topic of the sensor when none was requested.
     """
     requested = dict(query.topics)
     keys = query.topic_types or list(entry.output_topics)
     args = shlex.split(entry.args)
     topics = {}
-    for key in keys:
+    for key in list(keys) + [k for k in entry.output_topics if k not in keys]:
         spec = entry.output_topics[key]
         name = requested.get(key) or spec.topic
-        topics[key] = name
+        if key in keys:
+            topics[key] = name
         if entry.is_launch_file:
             if spec.arg:
                 args.append('%s:=%s' % (spec.arg, name))

@@ -98,3 +98,27 @@ def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stoppe
     assert not pid_gone(pid)
     sm.stop_sensor(res.resource_id)
     wait_for(lambda: pid_gone(pid), 15, 'the stalled driver to be stopped with its sensor')
+
+
+def publishers_of(topic):
+    import rosgraph
+    pubs, _subs, _srvs = rosgraph.Master('/sensor_sim_test').getSystemState()
+    return sorted(n for t, nodes in pubs if t == topic for n in nodes)
+
+
+def test_two_cameras_of_one_driver_each_publish_every_topic_on_their_own_names(smi):
+    """Only camera_data is asked of each, but the driver also publishes camera_info: that topic too is
+    set from the catalogue, so the second camera's does not land on the first one's name."""
+    sm = smi()
+    first = sm.start_sensor('depth camera', ['camera_data'], executable='fake_sensor')
+    second = sm.start_sensor('second depth camera', ['camera_data'])
+    assert (first.sensor_name, second.sensor_name) == ('fake_depth_camera', 'fake_depth_camera_b')
+    assert first.output_topics == {'camera_data': '/fake/cam/points'}
+    assert second.output_topics == {'camera_data': '/fake/cam_b/points'}
+    (a,) = publishers_of('/fake/cam/points')
+    (b,) = publishers_of('/fake/cam_b/points')
+    assert a != b
+    assert publishers_of('/fake/cam/info') == [a] and publishers_of('/fake/cam_b/info') == [b]
+    assert publishers_of('/info') == []
+    sm.stop_sensor(first.resource_id)
+    sm.stop_sensor(second.resource_id)
