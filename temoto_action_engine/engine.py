@@ -237,12 +237,17 @@ class ActionEngine:
             self._closed = True
             runs = list(self._graphs.values())
         stoppers = [threading.Thread(target=r.stop, args=(timeout,), daemon=True) for r in runs]
+        if self.workers is not None:        # the spares go meanwhile
+            stoppers.append(threading.Thread(target=self.workers.shutdown, daemon=True))
         for t in stoppers:
             t.start()
         for t in stoppers:
             t.join()
-        if self.workers is not None:
-            self.workers.shutdown()
+        with self._lock:
+            runs = list(self._graphs.values()) + list(self._finished.values())
+        for r in runs:          # the engine outlives its workers: none is left behind when it exits
+            if isinstance(r, WorkerGraph):
+                r.reap()
 
     @staticmethod
     def dumps(obj) -> str:

@@ -293,6 +293,11 @@ class WorkerGraph:
         self._end('%s did not stop within %.0f s; its worker process was ended' % (key, timeout))
         return False
 
+    def reap(self, timeout: float = TERM_GRACE_S) -> None:
+        """Wait for the worker to exit (a finished graph's worker still shuts its rospy down); end it if not."""
+        if not self.worker.exited.wait(timeout):
+            self.worker.end()
+
     def wait(self, timeout: float) -> bool:
         """True once the graph is finished (every node done), waiting up to ``timeout`` s."""
         with self._cond:
@@ -337,6 +342,9 @@ class WorkerGraph:
                 if not self.finished:
                     self._snapshot = msg['graph']
                     self._cond.notify_all()
+            if kind == wp.FINISHED:
+                # everything it held is released: done now, not once its rospy has shut down
+                self._finish(announce=False)
         elif kind == wp.REQUEST:
             threading.Thread(target=self._serve_request, args=(self, msg), daemon=True).start()
         elif kind == wp.REFUSED:
@@ -345,16 +353,11 @@ class WorkerGraph:
             rospy.logwarn('graph %s: its worker sent an unknown message %r' % (self.name, kind))
 
     def _on_exit(self, worker: WorkerProcess) -> None:
-        if worker.returncode == 0 and self._snapshot_final():
-            self._finish()
-            return
         with self._cond:
+            if self.finished:
+                return
             reason = self._end_reason or 'its worker process died (%s)' % exit_reason(worker.returncode)
         self._fail_open_nodes(reason)
-
-    def _snapshot_final(self) -> bool:
-        with self._cond:
-            return all(n['state'] in TERMINAL for n in self._snapshot['nodes'])
 
     def _fail_open_nodes(self, reason: str) -> None:
         """Every node not done is FAILED with ``reason``, and so is the graph; then it is finished."""
@@ -374,7 +377,8 @@ class WorkerGraph:
             self._on_event(ev)
         self._finish()
 
-    def _finish(self) -> None:
+    def _finish(self, announce: bool = True) -> None:
+        """The graph is done. ``announce``: the worker did not say so itself (it died, or refused it)."""
         with self._cond:
             if self.finished:
                 return
@@ -383,6 +387,6 @@ class WorkerGraph:
                 self._snapshot['state'] = FAILED if self._snapshot.get('reason') else 'FINISHED'
             self._cond.notify_all()
             state, reason = self._snapshot['state'], self._snapshot.get('reason', '')
-        if self.worker.returncode != 0:      # a graph that finished itself already said so
+        if announce:
             self._on_event({'event': 'graph_finished', 'graph': self.name, 'state': state, 'reason': reason})
         self._on_finished(self)
