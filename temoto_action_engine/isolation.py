@@ -34,6 +34,7 @@ from .graph import FAILED, TERMINAL, GraphRun
 from .umrf import GraphSpec
 
 READY_TIMEOUT_S = 30.0       # s a new worker may take to register (a loaded machine, a slow master)
+START_ACK_S = 10.0           # s start() waits for the worker to have started the graph's first nodes
 TERM_GRACE_S = 5.0           # s between SIGTERM and SIGKILL when a worker is ended
 RESPAWN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
 
@@ -258,6 +259,7 @@ class WorkerGraph:
         # before the worker says anything: every node WAITING, as an in-process graph starts
         self._snapshot = GraphRun(spec, index, None).to_json()
         self.finished = False
+        self._started = False          # the worker has started the nodes that can start
         self._end_reason = ''          # set when the engine ends the worker on purpose
         self.stopping = False
 
@@ -268,6 +270,10 @@ class WorkerGraph:
         if not self.worker.send(op=wp.RUN, graph=self.spec.to_json(self._index), plugins=plugins,
                                 config=self._config):
             self.worker.end()
+        # as an in-process graph does, return once the first nodes are RUNNING: a list_graphs right
+        # after start_graph then shows them running (it showed WAITING, 1 run in 10 of make test under load)
+        with self._cond:
+            self._cond.wait_for(lambda: self._started or self.finished, START_ACK_S)
 
     def stop(self, timeout: float = 10.0) -> list[str]:
         """Stop every node; a worker that has not finished its graph within ``timeout`` is ended.
@@ -341,7 +347,8 @@ class WorkerGraph:
             with self._cond:
                 if not self.finished:
                     self._snapshot = msg['graph']
-                    self._cond.notify_all()
+                self._started = self._started or bool(msg.get('started'))
+                self._cond.notify_all()
             if kind == wp.FINISHED:
                 # everything it held is released: done now, not once its rospy has shut down
                 self._finish(announce=False)

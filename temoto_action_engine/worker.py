@@ -167,6 +167,8 @@ class GraphWorker:
         self.link = EngineLink(self.out, spec.name, self.stop_timeout)
         self.run = GraphRun(spec, plugins, self._make_context, self._on_event, lambda run: self.done.set())
         self.run.start()
+        # the nodes that could start are RUNNING now: the engine answers start_graph once it has this
+        self.out.send(kind=wp.SNAPSHOT, graph=self.run.to_json(), started=True)
 
     # ------------------------------------------------------------------ worker -> engine
     def _on_event(self, ev: dict) -> None:

@@ -15,7 +15,8 @@ Worker to engine (the worker's stdout), field ``kind``:
 - ``ready``      started, registered with the master, waiting for ``run``: ``pid``, ``node``
 - ``event``      an event for the events topic (state changes, action events): ``event``
 - ``feedback``   a sentence for the operator: ``text``
-- ``snapshot``   the graph's state as ``list_graphs`` shows it: ``graph``
+- ``snapshot``   the graph's state as ``list_graphs`` shows it: ``graph``; ``started`` on the one
+                 sent once the nodes that could start are RUNNING (``start_graph`` waits for it)
 - ``request``    a question to the engine (``stop_actions``, ``running_actions``): ``id``, ``op``, ...
 - ``refused``    the graph could not be started here: ``message``
 - ``finished``   the graph is done and everything it held is released: ``graph``
