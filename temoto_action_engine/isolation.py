@@ -206,12 +206,9 @@ class WorkerPool:
                 while True:
                     if self._closed:
                         raise RuntimeError('the engine is shutting down')
-                    alive = [w for w in self._ready if not w.exited.is_set()]
-                    self._ready = alive
-                    if alive:
-                        worker = alive.pop(0)
-                        self._ready = alive
-                        return worker
+                    self._ready = [w for w in self._ready if not w.exited.is_set()]
+                    if self._ready:
+                        return self._ready.pop(0)
                     left = deadline - time.monotonic()
                     if left <= 0:
                         raise RuntimeError(self._last_error or 'no graph worker started within %.0f s' % timeout)
@@ -261,7 +258,6 @@ class WorkerGraph:
         self.finished = False
         self._started = False          # the worker has started the nodes that can start
         self._end_reason = ''          # set when the engine ends the worker on purpose
-        self.stopping = False
 
     # ------------------------------------------------------------------ GraphRun's face
     def start(self) -> None:
@@ -280,8 +276,6 @@ class WorkerGraph:
 
         Returns the keys of the nodes that did not stop in time (they end FAILED, with the worker).
         """
-        with self._cond:
-            self.stopping = True
         self.worker.send(op=wp.STOP)
         if self.wait(timeout):
             return []
