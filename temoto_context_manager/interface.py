@@ -12,8 +12,8 @@ from diagnostic_msgs.msg import KeyValue
 from temoto_core.errors import Subsystem
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
-from temoto_context_manager.manager import NAME
-from temoto_context_manager.srv import LoadTracker, TrackObject
+from temoto_context_manager.contract import (LOAD_TRACKER, LOAD_TRACKER_TYPE, RR_NAME, TRACK_OBJECT,
+                                             TRACK_OBJECT_TYPE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,13 +35,13 @@ class TrackedObject:
 
 
 class ContextManagerInterface(ManagerInterface):
-    MANAGER = NAME
+    MANAGER = RR_NAME
     SUBSYSTEM = Subsystem.CONTEXT_MANAGER
 
     def load_tracker(self, category: str, output_types: Sequence[str] = (),
                      on_status: Optional[Callable[[StatusEvent], None]] = None) -> TrackerResult:
         """Start the best tracker of ``category``; ``on_status`` is this request's failure policy."""
-        resp = self._load('load_tracker', LoadTracker._request_class(
+        resp = self._load(LOAD_TRACKER, LOAD_TRACKER_TYPE._request_class(
             tracker_category=category, output_topics=[KeyValue(t, '') for t in output_types]), on_status)
         return TrackerResult(resp.trr.resource_id, resp.tracker_name, resp.pipe_id,
                              {kv.key: kv.value for kv in resp.output_topics})
@@ -53,7 +53,7 @@ class ContextManagerInterface(ManagerInterface):
         ``on_status``: this request's failure policy (a failure anywhere below, down to the camera's
         driver, reaches it as FAILED).
         """
-        resp = self._load('track_object', TrackObject._request_class(object_name=object_name), on_status)
+        resp = self._load(TRACK_OBJECT, TRACK_OBJECT_TYPE._request_class(object_name=object_name), on_status)
         return TrackedObject(resp.trr.resource_id, resp.object_name, resp.object_topic, resp.detection_method,
                              resp.tracker_name, resp.pipe_id)
 

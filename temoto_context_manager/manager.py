@@ -31,17 +31,14 @@ from temoto_core.fallback import first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.srv import GetRegistry, GetRegistryResponse
-from temoto_context_manager.srv import LoadTracker, TrackObject
+from temoto_context_manager.contract import (LOAD_TRACKER, LOAD_TRACKER_TYPE, RR_NAME as NAME, TRACK_OBJECT,
+                                             TRACK_OBJECT_TYPE, TRACKER_RR_NAME as TRACKER_RR)
 from temoto_context_manager.trackers import Filter, Tracker, TrackerCatalogue
-from temoto_er_manager.srv import LoadProcess
 from temoto_core.reliability import Reliability
-from temoto_sensor_manager.srv import LoadSensor
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
+from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
 from temoto_sensor_manager.watchdog import TopicProbe
 
-NAME = 'temoto_context_manager'
-TRACKER_RR = 'temoto_context_manager_trackers'
-SENSOR_MANAGER = 'temoto_sensor_manager'
-ER_MANAGER = 'temoto_er_manager'
 SUB = Subsystem.CONTEXT_MANAGER
 _pipe_numbers = itertools.count(1)
 
@@ -72,9 +69,9 @@ class ContextManager:
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
         for rr in (self.rr, self.tracker_rr):
-            rr.add_server('load_tracker', LoadTracker, lambda q, s, rr=rr: self._load_tracker(rr, q, s),
+            rr.add_server(LOAD_TRACKER, LOAD_TRACKER_TYPE, lambda q, s, rr=rr: self._load_tracker(rr, q, s),
                           lambda q, s, rr=rr: self._unload_tracker(rr, q, s))
-        self.rr.add_server('track_object', TrackObject, self._track_object, self._untrack_object)
+        self.rr.add_server(TRACK_OBJECT, TRACK_OBJECT_TYPE, self._track_object, self._untrack_object)
         self._info_srv = rospy.Service('/%s/%s/trackers' % (self.namespace, NAME), GetRegistry,
                                        lambda _req: GetRegistryResponse(json=self.info_json()))
         rospy.loginfo('%s: ready with tracker categories %s and objects %s', NAME,
@@ -122,9 +119,9 @@ class ContextManager:
         topics: Dict[str, str] = {}
         for index, filt in enumerate(pipe.tracker.filters):
             if filt.kind == 'sensor':
-                request = LoadSensor._request_class(sensor_type=filt.type,
+                request = START_SENSOR_TYPE._request_class(sensor_type=filt.type,
                                                     output_topics=[KeyValue(t, '') for t in filt.outputs])
-                resp = self._nested(pipe, SENSOR_MANAGER, 'start_sensor', request)
+                resp = self._nested(pipe, SENSOR_MANAGER, START_SENSOR, request)
                 topics.update({kv.key: kv.value for kv in resp.output_topics})
             else:
                 topics.update(self._start_algorithm(pipe, index, filt, topics))
@@ -137,10 +134,10 @@ class ContextManager:
         args += ['%s:=%s' % (name, outputs[t]) for t, name in filt.outputs.items()]
         probes = [TopicProbe(topic, 0.0) for topic in outputs.values()]
         try:
-            request = LoadProcess._request_class(action='ros_execute', package_name=filt.package,
+            request = LOAD_PROCESS_TYPE._request_class(action='ros_execute', package_name=filt.package,
                                                  executable=filt.executable,
                                                  args=' '.join(shlex.quote(a) for a in args))
-            resp = self._nested(pipe, ER_MANAGER, 'load_process', request)
+            resp = self._nested(pipe, ER_MANAGER, LOAD_PROCESS, request)
             deadline = time.monotonic() + filt.first_data_timeout
             for probe in probes:
                 if not probe.first.wait(max(0.0, deadline - time.monotonic())):
@@ -204,8 +201,8 @@ class ContextManager:
         methods = sorted(obj.detection_methods, key=lambda m: -self._method(name, m).value)
 
         def attempt(method):
-            request = LoadTracker._request_class(tracker_category=method, output_topics=[KeyValue('pose', '')])
-            return self.rr.call(TRACKER_RR, 'load_tracker', request, status_cb=self._on_tracker_status,
+            request = LOAD_TRACKER_TYPE._request_class(tracker_category=method, output_topics=[KeyValue('pose', '')])
+            return self.rr.call(TRACKER_RR, LOAD_TRACKER, request, status_cb=self._on_tracker_status,
                                 namespace=self.namespace)
         method, resp = first_that_works(methods, attempt, what='tracking %r' % name, subsystem=SUB,
                                         code=ErrorCode.NO_TRACKERS_FOUND,

@@ -23,13 +23,14 @@ from temoto_core.errors import Subsystem
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
 
-from .policy import ROS_EXECUTE, SYS_EXECUTE
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME
+from temoto_er_manager.policy import ROS_EXECUTE, SYS_EXECUTE
 
 
 class ERManagerInterface(ManagerInterface):
-    MANAGER = 'temoto_er_manager'
+    MANAGER = RR_NAME
     SUBSYSTEM = Subsystem.ER_MANAGER
-    SERVER = 'load_process'
+    SERVER = LOAD_PROCESS
 
     def load(self, package: str, executable: str, args: str = '', ros_namespace: str = '',
              on_status: Optional[Callable[[StatusEvent], None]] = None):
@@ -49,6 +50,5 @@ class ERManagerInterface(ManagerInterface):
 
     @staticmethod
     def _request(action, package, executable, args, ros_namespace):
-        from temoto_er_manager.srv import LoadProcess
-        return LoadProcess._request_class(action=action, package_name=package, executable=executable, args=args,
+        return LOAD_PROCESS_TYPE._request_class(action=action, package_name=package, executable=executable, args=args,
                                           ros_namespace=ros_namespace)

@@ -32,15 +32,13 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_core.rr import ResourceRegistrar
 
 from temoto_core import master_lookup as master
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as NAME
 from .policy import ERConfig, RequestRefused, validate_request
 from .resolve import Resolver
 from .resource import Resource
 from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSupervisor, ReadyTimeout,
                          StartCancelled, SupervisorError)
-from temoto_er_manager.srv import LoadProcess
 
-NAME = 'temoto_er_manager'
-SERVER = 'load_process'
 
 
 def load_config(params: dict) -> ERConfig:
@@ -70,7 +68,7 @@ class ERManager:
         self._names_lock = threading.Lock()              # held from choosing a request's node names to claiming them
         self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
         self._closing = False
-        self.rr.add_server(SERVER, LoadProcess, self._load, self._unload)
+        self.rr.add_server(LOAD_PROCESS, LOAD_PROCESS_TYPE, self._load, self._unload)
         self._processes_srv = rospy.Service('/%s/%s/processes' % (self.rr.namespace, NAME), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.processes_json()))
         rospy.loginfo('%s: ready (sys_execute allowlist: %s; package allowlist: %s; logs in %s; Python nodes %s)',

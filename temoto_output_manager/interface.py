@@ -17,13 +17,13 @@ from typing import Callable, Optional
 from temoto_core.errors import Subsystem
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
-from temoto_output_manager.srv import LoadRvizPlugin
+from temoto_output_manager.contract import LOAD_RVIZ_PLUGIN, LOAD_RVIZ_PLUGIN_TYPE, RR_NAME
 
 
 class OutputManagerInterface(ManagerInterface):
-    MANAGER = 'temoto_output_manager'
+    MANAGER = RR_NAME
     SUBSYSTEM = Subsystem.OUTPUT_MANAGER
-    SERVER = 'load_rviz_plugin'
+    SERVER = LOAD_RVIZ_PLUGIN
 
     def show_in_rviz(self, type: str, topic: str = '', name: str = '', config: str = '',
                      on_status: Optional[Callable[[StatusEvent], None]] = None) -> int:
@@ -36,7 +36,7 @@ class OutputManagerInterface(ManagerInterface):
     def show(self, type: str, topic: str = '', name: str = '', config: str = '',
              on_status: Optional[Callable[[StatusEvent], None]] = None):
         """Like show_in_rviz, returning the whole response (``display_name`` included)."""
-        req = LoadRvizPlugin._request_class(type=type, name=name, topic=topic, config=config)
+        req = LOAD_RVIZ_PLUGIN_TYPE._request_class(type=type, name=name, topic=topic, config=config)
         return self._load(self.SERVER, req, on_status)
 
     def hide(self, resource_id: int) -> None:

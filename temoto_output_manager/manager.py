@@ -27,12 +27,13 @@ from temoto_core.errors import ErrorCode, Subsystem, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
+from temoto_output_manager.contract import LOAD_RVIZ_PLUGIN, LOAD_RVIZ_PLUGIN_TYPE
+
 from . import display_config
 from .display_types import DEFAULT_CONFIG, UnknownDisplayType, check_topic_name, needs_topic, rviz_class_for
 from .host_client import RvizHostClient, RvizHostError
 
-MANAGER_NAME = 'temoto_output_manager'
-SERVER_NAME = 'load_rviz_plugin'
 HOST_PACKAGE = 'temoto_output_manager'
 HOST_EXECUTABLE = 'rviz_host'
 HOST_NODE = 'rviz_host'
@@ -60,16 +61,15 @@ class OutputManager:
         self._dead_hosts: set = set()                     # pids of hosts that failed
         self._host_pid_by_local: Dict[int, int] = {}
         self._host_failures: Dict[int, str] = {}          # local id of a host resource -> why it failed
-        rr.add_server(SERVER_NAME, _srv_type(), self.load_cb, self.unload_cb)
+        rr.add_server(LOAD_RVIZ_PLUGIN, LOAD_RVIZ_PLUGIN_TYPE, self.load_cb, self.unload_cb)
 
     # ------------------------------------------------------------------ the host process
     def _host_request(self):
-        from temoto_er_manager.srv import LoadProcess
         args = ['__name:=%s' % HOST_NODE, '_temoto_namespace:=%s' % self.namespace]
         args += ['_%s:=%s' % (k, v) for k, v in sorted(self.host_params.items())]
-        return LoadProcess._request_class(action='ros_execute', ros_namespace='/' + self.namespace,
-                                          package_name=HOST_PACKAGE, executable=HOST_EXECUTABLE,
-                                          args=' '.join(args))
+        return LOAD_PROCESS_TYPE._request_class(action='ros_execute', ros_namespace='/' + self.namespace,
+                                                package_name=HOST_PACKAGE, executable=HOST_EXECUTABLE,
+                                                args=' '.join(args))
 
     def _on_host_status(self, ev: StatusEvent) -> None:
         # The RR forwards a FAILED to the display resources by itself; here only remember the host is gone
@@ -91,7 +91,7 @@ class OutputManager:
         """
         for attempt in range(1, self.host_start_attempts + 1):
             try:
-                resp = self.rr.call('temoto_er_manager', 'load_process', self._host_request(),
+                resp = self.rr.call(ER_MANAGER, LOAD_PROCESS, self._host_request(),
                                     status_cb=self._on_host_status)
             except TemotoError as e:     # died before it registered at the master: the same start-up crash
                 if e.origin.code != ErrorCode.PROCESS_STOPPED or attempt == self.host_start_attempts:
@@ -166,8 +166,3 @@ class OutputManager:
     def displays(self) -> Dict[int, str]:
         with self._lock:
             return {rid: name for rid, (name, _) in self._displays.items()}
-
-
-def _srv_type():
-    from temoto_output_manager.srv import LoadRvizPlugin
-    return LoadRvizPlugin

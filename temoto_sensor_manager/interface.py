@@ -8,15 +8,17 @@ another device and the consumer keeps listening on the same topics.
 """
 import copy
 import dataclasses
+import json
 from typing import Callable, Dict, List, Mapping, Optional, Sequence, Union
 
+import rospy
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import Subsystem, TemotoError
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
-from temoto_sensor_manager.manager import NAME, SERVER
-from temoto_sensor_manager.srv import LoadSensor
+from temoto_core.srv import GetRegistry
+from temoto_sensor_manager.contract import CATALOGUE, RR_NAME, START_SENSOR, START_SENSOR_TYPE
 
 TopicsArg = Union[None, Mapping[str, str], Sequence[str]]
 
@@ -38,6 +40,13 @@ class SensorResult:
                            % (self.sensor_name, key, ', '.join(self.output_topics))) from None
 
 
+def fetch_catalogue(namespace: str = 'temoto', timeout: float = 1.0) -> List[dict]:
+    """The running manager's catalogue rows (type, reliability, topics), through its service."""
+    name = '/%s/%s/%s' % (namespace.strip('/'), RR_NAME, CATALOGUE)
+    rospy.wait_for_service(name, timeout)
+    return json.loads(rospy.ServiceProxy(name, GetRegistry)().json)['sensors']
+
+
 def _key_values(topics: TopicsArg, what: str) -> List[KeyValue]:
     if topics is None:
         return []
@@ -56,7 +65,7 @@ def _result(response) -> SensorResult:
 class SensorManagerInterface(ManagerInterface):
     """Client of ``/<ns>/temoto_sensor_manager/start_sensor``."""
 
-    MANAGER = NAME
+    MANAGER = RR_NAME
     SUBSYSTEM = Subsystem.SENSOR_MANAGER
 
     def __init__(self, rr=None, namespace: Optional[str] = None) -> None:
@@ -76,11 +85,11 @@ class SensorManagerInterface(ManagerInterface):
         the interface's default applies (reload the same request, with its topics pinned).
         Raises TemotoError (e.g. SENSOR_NOT_FOUND with the known types) on failure.
         """
-        request = LoadSensor._request_class(sensor_type=sensor_type, package_name=package_name,
-                                            executable=executable,
-                                            output_topics=_key_values(output_topics, 'output_topics'),
-                                            input_topics=_key_values(input_topics, 'input_topics'))
-        return _result(self._load(SERVER, request, on_status))
+        request = START_SENSOR_TYPE._request_class(sensor_type=sensor_type, package_name=package_name,
+                                                   executable=executable,
+                                                   output_topics=_key_values(output_topics, 'output_topics'),
+                                                   input_topics=_key_values(input_topics, 'input_topics'))
+        return _result(self._load(START_SENSOR, request, on_status))
 
     def stop_sensor(self, resource_id: int) -> None:
         """Release a sensor started by this interface (its driver stops when nobody else holds it)."""

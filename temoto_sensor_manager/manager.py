@@ -1,11 +1,11 @@
 """The Sensor Manager's logic: the ``start_sensor`` server over a catalogue, the ER Manager and a watchdog.
 
 Load: rank the matching catalogue entries, and for each in turn start its
-driver through a *nested* ``load_process`` call (so the process is linked to
-the sensor query: unloaded with it, its FAILED forwarded by the registrar),
-then wait for the first message on every output topic. The first candidate
-whose data flows wins; a candidate that fails to start, crashes, or stays
-silent is rolled back and the next is tried. Reliability goes up on success
+driver through ``load_process``, held on the manager's own account, and wait
+for the first message on every output topic. The first candidate whose data
+flows wins, and only then is its process linked to the sensor query (unloaded
+with it, its FAILED forwarded by the registrar); a candidate that fails to
+start, crashes, or stays silent is released and the next is tried. Reliability goes up on success
 and down on a load failure, a crash, or a stall.
 
 While a sensor is held, its topics are watched (``watchdog.Watchdog``); a
@@ -27,42 +27,22 @@ from temoto_core.fallback import Tried, first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.srv import GetRegistry, GetRegistryResponse
-from temoto_er_manager.srv import LoadProcess
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_sensor_manager.catalogue import Catalogue, SensorEntry
-from temoto_sensor_manager.selection import LaunchPlan, SensorQuery, candidates, plan, validate
-from temoto_sensor_manager.srv import LoadSensor
+from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SENSOR, START_SENSOR_TYPE
+from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
 from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
 
-NAME = 'temoto_sensor_manager'
-SERVER = 'start_sensor'
-ER_MANAGER = 'temoto_er_manager'
-ER_SERVER = 'load_process'
 SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)
 # before its rate counts; the VaultBot's simulated drivers need 0.4 to 0.9 s (BENCHMARKS.md, bench_sim.py)
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 
 
-def sensor_key(request) -> tuple:
-    """Equality of sensor requests, as the original: type, package, executable, output topics (a multiset).
-
-    Input topics are left out: they do not change which device runs.
-    """
-    return (request.sensor_type.strip(), request.package_name.strip(), request.executable.strip(),
-            tuple(sorted((kv.key, kv.value) for kv in request.output_topics)))
-
-
 def _gaps(probes: List[TopicProbe]) -> str:
     """The longest gap between messages on each topic, beside its stall limit (to tune the limits)."""
     return 'longest gap between messages: ' + ', '.join(
         '%s %.3f s in %d msgs (limit %.3f s)' % (p.topic, p.max_gap, p.count, p.limit) for p in probes)
-
-
-def fetch_catalogue(namespace: str = 'temoto', timeout: float = 1.0) -> List[dict]:
-    """The running manager's catalogue rows (``catalogue_json``), through its service."""
-    name = '/%s/%s/catalogue' % (namespace.strip('/'), NAME)
-    rospy.wait_for_service(name, timeout)
-    return json.loads(rospy.ServiceProxy(name, GetRegistry)().json)['sensors']
 
 
 class _Attempt:
@@ -114,8 +94,8 @@ class SensorManager:
         self.watchdog = Watchdog(self._on_stall)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
-        self.rr.add_server(SERVER, LoadSensor, self._load, self._unload, key=sensor_key)
-        self._catalogue_srv = rospy.Service('/%s/%s/catalogue' % (self.rr.namespace, NAME), GetRegistry,
+        self.rr.add_server(START_SENSOR, START_SENSOR_TYPE, self._load, self._unload)
+        self._catalogue_srv = rospy.Service('/%s/%s/%s' % (self.rr.namespace, NAME, CATALOGUE), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.catalogue_json()))
         rospy.loginfo('%s: ready with %d sensor(s) of type(s) %s', NAME, len(catalogue.entries),
                       ', '.join(catalogue.types()) or 'none')
@@ -154,13 +134,11 @@ class SensorManager:
         topic (another device serving the same name) would count as first data, as it did when the
         subscription came after the start.
 
-        The trial start is made *unlinked* (from a helper thread, which has no load
-        in progress): a candidate that crashes during the wait must not fail the
-        whole sensor load, as a linked sub-resource failing mid-load would. Once
-        data flows, an equal call from the load thread shares the same process
-        (no second start) and links it; then the trial reference is dropped.
+        The start is held *unlinked* (``link=False``): a candidate that crashes during
+        the wait must not fail the whole sensor load, as a linked sub-resource failing
+        mid-load would. Once data flows, the process is linked to the sensor.
         """
-        request = LoadProcess._request_class(action='ros_execute', package_name=entry.package,
+        request = LOAD_PROCESS_TYPE._request_class(action='ros_execute', package_name=entry.package,
                                              executable=entry.executable, args=launch.args)
         attempt = _Attempt()
         # Subscribed before the driver starts: the connection to its publishers is made while it starts
@@ -168,18 +146,18 @@ class SensorManager:
         probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
                   for key, topic in launch.topics.items()]
         try:
-            trial = self._call_unlinked(request)
+            started = self.rr.call(self.er_manager, LOAD_PROCESS, request, status_cb=self._on_process_status,
+                                   link=False)
         except BaseException:
             for probe in probes:
                 probe.close()
             raise
-        trial_id = trial.trr.resource_id
+        process_id = started.trr.resource_id
         with self._lock:
-            self._attempts[trial_id] = attempt
-            early = self._early_failures.pop(trial_id, None)
+            self._attempts[process_id] = attempt
+            early = self._early_failures.pop(process_id, None)
         if early is not None:
             attempt.fail(early)
-        linked_id = None
         try:
             limit = max(entry.output_topics[key].first_data_limit(self.first_data_allowance, self.first_data_timeout)
                         for key in launch.topics)
@@ -192,51 +170,31 @@ class SensorManager:
                     attempt.cond.wait(remaining)
             if attempt.failure:
                 raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed before '
-                                  'data arrived: %s' % (entry.name, trial.pid, attempt.failure))
+                                  'data arrived: %s' % (entry.name, started.pid, attempt.failure))
             silent = [p.topic for p in probes if not p.first.is_set()]
             if silent:
                 raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
                                   '(pid %d) started' % (entry.name, ', '.join(silent), limit,
-                                                        trial.pid))
-            linked = self.rr.call(self.er_manager, ER_SERVER, request, status_cb=self._on_process_status)
-            linked_id = linked.trr.resource_id
-            if linked.pid != trial.pid or attempt.failure:
+                                                        started.pid))
+            try:
+                self.rr.link(process_id)      # refused if the process failed meanwhile
+            except TemotoError as err:
                 raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed just as '
-                                  'its data arrived: %s' % (entry.name, trial.pid, attempt.failure or 'restarted'))
+                                  'its data arrived: %s' % (entry.name, started.pid, attempt.failure or err))
         except BaseException:
             for probe in probes:
                 probe.close()
             with self._lock:
-                self._attempts.pop(trial_id, None)
-            for local_id in (linked_id, trial_id):
-                if local_id is not None:
-                    self._release(local_id, 'stopping failed candidate %s' % entry.name)
+                self._attempts.pop(process_id, None)
+            self._release(process_id, 'stopping failed candidate %s' % entry.name)
             raise
-        held = _Held(internal_id, entry, linked_id, probes)
+        held = _Held(internal_id, entry, process_id, probes)
         with self._lock:
             # in one step, so a FAILED of the process finds either the attempt or the held sensor
-            self._attempts.pop(trial_id, None)
+            self._attempts.pop(process_id, None)
             self._held[internal_id] = held
-            self._by_process[linked_id] = held
-        self._release(trial_id, 'dropping the trial reference of %s' % entry.name)
+            self._by_process[process_id] = held
         return held
-
-    def _call_unlinked(self, request):
-        """``rr.call`` from a thread with no load in progress, so the process is not linked (yet)."""
-        box = {}
-
-        def run() -> None:
-            try:
-                box['response'] = self.rr.call(self.er_manager, ER_SERVER, request,
-                                               status_cb=self._on_process_status)
-            except BaseException as err:      # re-raised in the load thread
-                box['error'] = err
-        thread = threading.Thread(target=run, name='sensor-trial-start', daemon=True)
-        thread.start()
-        thread.join()
-        if 'error' in box:
-            raise box['error']
-        return box['response']
 
     def _release(self, local_id: int, why: str) -> None:
         try:

@@ -61,6 +61,46 @@ def test_failed_load_rolls_back_sub_resources(chain):
         assert registry_empty(node)
 
 
+def test_a_call_made_with_link_false_inside_a_load_is_held_but_not_linked(chain):
+    a, b, c = chain
+    res = a.call('rr_b', 'cam', [('held', 'rr_c/load_test/driver')])
+    assert 'error' not in res, res
+    reg_b = b.registry()
+    assert reg_b['server_queries'][0]['links'] == []
+    assert reg_b['client_queries'][0]['linked_to'] == []
+    c.fail('driver', 'cable pulled')
+    wait_for(lambda: b.events(), 10, "B's own callback for the driver it holds")
+    # B forwards through links before it runs its callbacks: nothing was forwarded, so cam is still active
+    assert [q['state'] for q in b.registry()['server_queries']] == ['active']
+    assert a.unload(res['id']) == {}
+    assert c.counts()['unloads'] == {}                      # not released in cascade
+    assert b.command(op='release_all') == {}
+    assert c.counts()['unloads'] == {'driver': 1}
+
+
+def test_a_resource_linked_after_the_call_goes_with_its_parent_and_its_failure_goes_up(chain):
+    a, b, c = chain
+    res = a.call('rr_b', 'cam', [('adopt', 'rr_c/load_test/driver')])
+    assert 'error' not in res, res
+    reg_b = b.registry()
+    assert reg_b['server_queries'][0]['links'] == reg_b['client_queries'][0]['local_ids']
+    c.fail('driver', 'cable pulled')
+    events = a.wait_events(1)
+    assert events[0]['id'] == res['id'] and any('cable pulled' in m for m in events[0]['stack'])
+    assert a.unload(res['id']) == {}
+    assert c.counts()['unloads'] == {'driver': 1}
+
+
+def test_linking_a_resource_that_failed_meanwhile_is_refused_and_fails_the_load(chain):
+    a, b, c = chain
+    res = a.call('rr_b', 'cam', [('adopt', 'rr_c/load_test/doomed_driver')])
+    assert res.get('code') == ErrorCode.RESOURCE_FAILED, res
+    assert 'is failed' in res['error'], res['error']
+    for node in chain:
+        wait_for(lambda: registry_empty(node), 10, 'nothing left at %s' % node.name)
+    assert c.counts()['unloads'] == {'doomed_driver': 1}
+
+
 def test_a_failure_is_said_once_then_its_chain(chain):
     """The error text names where the failure started exactly once (each hop used to repeat the whole
     text of the hop below it), then the hops it took, newest first."""

@@ -12,6 +12,7 @@ from temoto_core.ids import IdGenerator
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import RegistrySnapshot, ResourceRegistrar
 from temoto_core.rr.keys import request_key
+from temoto_core.rr.messages import clone
 from temoto_core.srv import LoadTestResource, UnloadResource
 from temoto_core.testing import wait_for
 from diagnostic_msgs.msg import KeyValue
@@ -43,13 +44,12 @@ def test_equality_ignores_the_header_and_treats_keyvalues_as_multisets():
 
 
 def test_a_consumer_s_copy_of_a_response_shares_nothing_it_could_change():
-    """Each consumer gets its own copy of a shared response (registrar._clone): changing one, lists,
+    """Each consumer gets its own copy of a shared response (messages.clone): changing one, lists,
     nested messages and times included, must not change the registrar's or another consumer's."""
     from temoto_core.msg import Error
-    from temoto_core.rr.registrar import _clone
     original = LoadTestResource._response_class(payload='p')
     original.trr.error_stack = [Error(code=1, message='m', stamp=rospy.Time(5, 6))]
-    copy = _clone(original)
+    copy = clone(original)
     assert copy == original
     copy.trr.resource_id = 9
     copy.trr.error_stack[0].message = 'changed'

@@ -85,6 +85,21 @@ def test_two_clients_share_one_driver_process(smi):
     wait_for(lambda: pid_gone(pid), 10, 'the shared driver to stop with its last consumer')
 
 
+def test_client_and_server_share_by_one_rule(smi):
+    """Input topics do not change which device runs: the server shares such requests, and so must the
+    client (its equality comes from the same contract module), or it holds two references to one sensor."""
+    sm = smi()
+    r1 = sm.start_sensor('fake lidar', ['lidar_data'], input_topics={'cmd': '/a'})
+    r2 = sm.start_sensor('fake lidar', ['lidar_data'], input_topics={'cmd': '/b'})
+    assert r1.resource_id != r2.resource_id and r1.output_topics == r2.output_topics
+    held = sm.rr.registry().client_queries
+    assert len(held) == 1 and held[0].local_ids == sorted([r1.resource_id, r2.resource_id])
+    queries = registry()['server_queries']
+    assert len(queries) == 1 and len(queries[0]['consumers']) == 1
+    sm.stop_sensor(r1.resource_id)
+    sm.stop_sensor(r2.resource_id)
+
+
 def test_crash_reaches_the_client_and_the_reload_picks_the_other_device(smi):
     """As the original: one failure reorders equal priors, the reload keeps the topic names."""
     before = catalogue()

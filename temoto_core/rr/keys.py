@@ -5,7 +5,7 @@ the same sensor from different status topics would never share it. The key
 below leaves ``trr`` out and compares ``diagnostic_msgs/KeyValue`` lists as
 multisets, because topic maps are unordered in meaning.
 """
-from typing import Any, Hashable
+from typing import Any, Callable, Dict, Hashable
 
 import genpy
 
@@ -52,3 +52,31 @@ def message_key(msg: genpy.Message, skip: str = '') -> Hashable:
 def request_key(request: genpy.Message) -> Hashable:
     """The default equality of resource requests (docs/architecture.md)."""
     return message_key(request, skip=HEADER_FIELD)
+
+
+_KEYS: Dict[type, Callable[[genpy.Message], Hashable]] = {}
+
+
+def register_key(request_class: type, key: Callable[[genpy.Message], Hashable]) -> None:
+    """Make ``key`` the equality of every request of ``request_class``, on both sides of the wire.
+
+    A manager's contract module calls this at import; its server and every client
+    interface import that module, so the server shares exactly what a client
+    shares (one rule, not two that drift apart). Registering a second, different
+    key for one type is a bug, and raises.
+    """
+    known = _KEYS.get(request_class)
+    if known is not None and known is not key:
+        raise ValueError('request type %s already has the equality %s' % (request_class._type, known.__name__))
+    _KEYS[request_class] = key
+
+
+def key_of(request: genpy.Message) -> Hashable:
+    """The equality key of ``request``: its type's registered key, else every field but the header."""
+    key = _KEYS.get(type(request))
+    return key(request) if key is not None else message_key(request, skip=HEADER_FIELD)
+
+
+def key_function(request_class: type) -> Callable[[genpy.Message], Hashable]:
+    """The key function that ``key_of`` uses for ``request_class``."""
+    return _KEYS.get(request_class, request_key)

@@ -341,7 +341,7 @@ class ShowEnvironment(ActionBase):
         if guess is not None:
             topics = guess(choice.sensor_type, keys)
         else:
-            from temoto_sensor_manager.manager import fetch_catalogue
+            from temoto_sensor_manager.interface import fetch_catalogue
             from temoto_sensor_manager.selection import likely_topics
             topics = likely_topics(fetch_catalogue(self.context.namespace, CATALOGUE_TIMEOUT_S),
                                    choice.sensor_type, keys)

@@ -1,0 +1,109 @@
+"""Status channels: the topics on which an owner tells each consumer what happened to its resource.
+
+A consumer names its status topic in every request. rospy drops what a new
+publisher sends before its first subscriber connects, so a channel is connected
+(bounded wait) before a consumer is attached to anything, and a FAILED raised the
+moment after finds someone to go to. Channels are counted, so the publisher of a
+consumer that has gone (an action that ended) is unregistered after a grace
+instead of kept for the life of the manager.
+"""
+import threading
+import time
+from typing import Dict, List
+
+import rospy
+
+from temoto_core.errors import ErrorFrame
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr.query import Consumer
+
+# An unused status channel is unregistered after this long: long enough for a consumer that comes back at
+# once (a reload, the next step of a loop) to find it still connected, short enough that the channels of
+# ended actions do not pile up.
+CHANNEL_GRACE = 5.0
+
+
+class StatusChannels:
+    def __init__(self, namespace: str, rr_name: str, prefix: str, connect_timeout: float) -> None:
+        self._namespace = namespace
+        self._rr_name = rr_name
+        self._prefix = prefix
+        self._connect_timeout = connect_timeout
+        self._lock = threading.Lock()
+        self._publishers: Dict[str, rospy.Publisher] = {}
+        self._users: Dict[str, int] = {}     # status topic -> consumers (and loads in flight) using it
+        self._idle: Dict[str, float] = {}    # status topic -> when its last user left
+
+    def announce(self, consumer: Consumer, server_name: str, external_id: int, code: int, message: str,
+                 stack: list) -> None:
+        """Publish one status to one consumer (``stack``: ErrorFrames or Error messages)."""
+        if not consumer.status_topic:
+            return
+        msg = ResourceStatus(temoto_namespace=self._namespace, manager_name=self._rr_name, server_name=server_name,
+                             resource_id=external_id, status_code=code, message=message,
+                             error_stack=[f.to_msg() if isinstance(f, ErrorFrame) else f for f in stack])
+        msg.header.stamp = rospy.Time.now()
+        try:
+            self._publisher(consumer.status_topic).publish(msg)
+        except rospy.ROSException as err:     # rospy is shutting down: the consumer hears of it from the master
+            rospy.logwarn('%s: status %d for %s:%d to %s not sent: %s', self._prefix, code, server_name,
+                          external_id, consumer.status_topic, err)
+
+    def _publisher(self, topic: str) -> rospy.Publisher:
+        with self._lock:
+            pub = self._publishers.get(topic)
+            if pub is None:
+                pub = self._publishers[topic] = rospy.Publisher(topic, ResourceStatus, queue_size=1000,
+                                                                tcp_nodelay=True)
+            return pub
+
+    def acquire(self, topic: str) -> None:
+        """Count one more user of a consumer's status channel and make sure it is connected.
+
+        The first request from a consumer waits (bounded) for the connection; later
+        requests find it open.
+        """
+        if not topic:
+            return
+        with self._lock:
+            self._users[topic] = self._users.get(topic, 0) + 1
+            self._idle.pop(topic, None)
+        pub = self._publisher(topic)
+        deadline = time.monotonic() + self._connect_timeout
+        delay = 0.0005
+        while pub.get_num_connections() == 0 and time.monotonic() < deadline:
+            time.sleep(delay)
+            delay = min(delay * 2, 0.02)
+        if pub.get_num_connections() == 0:
+            rospy.logwarn('%s: no subscriber on status topic %s yet; statuses may be lost', self._prefix, topic)
+
+    def release(self, topic: str) -> None:
+        """One user fewer; an unused channel is unregistered by ``reap_idle`` after a grace period
+        (long enough for a last status queued on it to go out)."""
+        if not topic:
+            return
+        with self._lock:
+            users = self._users.get(topic, 0) - 1
+            if users > 0:
+                self._users[topic] = users
+                return
+            self._users.pop(topic, None)
+            self._idle[topic] = time.monotonic()
+
+    def reap_idle(self, grace: float) -> None:
+        now = time.monotonic()
+        with self._lock:
+            pubs: List[rospy.Publisher] = []
+            for topic in [t for t, since in self._idle.items() if now - since >= grace]:
+                del self._idle[topic]
+                pub = self._publishers.pop(topic, None)
+                if pub is not None:
+                    pubs.append(pub)
+        for pub in pubs:
+            pub.unregister()
+
+    def close(self) -> None:
+        with self._lock:
+            for pub in self._publishers.values():
+                pub.unregister()
+            self._publishers.clear()

@@ -1,0 +1,247 @@
+"""The owner's side of a registrar: serve loads, share equal requests, release consumers, unload in cascade,
+and send an owner's status to every consumer of a resource.
+
+Each unique request becomes a *server query* with an internal id (what the owner
+sees); each consumer gets its own external id (what it holds). An equal request
+that arrives while the first is loading waits for the outcome and gets the full
+response, never a half-filled one.
+"""
+from typing import Callable, Dict, List, Optional, Tuple
+
+import rospy
+
+from temoto_core.errors import ErrorCode, ErrorFrame, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr.channels import StatusChannels
+from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.links import Links
+from temoto_core.rr.messages import STATUS_CODES, shallow_copy
+from temoto_core.rr.query import (ACTIVE, FAILED, GONE, LOADING, UNLOADING, Consumer, Server, ServerQuery)
+
+
+class ServerSide:
+    def __init__(self, core: RegistrarCore, links: Links, channels: StatusChannels,
+                 release_held: Callable[[int], None]) -> None:
+        self._core = core
+        self._links = links
+        self._channels = channels
+        self._release_held = release_held         # the client side's unload: cascade and rollback go through it
+        self.servers: Dict[str, Server] = {}
+        self.by_internal: Dict[int, ServerQuery] = {}
+        self.by_external: Dict[Tuple[str, int], ServerQuery] = {}
+
+    # ------------------------------------------------------------------------------------------ load
+    def handle_load(self, server: Server, request):
+        core = self._core
+        response = server.srv_type._response_class()
+        try:
+            core.validate_header(request.trr)
+        except TemotoError as err:
+            return failure_response(response, err)
+        consumer = Consumer(request.trr.status_topic, request.trr.client_name, request.trr.temoto_namespace,
+                            request.trr.client_uri)
+        # The consumer's status channel is connected before it is attached to anything: a FAILED raised
+        # the moment after it is attached must find a subscriber to go to. Every path below that does not
+        # attach the consumer gives the channel back.
+        self._channels.acquire(consumer.status_topic)
+        attached = False
+        try:
+            response = self._serve(server, request, response, consumer)
+            attached = response.trr.code == 0
+            return response
+        finally:
+            if not attached:
+                self._channels.release(consumer.status_topic)
+
+    def _serve(self, server: Server, request, response, consumer: Consumer):
+        core = self._core
+        key = server.key(request)
+        with core.lock:
+            if core.closed:
+                return failure_response(response, core.error(ErrorCode.SHUTDOWN, 'registrar is shutting down'))
+            external_id = core.ids.next()
+            while True:
+                query = server.by_key.get(key)
+                if query is None:
+                    # rospy deserialised this request for this call alone: it can be kept as it is
+                    query = ServerQuery(server, key, core.ids.next(), request)
+                    server.by_key[key] = query
+                    self.by_internal[query.internal_id] = query
+                    break
+                if query.state is ACTIVE:
+                    return self._attach(query, external_id, consumer)
+                # loading: wait for its outcome; unloading: wait until it is gone, then load anew
+                shared = query
+                while shared.state in (LOADING, UNLOADING):
+                    core.wait_for_change()
+                if shared.state is FAILED and shared.failure is not None and shared.response is None:
+                    return failure_response(response, shared.failure.extended(
+                        ErrorCode.RESOURCE_FAILED, core.subsystem, 'shared load of %s failed' % server.name,
+                        core.prefix))
+        return self._load_new(server, query, external_id, consumer, request, response)
+
+    def _load_new(self, server: Server, query: ServerQuery, external_id: int, consumer: Consumer, request,
+                  response):
+        core = self._core
+        response.trr.resource_id = query.internal_id
+        error = None
+        with self._links.loading(query):
+            try:
+                server.load_cb(request, response)
+            except TemotoError as err:
+                error = err.extended(ErrorCode.RESOURCE_FAILED, core.subsystem, 'loading %s failed' % server.name,
+                                     core.prefix)
+            except Exception as err:  # an owner bug must not kill the service thread or leave a loading query
+                rospy.logerr('%s: load callback of %s raised %r', core.prefix, server.name, err)
+                error = TemotoError(ErrorCode.LOAD_CALLBACK, core.subsystem, 'load callback of %s raised %s: %s'
+                                    % (server.name, type(err).__name__, err), prefix=core.prefix)
+        with core.lock:
+            if error is None and query.failure is None:
+                # a sub-resource that failed during the load fails it only if the callback still holds it:
+                # a callback may release a failed candidate and go on with another
+                held = [query.link_failures[i] for i in query.links if i in query.link_failures]
+                query.failure = held[0] if held else None
+            if error is None and query.failure is not None:
+                error = query.failure.extended(ErrorCode.RESOURCE_FAILED, core.subsystem,
+                                               'a sub-resource of %s failed while it was loading' % server.name,
+                                               core.prefix)
+            if error is not None:
+                query.move(FAILED)
+                query.failure = error
+                rollback = list(query.links)
+                self._forget(query)
+            else:
+                response.trr.resource_id = query.internal_id
+                response.trr.code = 0
+                query.response = response
+                query.move(ACTIVE)
+                rollback = []
+            core.notify_change()
+            if error is None:
+                return self._attach(query, external_id, consumer)
+        for local_id in rollback:
+            self._release_quietly(local_id, 'rolling back the failed load of %s' % server.name)
+        return failure_response(response, error)
+
+    def _attach(self, query: ServerQuery, external_id: int, consumer: Consumer):
+        query.consumers[external_id] = consumer
+        self.by_external[(query.server.name, external_id)] = query
+        # rospy only serialises what a handler returns, so a shallow copy with its own header is enough
+        out = shallow_copy(query.response)
+        out.trr = shallow_copy(query.response.trr)
+        out.trr.resource_id = external_id
+        return out
+
+    # ------------------------------------------------------------------------------------------ unload
+    def release_consumer(self, server_name: str, external_id: int) -> None:
+        """One consumer leaves; the last one out runs the unload callback and the cascade."""
+        core = self._core
+        with core.lock:
+            if server_name not in self.servers:
+                raise core.error(ErrorCode.UNKNOWN_SERVER, 'registrar %s has no server %r (servers: %s)'
+                                 % (core.name, server_name, ', '.join(sorted(self.servers)) or 'none'))
+            query = self.by_external.get((server_name, external_id))
+            if query is None:
+                raise core.error(ErrorCode.RESOURCE_NOT_FOUND, 'no resource %d on %s/%s: unknown or already '
+                                 'unloaded' % (external_id, core.name, server_name))
+            consumer = query.consumers.pop(external_id)
+            del self.by_external[(server_name, external_id)]
+            self._channels.release(consumer.status_topic)
+            if query.consumers:
+                return
+            query.move(UNLOADING)
+        errors = []
+        try:
+            query.server.unload_cb(query.request, query.response)
+        except TemotoError as err:
+            errors.append(err)
+        except Exception as err:
+            rospy.logerr('%s: unload callback of %s raised %r', core.prefix, server_name, err)
+            errors.append(core.error(ErrorCode.RESOURCE_UNLOAD_FAIL, 'unload callback raised %r' % err))
+        for local_id in list(query.links):
+            try:
+                self._release_held(local_id)
+            except TemotoError as err:
+                errors.append(err)
+        with core.lock:
+            query.move(GONE)
+            self._forget(query)
+            core.notify_change()
+        if errors:
+            # the registry is consistent whatever failed; report the first failure
+            raise errors[0].extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem,
+                                     'unloading %s resource %d: %d step(s) failed' % (server_name, external_id,
+                                                                                     len(errors)), core.prefix)
+
+    def _forget(self, query: ServerQuery) -> None:
+        """Drop a query from every index (lock held)."""
+        if query.server.by_key.get(query.key) is query:
+            del query.server.by_key[query.key]
+        if query.state in (GONE, UNLOADING) or not query.consumers:
+            self.by_internal.pop(query.internal_id, None)
+        self._links.forget_parent(query)
+        if query.state in (GONE, UNLOADING):
+            for ext, consumer in list(query.consumers.items()):
+                self.by_external.pop((query.server.name, ext), None)
+                self._channels.release(consumer.status_topic)
+            query.consumers.clear()
+
+    def _release_quietly(self, local_id: int, why: str) -> None:
+        try:
+            self._release_held(local_id)
+        except TemotoError as err:
+            rospy.logwarn('%s: %s: %s', self._core.prefix, why, err)
+
+    # ------------------------------------------------------------------------------------------ status
+    def send_status(self, internal_id: int, code: int, message: str, error_stack=None) -> None:
+        """See ``ResourceRegistrar.send_status``."""
+        core = self._core
+        if code not in STATUS_CODES:
+            raise core.error(ErrorCode.BAD_REQUEST, 'unknown status code %r (expected 0, 1 or 2)' % (code,))
+        with core.lock:
+            query = self.by_internal.get(internal_id)
+            if query is None:
+                raise core.error(ErrorCode.RESOURCE_NOT_FOUND, 'send_status: no resource with id %d in %s'
+                                 % (internal_id, core.name))
+        if error_stack is None:
+            stack = [ErrorFrame(ErrorCode.RESOURCE_FAILED if code == ResourceStatus.FAILED else ErrorCode.UNSPECIFIED,
+                                core.subsystem, message, core.prefix)]
+        else:
+            stack = list(error_stack)
+        self.propagate(query, code, message, stack)
+
+    def propagate(self, query: ServerQuery, code: int, message: str, stack: List[ErrorFrame],
+                  via_link: Optional[int] = None) -> None:
+        """Tell every consumer of ``query``; a FAILED during its load makes the load fail instead."""
+        with self._core.lock:
+            if code == ResourceStatus.FAILED:
+                if query.state is LOADING:
+                    error = TemotoError.from_msgs([f.to_msg() for f in stack], message)
+                    if via_link is not None:
+                        query.link_failures.setdefault(via_link, error)
+                    elif query.failure is None:
+                        query.failure = error
+                    return
+                if query.state is ACTIVE:
+                    query.move(FAILED)
+                    if query.server.by_key.get(query.key) is query:
+                        del query.server.by_key[query.key]
+            elif query.state is not ACTIVE:
+                return
+            consumers = list(query.consumers.items())
+        stack_msgs = [f.to_msg() for f in stack]
+        for external_id, consumer in consumers:
+            self._channels.announce(consumer, query.server.name, external_id, code, message, stack_msgs)
+
+    def consumer(self, server_name: str, external_id: int) -> Optional[Consumer]:
+        with self._core.lock:
+            query = self.by_external.get((server_name, external_id))
+            return query.consumers.get(external_id) if query is not None else None
+
+
+def failure_response(response, error: TemotoError):
+    response.trr.code = 1
+    response.trr.message = str(error)
+    response.trr.resource_id = 0
+    response.trr.error_stack = error.to_msgs()
+    return response
