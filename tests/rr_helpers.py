@@ -14,10 +14,10 @@ from temoto_core.testing import wait_for  # noqa: E402
 class RegistrarNode:
     """A test registrar process and its ``~control`` service."""
 
-    def __init__(self, procs, name: str, check_period: float = 2.0) -> None:
+    def __init__(self, procs, name: str, check_period: float = 2.0, **params) -> None:
         self.name = name
         self.process = procs.node('temoto_test_nodes', 'rr_node', name=name,
-                                  params={'consumer_check_period': check_period})
+                                  params=dict(params, consumer_check_period=check_period))
         # the control service of this very process: after a restart under the same name the master may
         # still name the dead incarnation's service for a moment
         wait_for(self._answers, 20, 'the control service of %s' % name)
@@ -55,6 +55,11 @@ class RegistrarNode:
 
     def registry(self) -> dict:
         return self.command(op='registry')['registry']
+
+    def registry_uri(self) -> str:
+        """The XML-RPC URI of this node's current incarnation, as the master has it."""
+        import rosgraph
+        return rosgraph.Master('/rr_helpers').lookupNode('/' + self.name)
 
     def wait_events(self, count: int, timeout: float = 10.0) -> list:
         return wait_for(lambda: len(self.events()) >= count and self.events(), timeout,

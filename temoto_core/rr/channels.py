@@ -24,7 +24,9 @@ CHANNEL_GRACE = 5.0
 
 
 class StatusChannels:
-    def __init__(self, namespace: str, rr_name: str, prefix: str, connect_timeout: float) -> None:
+    def __init__(self, namespace: str, rr_name: str, prefix: str, connect_timeout: float,
+                 incarnation: int = 0) -> None:
+        self._incarnation = incarnation      # sent with every status: receivers drop older incarnations'
         self._namespace = namespace
         self._rr_name = rr_name
         self._prefix = prefix
@@ -40,7 +42,7 @@ class StatusChannels:
         if not consumer.status_topic:
             return
         msg = ResourceStatus(temoto_namespace=self._namespace, manager_name=self._rr_name, server_name=server_name,
-                             resource_id=external_id, status_code=code, message=message,
+                             resource_id=external_id, status_code=code, message=message, incarnation=self._incarnation,
                              error_stack=[f.to_msg() if isinstance(f, ErrorFrame) else f for f in stack])
         msg.header.stamp = rospy.Time.now()
         try:

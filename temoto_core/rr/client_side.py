@@ -16,6 +16,7 @@ from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.messages import clone, legal_name, service_class, shallow_copy
 from temoto_core.rr.query import ACTIVE, FAILED, GONE, LOADING, ClientQuery, ServerQuery, Target, target_name
+from temoto_core.rr.recorder import Recorder
 from temoto_core.rr.status import StatusEvent
 from temoto_core.srv import UnloadResource
 
@@ -23,9 +24,10 @@ StatusCallback = Callable[[StatusEvent], None]
 
 
 class ClientSide:
-    def __init__(self, core: RegistrarCore, links: Links, header: RMPRequest) -> None:
+    def __init__(self, core: RegistrarCore, links: Links, header: RMPRequest, recorder: Recorder) -> None:
         self._core = core
         self._links = links
+        self._recorder = recorder
         self._header = header     # the same for every request of this registrar; never mutated
         self.by_key: Dict[Tuple[Target, Hashable], ClientQuery] = {}
         self.by_local: Dict[int, ClientQuery] = {}
@@ -112,6 +114,7 @@ class ClientSide:
         self.by_local[local_id] = query
         if parent is not None:
             self._links.attach(local_id, parent)
+        self._recorder.held(local_id, query, parent)
         out = clone(query.response)     # the caller may change it; the shared copy must not change
         out.trr.resource_id = local_id
         return out
@@ -134,6 +137,7 @@ class ClientSide:
                 raise core.error(ErrorCode.RESOURCE_FAILED, 'link: resource %d (%s) is %s'
                                  % (local_id, target_name(query.target), query.state))
             self._links.attach(local_id, parent)
+            self._recorder.linked(local_id, parent)
 
     # ------------------------------------------------------------------------------------------ transport
     def invoke(self, service: str, request, timeout: Optional[float]):
@@ -185,6 +189,7 @@ class ClientSide:
                                  'already unloaded)' % (core.name, local_id))
             del query.local_ids[local_id]
             self._links.detach(local_id)
+            self._recorder.released(local_id)
             if query.local_ids:
                 return None
             if self.by_key.get((query.target, query.key)) is query:

@@ -19,14 +19,15 @@ DEFAULT_NAMESPACE = 'temoto'
 class RegistrarCore:
     """Identity, lock, condition and id generator of one registrar."""
 
-    def __init__(self, name: str, namespace: str, subsystem: int) -> None:
+    def __init__(self, name: str, namespace: str, subsystem: int, incarnation: int = 0, id_floor: int = 0) -> None:
         if not name or not rosgraph.names.is_legal_base_name(name):
             raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'illegal registrar name %r' % name)
         self.name = name
         self.namespace = namespace.strip('/')
         self.subsystem = int(subsystem)
         self.prefix = '%s/%s' % (rospy.get_name(), name)
-        self.ids = IdGenerator()
+        self.incarnation = incarnation   # from the journal; 0 without one
+        self.ids = IdGenerator(id_floor)
         self.lock = threading.RLock()
         self._changed = threading.Condition(self.lock)
         self._waiters = 0            # threads in wait_for_change: most state changes have none to wake

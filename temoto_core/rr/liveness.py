@@ -8,9 +8,15 @@ under the name. A refused connection, or another pid answering at the URI, is
 death; a ping that times out is death only the second time in a row (a loaded
 machine). Bound: 2 x (``consumer_check_period`` + 1 s of ping timeout).
 Unused status channels are unregistered on the same beat.
+
+A consumer whose registrar keeps a journal (it sent an incarnation) may come
+back and reclaim what it held (``recovery.py``): its references are kept for
+``recovery_grace`` more seconds after it is found dead, and released only if no
+new incarnation has claimed them by then.
 """
 import socket
 import threading
+import time
 import xmlrpc.client
 from typing import Dict, List, Optional, Tuple
 
@@ -26,11 +32,14 @@ from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
 
 
 class ConsumerWatch:
-    def __init__(self, core: RegistrarCore, server: ServerSide, channels: StatusChannels, period: float) -> None:
+    def __init__(self, core: RegistrarCore, server: ServerSide, channels: StatusChannels, period: float,
+                 recovery_grace: float) -> None:
         self._core = core
         self._server = server
         self._channels = channels
         self.period = period
+        self.recovery_grace = recovery_grace
+        self._dead_since: Dict[str, float] = {}    # URI of a dead consumer that may come back -> when found dead
         self._pids: Dict[str, int] = {}     # consumer URI -> the pid that first answered there
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
@@ -51,16 +60,18 @@ class ConsumerWatch:
             self._resolve_uris(master)
             with self._core.lock:
                 holders: Dict[Tuple[str, str], List[Tuple[str, int]]] = {}
+                returning = set()        # URIs of consumers whose registrar may come back for its resources
                 for (server_name, external_id), query in self._server.by_external.items():
                     consumer = query.consumers[external_id]
                     if consumer.client_name and consumer.uri:
                         holders.setdefault((consumer.client_name, consumer.uri), []).append(
                             (server_name, external_id))
+                        if consumer.incarnation > 0:
+                            returning.add(consumer.uri)
             live_uris = {uri for _, uri in holders}
-            for uri in [u for u in self._pids if u not in live_uris]:
-                del self._pids[uri]
-            for uri in [u for u in strikes if u not in live_uris]:
-                del strikes[uri]
+            for table in (self._pids, strikes, self._dead_since):
+                for uri in [u for u in table if u not in live_uris]:
+                    del table[uri]
             for (node, uri), refs in holders.items():
                 verdict = self._alive(uri)
                 if verdict is None:
@@ -71,6 +82,10 @@ class ConsumerWatch:
                     strikes.pop(uri, None)
                     continue
                 strikes.pop(uri, None)
+                if uri in returning:
+                    since = self._dead_since.setdefault(uri, time.monotonic())
+                    if time.monotonic() - since < self.recovery_grace:
+                        continue
                 self._release_dead(node, uri, refs)
 
     def _release_dead(self, node: str, uri: str, refs: List[Tuple[str, int]]) -> None:

@@ -56,13 +56,15 @@ class _Query:
 class Consumer:
     """One consumer incarnation: a node is identified by its name *and* its XML-RPC URI, so a node that
     restarts under the same name is a new consumer, and releasing the old one never touches it."""
-    __slots__ = ('status_topic', 'client_name', 'namespace', 'uri')
+    __slots__ = ('status_topic', 'client_name', 'namespace', 'uri', 'incarnation')
 
-    def __init__(self, status_topic: str, client_name: str, namespace: str, uri: str = '') -> None:
+    def __init__(self, status_topic: str, client_name: str, namespace: str, uri: str = '',
+                 incarnation: int = 0) -> None:
         self.status_topic = status_topic
         self.client_name = client_name
         self.namespace = namespace
         self.uri = uri          # '' until resolved at the master, for a client that does not send it
+        self.incarnation = incarnation    # > 0: its registrar keeps a journal and may come back to reclaim
 
 
 class Server:

@@ -5,11 +5,16 @@ Forwarding comes first: the action at the top of the chain waits on it, and the
 local policy (a reload, say) can come after. Holders' callbacks run in order on
 one worker thread per registrar, so a slow policy never delays the forwarding of
 the next status.
+
+Fencing: a status carries its sender's incarnation. Once a newer incarnation of
+a registrar has been heard, a status from an older one (a process that was
+given up for dead, or a message that sat in a queue across a restart) is
+dropped: it speaks of a registry that no longer exists.
 """
 import queue
 import threading
 import time
-from typing import Callable, List, Tuple
+from typing import Callable, Dict, List, Tuple
 
 import rospy
 
@@ -38,6 +43,7 @@ class StatusReceiver:
         self._forward = forward          # the server side's propagate: up to the consumers of a parent
         self._status_topic = status_topic
         self._parked: List[Tuple[float, object]] = []
+        self._incarnations: Dict[Tuple[str, str], int] = {}   # (namespace, registrar) -> newest heard
         self._callbacks: List[Callable[[StatusEvent], None]] = []
         self._queue: 'queue.Queue' = queue.Queue()
         self._thread = threading.Thread(target=self._run_callbacks, name='rr-%s-callbacks' % core.name, daemon=True)
@@ -60,6 +66,11 @@ class StatusReceiver:
         target = (msg.temoto_namespace.strip('/'), msg.manager_name, msg.server_name)
         client = self._client
         with core.lock:
+            if not self.current(target[:2], msg.incarnation):
+                rospy.logwarn('%s: dropped a status from %s incarnation %d (incarnation %d has been heard): %s',
+                              core.prefix, target_name(target), msg.incarnation, self._incarnations[target[:2]],
+                              msg.message)
+                return
             query = client.by_external.get((target, msg.resource_id))
             if query is None:
                 if client.loading_from(target):
@@ -93,6 +104,27 @@ class StatusReceiver:
                                 namespace=target[0], stamp=msg.header.stamp.to_sec())
             for cb in ([status_cb] if status_cb else []) + callbacks:
                 self._queue.put((cb, event))
+
+    def lost(self, target: Target, external_id: int, message: str) -> None:
+        """A held resource turned out failed or gone (found on recovery): handled as its FAILED arriving now."""
+        with self._core.lock:
+            incarnation = self._incarnations.get(target[:2], 0)
+        msg = ResourceStatus(temoto_namespace=target[0], manager_name=target[1], server_name=target[2],
+                             resource_id=external_id, status_code=ResourceStatus.FAILED, message=message,
+                             incarnation=incarnation,
+                             error_stack=[ErrorFrame(ErrorCode.RESOURCE_FAILED, self._core.subsystem, message,
+                                                     self._core.prefix).to_msg()])
+        msg.header.stamp = rospy.Time.now()
+        self.on_status_msg(msg)
+
+    def current(self, sender: Tuple[str, str], incarnation: int) -> bool:
+        """Whether ``incarnation`` of ``sender`` is the newest heard (lock held); remembers a newer one."""
+        known = self._incarnations.get(sender, 0)
+        if incarnation < known:
+            return False
+        if incarnation > known:
+            self._incarnations[sender] = incarnation
+        return True
 
     def _take_parked(self, target: Target, external_id: int) -> list:
         """The statuses parked for a resource whose response has just arrived (lock held)."""

@@ -13,6 +13,8 @@ One registrar is embedded per subsystem (a manager node, or one action instance)
 ``channels.py``    the status topics this registrar publishes to
 ``liveness.py``    consumers that died without unloading
 ``keys.py``        request equality
+``journal.py``     the crash-safe local record (SQLite); ``recorder.py`` writes every change to it
+``recovery.py``    a restarted registrar: journal, reality, neighbours
 =================  ==================================================================
 
 A FAILED from a driver's exit travels: the ER Manager's ``send_status``
@@ -32,41 +34,64 @@ from temoto_core.rr.client_side import ClientSide, StatusCallback
 from temoto_core.rr.core import DEFAULT_NAMESPACE, RegistrarCore
 from temoto_core.rr.keys import key_function, register_key
 from temoto_core.rr.links import Links
+from temoto_core.rr.journal import Journal
 from temoto_core.rr.liveness import ConsumerWatch
 from temoto_core.rr.messages import legal_name
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
+from temoto_core.rr.recorder import Recorder
+from temoto_core.rr.recovery import RecoverCallback, Recovery
 from temoto_core.rr.registry import ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message, readable
 from temoto_core.rr.server_side import ServerSide
-from temoto_core.srv import GetRegistry, GetRegistryResponse, UnloadResource, UnloadResourceResponse
+from temoto_core.srv import GetRegistry, GetRegistryResponse, Reclaim, UnloadResource, UnloadResourceResponse
 
-RESERVED_LEAVES = ('unload', 'status', 'registry')
+RESERVED_LEAVES = ('unload', 'status', 'registry', 'reclaim')
+DEFAULT_RECOVERY_GRACE = 10.0
 
 
 class ResourceRegistrar:
     """See the module docstring. ``rospy.init_node`` must have run in this process."""
 
     def __init__(self, name: str, namespace: Optional[str] = None, subsystem: int = Subsystem.CORE,
-                 consumer_check_period: Optional[float] = None, status_connect_timeout: float = 2.0) -> None:
+                 consumer_check_period: Optional[float] = None, status_connect_timeout: float = 2.0,
+                 journal: Optional[str] = None, recovery_grace: Optional[float] = None) -> None:
+        """``journal``: the path of this registrar's journal (default: the ``~journal`` parameter; '' for none).
+        With one, a restart of the node recovers the registry (``recovery.py``); ``resume()`` completes it.
+        ``recovery_grace``: how long the resources of a dead consumer that keeps a journal are kept for it
+        to come back (default: ``~recovery_grace``, 10 s)."""
         ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
-        core = self._core = RegistrarCore(name, ns, subsystem)
+        if journal is None:
+            journal = str(rospy.get_param('~journal', ''))
+        if recovery_grace is None:
+            recovery_grace = float(rospy.get_param('~recovery_grace', DEFAULT_RECOVERY_GRACE))
+        self._journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
+        core = self._core = RegistrarCore(
+            name, ns, subsystem, incarnation=self._journal.incarnation if self._journal else 0,
+            id_floor=self._journal.id_floor if self._journal else 0)
         self.name, self.namespace, self.subsystem, self.prefix = core.name, core.namespace, core.subsystem, core.prefix
         self.status_topic = core.topic('status')
         if consumer_check_period is None:
             consumer_check_period = float(rospy.get_param('~consumer_check_period', 2.0))
+        self.incarnation = core.incarnation
         self._links = Links()
-        self._channels = StatusChannels(core.namespace, core.name, core.prefix, status_connect_timeout)
+        self._channels = StatusChannels(core.namespace, core.name, core.prefix, status_connect_timeout,
+                                        core.incarnation)
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
-                            client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '')
-        self._client = ClientSide(core, self._links, header)
-        self._server = ServerSide(core, self._links, self._channels, self._client.unload)
+                            client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
+                            incarnation=core.incarnation)
+        recorder = Recorder(self._journal)
+        self._client = ClientSide(core, self._links, header, recorder)
+        self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
-        self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period)
+        self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
+        self._recovery = Recovery(core, self._journal, self._server, self._client, self._links, self._channels,
+                                  self._receiver, header) if self._journal else None
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._receiver.on_status_msg,
                                             queue_size=1000, tcp_nodelay=True)
         self._registry_srv = rospy.Service(core.topic('registry'), GetRegistry,
                                            lambda _req: GetRegistryResponse(json=self.registry().to_json()))
         self._unload_srv = None
+        self._reclaim_srv = None
 
     @property
     def consumer_check_period(self) -> float:
@@ -74,7 +99,7 @@ class ResourceRegistrar:
 
     # ------------------------------------------------------------------------------------------ serving
     def add_server(self, server_name: str, srv_type, load_cb: Callable, unload_cb: Callable,
-                   key: Optional[Callable] = None) -> None:
+                   key: Optional[Callable] = None, recover: Optional[RecoverCallback] = None) -> None:
         """Advertise ``/<ns>/<rr>/<server_name>`` serving resources of ``srv_type``.
 
         ``load_cb(request, response)`` fills the response (``response.trr.resource_id``
@@ -82,6 +107,8 @@ class ResourceRegistrar:
         ``unload_cb(request, response)`` gets the stored pair when the last consumer
         leaves. ``key(request)`` replaces the default equality, for clients of this type
         too (``keys.register_key``); a manager's contract module normally registers it.
+        ``recover(request, response)``, with a journal: checks a resource recorded by the
+        previous incarnation against reality, and raises :class:`TemotoError` if it is gone.
         """
         core = self._core
         if not legal_name(server_name, base=True) or server_name in RESERVED_LEAVES:
@@ -96,9 +123,19 @@ class ResourceRegistrar:
             self._server.servers[server_name] = server
             if self._unload_srv is None:
                 self._unload_srv = rospy.Service(core.topic('unload'), UnloadResource, self._handle_unload)
+                self._reclaim_srv = rospy.Service(core.topic('reclaim'), Reclaim, self._server.reclaim)
                 self._watch.start()
+        if self._recovery is not None:
+            self._recovery.restore_server(server, recover)
         server.service = rospy.Service(core.topic(server_name), srv_type,
                                        lambda req: self._server.handle_load(server, req))
+
+    def resume(self) -> None:
+        """After a restart with a journal, once every server is added: take back from their owners the
+        resources the previous incarnation held, and report FAILED whatever died meanwhile. A no-op
+        without a journal."""
+        if self._recovery is not None:
+            self._recovery.resume()
 
     def _handle_unload(self, req) -> UnloadResourceResponse:
         try:
@@ -201,10 +238,13 @@ class ResourceRegistrar:
                 rospy.logwarn('%s: shutdown: %s', core.prefix, err)
                 if any(f.code == ErrorCode.SERVICE_REQ_FAIL for f in err.stack):
                     unreachable.add(query.target[:2])
-        for srv in [s.service for s in server.servers.values()] + [self._unload_srv, self._registry_srv]:
+        for srv in [s.service for s in server.servers.values()] + [self._unload_srv, self._reclaim_srv,
+                                                                    self._registry_srv]:
             if srv is not None:
                 srv.shutdown('registrar shutdown')
         self._status_sub.unregister()
         self._channels.close()
         client.close_proxies()
         self._receiver.close()
+        if self._journal is not None:
+            self._journal.close()

@@ -15,16 +15,19 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.links import Links
-from temoto_core.rr.messages import STATUS_CODES, shallow_copy
+from temoto_core.rr.messages import STATUS_CODES, legal_name, node_uri, shallow_copy
 from temoto_core.rr.query import (ACTIVE, FAILED, GONE, LOADING, UNLOADING, Consumer, Server, ServerQuery)
+from temoto_core.rr.recorder import Recorder
+from temoto_core.srv import Reclaim
 
 
 class ServerSide:
     def __init__(self, core: RegistrarCore, links: Links, channels: StatusChannels,
-                 release_held: Callable[[int], None]) -> None:
+                 release_held: Callable[[int], None], recorder: Recorder) -> None:
         self._core = core
         self._links = links
         self._channels = channels
+        self.recorder = recorder
         self._release_held = release_held         # the client side's unload: cascade and rollback go through it
         self.servers: Dict[str, Server] = {}
         self.by_internal: Dict[int, ServerQuery] = {}
@@ -39,7 +42,7 @@ class ServerSide:
         except TemotoError as err:
             return failure_response(response, err)
         consumer = Consumer(request.trr.status_topic, request.trr.client_name, request.trr.temoto_namespace,
-                            request.trr.client_uri)
+                            request.trr.client_uri, request.trr.incarnation)
         # The consumer's status channel is connected before it is attached to anything: a FAILED raised
         # the moment after it is attached must find a subscriber to go to. Every path below that does not
         # attach the consumer gives the channel back.
@@ -126,6 +129,7 @@ class ServerSide:
     def _attach(self, query: ServerQuery, external_id: int, consumer: Consumer):
         query.consumers[external_id] = consumer
         self.by_external[(query.server.name, external_id)] = query
+        self.recorder.attached(query, external_id, consumer)
         # rospy only serialises what a handler returns, so a shallow copy with its own header is enough
         out = shallow_copy(query.response)
         out.trr = shallow_copy(query.response.trr)
@@ -146,6 +150,7 @@ class ServerSide:
                                  'unloaded' % (external_id, core.name, server_name))
             consumer = query.consumers.pop(external_id)
             del self.by_external[(server_name, external_id)]
+            self.recorder.detached(server_name, external_id)
             self._channels.release(consumer.status_topic)
             if query.consumers:
                 return
@@ -181,6 +186,7 @@ class ServerSide:
             self.by_internal.pop(query.internal_id, None)
         self._links.forget_parent(query)
         if query.state in (GONE, UNLOADING):
+            self.recorder.gone(query)
             for ext, consumer in list(query.consumers.items()):
                 self.by_external.pop((query.server.name, ext), None)
                 self._channels.release(consumer.status_topic)
@@ -224,6 +230,7 @@ class ServerSide:
                     return
                 if query.state is ACTIVE:
                     query.move(FAILED)
+                    self.recorder.failed(query)
                     if query.server.by_key.get(query.key) is query:
                         del query.server.by_key[query.key]
             elif query.state is not ACTIVE:
@@ -232,6 +239,55 @@ class ServerSide:
         stack_msgs = [f.to_msg() for f in stack]
         for external_id, consumer in consumers:
             self._channels.announce(consumer, query.server.name, external_id, code, message, stack_msgs)
+
+    # ------------------------------------------------------------------------------------------ reclaim
+    def reclaim(self, req):
+        """Hand the resources of a holder's previous incarnation to its new one.
+
+        Fenced: refused whole if any of them is held by a *newer* incarnation of that
+        holder (the claimant is a stale process). Per id, the answer says whether it
+        is still active; one that failed while its holder was down is ``failed``, and
+        one this registrar does not know under that holder's name is ``unknown``.
+        """
+        core = self._core
+        if req.incarnation <= 0:
+            return Reclaim._response_class(code=1, message='incarnation %d: only a registrar with a journal can '
+                                                           'reclaim' % req.incarnation)
+        for label, value in (('client_name', req.client_name), ('status_topic', req.status_topic)):
+            if not legal_name(value):
+                return Reclaim._response_class(code=1, message='%s %r is not a legal ROS name' % (label, value))
+        if not node_uri(req.client_uri):
+            return Reclaim._response_class(code=1, message='client_uri %r is not a node URI' % req.client_uri)
+        response = Reclaim._response_class(code=0, message='')
+        moved = []
+        with core.lock:
+            claims = []
+            for external_id in req.resource_ids:
+                query = self.by_external.get((req.server_name, external_id))
+                consumer = query.consumers.get(external_id) if query is not None else None
+                if consumer is None or consumer.client_name != req.client_name:
+                    claims.append((external_id, None, None))
+                    continue
+                if consumer.incarnation > req.incarnation:
+                    return Reclaim._response_class(code=1, message='stale incarnation %d of %s: resource %d is held '
+                                                   'by its incarnation %d' % (req.incarnation, req.client_name,
+                                                                              external_id, consumer.incarnation))
+                claims.append((external_id, query, consumer))
+            for external_id, query, consumer in claims:
+                if consumer is None:
+                    response.states.append('unknown')
+                    continue
+                moved.append((consumer.status_topic, req.status_topic))
+                consumer.uri, consumer.status_topic = req.client_uri, req.status_topic
+                consumer.incarnation = req.incarnation
+                self.recorder.reattached(query, external_id, consumer)
+                response.states.append(ACTIVE.value if query.state is ACTIVE else FAILED.value)
+        for old, new in moved:
+            self._channels.acquire(new)
+            self._channels.release(old)
+        rospy.loginfo('%s: %s (incarnation %d) reclaimed %d %s resource(s)', core.prefix, req.client_name,
+                      req.incarnation, len(moved), req.server_name)
+        return response
 
     def consumer(self, server_name: str, external_id: int) -> Optional[Consumer]:
         with self._core.lock:

@@ -1,0 +1,201 @@
+"""Recovery: a restarted registrar rebuilds its registry from its journal, checks it against reality, and
+takes back from its neighbours what its previous incarnation held.
+
+Three steps, in the owner's order:
+
+1. At construction, the resources it *held* come back as active client queries,
+   under the same local ids.
+2. ``add_server(..., recover=cb)`` brings back that server's resources, their
+   consumers and their links. ``cb(request, response)`` checks each against
+   reality (is the process still there?) and raises ``TemotoError`` if it is
+   gone; then the resource's consumers hear FAILED with the reason. Nothing that
+   still runs is restarted. A server without ``recover`` cannot check, so its
+   resources are reported FAILED.
+3. ``resume()`` asks each owner of a held resource to hand it over to this
+   incarnation (``/<ns>/<rr>/reclaim``): the owner points the consumer record
+   at the new node URI and status topic, and says which resources are still
+   active. One that failed, or was released, while this registrar was down is
+   handled as a FAILED that arrives now: forwarded up the links and handed to
+   the callbacks. A held resource whose parent did not come back is released.
+"""
+import importlib
+import threading
+import time
+from typing import Callable, Dict, List, Optional, Tuple
+
+import rospy
+
+from temoto_core.errors import ErrorCode, ErrorFrame, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr.channels import StatusChannels
+from temoto_core.rr.client_side import ClientSide
+from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.journal import Journal, JournaledServed
+from temoto_core.rr.keys import key_of
+from temoto_core.rr.links import Links
+from temoto_core.rr.query import ACTIVE, FAILED, ClientQuery, Consumer, Server, ServerQuery, Target, target_name
+from temoto_core.rr.receiver import StatusReceiver
+from temoto_core.rr.server_side import ServerSide
+from temoto_core.srv import Reclaim
+
+RecoverCallback = Callable[[object, object], None]
+
+# How long resume() keeps asking an owner that does not answer (it may be restarting too) before it gives
+# up and reports what it held there FAILED.
+RECLAIM_PATIENCE = 10.0
+
+
+def service_of(request_type: str):
+    """The service class of a request type name (``pkg/NameRequest``)."""
+    package, name = request_type.split('/')
+    return getattr(importlib.import_module(package + '.srv'), name[:-len('Request')])
+
+
+class Recovery:
+    def __init__(self, core: RegistrarCore, journal: Journal, server: ServerSide, client: ClientSide, links: Links,
+                 channels: StatusChannels, receiver: StatusReceiver, header) -> None:
+        self._core = core
+        self._journal = journal
+        self._server = server
+        self._client = client
+        self._links = links
+        self._channels = channels
+        self._receiver = receiver
+        self._header = header
+        contents = journal.contents()
+        self._served: Dict[str, List[JournaledServed]] = {}
+        for entry in contents.served:
+            self._served.setdefault(entry.server, []).append(entry)
+        self._parents: Dict[int, int] = {}       # held local id -> internal id of the served resource it belongs to
+        self.restored_holds = self._restore_holds(contents.holds)
+
+    # ------------------------------------------------------------------------------------------ 1. held
+    def _restore_holds(self, holds) -> int:
+        client = self._client
+        by_external: Dict[Tuple[Target, int], ClientQuery] = {}
+        with self._core.lock:
+            for hold in holds:
+                query = by_external.get((hold.target, hold.external_id))
+                if query is None:
+                    srv = service_of(hold.request_type)
+                    request = srv._request_class()
+                    request.deserialize(hold.request)
+                    response = srv._response_class()
+                    response.deserialize(hold.response)
+                    query = ClientQuery(hold.target, key_of(request), request)
+                    query.response, query.external_id = response, hold.external_id
+                    query.move(ACTIVE)
+                    by_external[(hold.target, hold.external_id)] = query
+                    client.by_key.setdefault((hold.target, query.key), query)
+                    client.by_external[(hold.target, hold.external_id)] = query
+                query.local_ids[hold.local_id] = None
+                client.by_local[hold.local_id] = query
+                if hold.parent is not None:
+                    self._parents[hold.local_id] = hold.parent
+        return len(holds)
+
+    # ------------------------------------------------------------------------------------------ 2. served
+    def restore_server(self, server: Server, recover: Optional[RecoverCallback]) -> None:
+        core, side = self._core, self._server
+        restored: List[ServerQuery] = []
+        with core.lock:
+            for entry in self._served.pop(server.name, []):
+                request = server.srv_type._request_class()
+                request.deserialize(entry.request)
+                response = server.srv_type._response_class()
+                response.deserialize(entry.response)
+                query = ServerQuery(server, server.key(request), entry.internal_id, request)
+                query.response = response
+                query.move(ACTIVE)
+                for c in entry.consumers:
+                    query.consumers[c.external_id] = Consumer(c.status_topic, c.client_name, c.namespace, c.uri,
+                                                              c.incarnation)
+                    side.by_external[(server.name, c.external_id)] = query
+                side.by_internal[query.internal_id] = query
+                if entry.state == ACTIVE.value:
+                    server.by_key.setdefault(query.key, query)
+                else:
+                    query.move(FAILED)
+                for local_id, parent in list(self._parents.items()):
+                    if parent == query.internal_id and local_id in self._client.by_local:
+                        self._links.attach(local_id, query)
+                        del self._parents[local_id]
+                restored.append(query)
+        for query in restored:
+            for consumer in query.consumers.values():
+                self._channels.acquire(consumer.status_topic)
+        for query in restored:
+            if query.state is not ACTIVE:
+                continue
+            why = None
+            if recover is None:
+                why = '%s cannot check its %s resources after a restart' % (core.prefix, server.name)
+            else:
+                try:
+                    recover(query.request, query.response)
+                except TemotoError as err:
+                    why = str(err)
+                except Exception as err:   # an owner bug: the resource cannot be vouched for
+                    rospy.logerr('%s: recover callback of %s raised %r', core.prefix, server.name, err)
+                    why = 'recover callback of %s raised %r' % (server.name, err)
+            if why is not None:
+                message = 'lost while %s was down: %s' % (core.prefix, why)
+                rospy.logwarn('%s: %s resource %d %s', core.prefix, server.name, query.internal_id, message)
+                side.propagate(query, ResourceStatus.FAILED, message,
+                               [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, message, core.prefix)])
+        if restored:
+            rospy.loginfo('%s: recovered %d %s resource(s) from the journal', core.prefix, len(restored), server.name)
+
+    # ------------------------------------------------------------------------------------------ 3. neighbours
+    def resume(self) -> None:
+        """Reclaim what this registrar held; report what died meanwhile; release what lost its parent."""
+        core, client = self._core, self._client
+        with core.lock:
+            orphans = [local_id for local_id in self._parents if local_id in client.by_local]
+            self._parents.clear()
+            groups: Dict[Target, List[ClientQuery]] = {}
+            for query in {id(q): q for q in client.by_local.values()}.values():
+                groups.setdefault(query.target, []).append(query)
+        for local_id in orphans:
+            try:
+                client.unload(local_id)
+            except TemotoError as err:
+                rospy.logwarn('%s: releasing held resource %d, whose parent is gone: %s', core.prefix, local_id, err)
+        threads = [threading.Thread(target=self._reclaim, args=(target, queries), daemon=True,
+                                    name='rr-%s-reclaim' % core.name) for target, queries in groups.items()]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+
+    def _reclaim(self, target: Target, queries: List[ClientQuery]) -> None:
+        core = self._core
+        ns, rr_name, server_name = target
+        service = '/%s/%s/reclaim' % (ns, rr_name)
+        ids = [q.external_id for q in queries]
+        request = Reclaim._request_class(client_name=self._header.client_name, client_uri=self._header.client_uri,
+                                         status_topic=self._header.status_topic, incarnation=core.incarnation,
+                                         server_name=server_name, resource_ids=ids)
+        deadline = time.monotonic() + RECLAIM_PATIENCE
+        answer, why = None, ''
+        while answer is None and time.monotonic() < deadline:
+            try:
+                rospy.wait_for_service(service, timeout=max(0.1, deadline - time.monotonic()))
+                answer = rospy.ServiceProxy(service, Reclaim)(request)
+            except (rospy.ROSException, rospy.ServiceException, OSError) as err:
+                why = str(err)
+        if answer is None:
+            states = ['unknown'] * len(ids)
+            why = '%s did not answer within %.0f s (%s)' % (service, RECLAIM_PATIENCE, why)
+        elif answer.code != 0:
+            states = ['unknown'] * len(ids)
+            why = '%s refused: %s' % (service, answer.message)
+        else:
+            states = list(answer.states)
+        for query, state in zip(queries, states):
+            if state == ACTIVE.value:
+                continue
+            message = '%s resource %d was %s when %s came back%s' % (
+                target_name(target), query.external_id, 'failed' if state == FAILED.value else 'gone', core.prefix,
+                ': ' + why if why else '')
+            self._receiver.lost(target, query.external_id, message)

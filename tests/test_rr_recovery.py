@@ -1,0 +1,116 @@
+"""A registrar that is killed and restarted with its journal gets its registry back, keeps carrying status,
+and hears of what died while it was down (docs/recovery.md).
+
+A (the action) -> B (a manager, with a journal) -> C (the process manager). B is
+killed with SIGKILL and started again under the same name.
+"""
+import os
+import signal
+
+import pytest
+import rospy
+
+from temoto_core.msg import ResourceStatus
+from temoto_core.srv import Reclaim
+from temoto_core.testing import wait_for
+from rr_helpers import RegistrarNode, registry_empty
+
+
+def _kill(node: RegistrarNode) -> None:
+    os.killpg(node.process.pid, signal.SIGKILL)
+    node.process.proc.wait(10)
+
+
+def _shape(registry: dict) -> dict:
+    """What a registry holds, without what differs by incarnation (node URIs, status topics stay)."""
+    return {
+        'served': sorted((q['server'], q['internal_id'], q['state'], tuple(q['links']),
+                          tuple((c['resource_id'], c['client_name'], c['status_topic']) for c in q['consumers']))
+                         for q in registry['server_queries']),
+        'held': sorted((q['target'], q['external_id'], q['state'], tuple(q['local_ids']), tuple(q['linked_to']))
+                       for q in registry['client_queries']),
+    }
+
+
+@pytest.fixture
+def chain(rospy_client, procs, tmp_path):
+    journal = str(tmp_path / 'rr_rb.sqlite3')
+    a = RegistrarNode(procs, 'rr_ra')
+    c = RegistrarNode(procs, 'rr_rc', check_period=0.5, recovery_grace=30.0)
+    b = RegistrarNode(procs, 'rr_rb', journal=journal)
+    return a, b, c, (lambda: RegistrarNode(procs, 'rr_rb', journal=journal))
+
+
+def test_a_killed_registrar_gets_its_registry_back_and_carries_status_and_cascade(chain):
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    assert 'error' not in res, res
+    before = _shape(b.registry())
+    assert before['served'] and before['held']
+    _kill(b)
+    b = restart()
+    assert _shape(b.registry()) == before
+    assert b.counts()['loads'] == {}                       # nothing was loaded again
+    assert c.counts()['loads'] == {'driver': 1}
+    holder = [q for q in c.registry()['server_queries'] if q['summary']['name'] == 'driver'][0]['consumers'][0]
+    assert holder['client_uri'] == b.registry_uri()        # C now tells the new incarnation
+    c.fail('driver', 'cable pulled')
+    events = a.wait_events(1)
+    assert events[0]['id'] == res['id'] and any('cable pulled' in m for m in events[0]['stack'])
+    assert a.unload(res['id']) == {}
+    wait_for(lambda: c.counts()['unloads'] == {'driver': 1}, 10, 'the cascade through the recovered registrar')
+    for node in (a, b, c):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+
+
+def test_a_failure_while_the_registrar_is_down_reaches_the_action_after_recovery(chain):
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    _kill(b)
+    c.fail('driver', 'unplugged while its manager was down')
+    b = restart()
+    events = a.wait_events(1)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED
+    assert any('was failed when' in m for m in events[0]['stack']), events[0]['stack']
+    assert a.unload(res['id']) == {}
+    wait_for(lambda: c.counts()['unloads'] == {'driver': 1}, 10, 'the failed driver released')
+
+
+def test_a_resource_found_dead_on_recovery_is_reported_failed_to_its_consumer(chain):
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'mortal_cam')
+    _kill(b)
+    b = restart()
+    events = a.wait_events(1)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED
+    assert 'mortal_cam died while its owner was down' in events[0]['message']
+    assert a.unload(res['id']) == {}
+    assert b.counts()['unloads'] == {'mortal_cam': 1}
+
+
+def test_a_stale_incarnation_is_fenced_out(chain):
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    driver_id = b.registry()['client_queries'][0]['external_id']
+    _kill(b)
+    b = restart()
+    wait_for(lambda: c.registry()['server_queries'][0]['consumers'][0]['client_uri'] == b.registry_uri(), 10,
+             'the new incarnation to reclaim the driver')
+    # the old incarnation (1) claims the driver back: refused, and nothing changes hands
+    reclaim = rospy.ServiceProxy('/temoto/rr_rc/reclaim', Reclaim)
+    answer = reclaim(client_name='/rr_rb', client_uri='http://stale:1/', status_topic='/temoto/rr_rb/status',
+                     incarnation=1, server_name='load_test', resource_ids=[driver_id])
+    assert answer.code == 1 and 'stale incarnation 1' in answer.message
+    assert c.registry()['server_queries'][0]['consumers'][0]['client_uri'] == b.registry_uri()
+    # once A has heard B's new incarnation, a status from the old one is dropped
+    external = a.registry()['client_queries'][0]['external_id']
+    pub = rospy.Publisher('/temoto/rr_ra/status', ResourceStatus, queue_size=10)
+    wait_for(lambda: pub.get_num_connections() > 0, 10, 'a connection to A')
+    for incarnation, code, text in ((2, ResourceStatus.UPDATE, 'live'), (1, ResourceStatus.FAILED, 'from the dead'),
+                                    (2, ResourceStatus.UPDATE, 'live again')):
+        pub.publish(ResourceStatus(temoto_namespace='temoto', manager_name='rr_rb', server_name='load_test',
+                                   resource_id=external, status_code=code, message=text, incarnation=incarnation))
+    events = a.wait_events(2)
+    assert [e['message'] for e in events] == ['live', 'live again']
+    pub.unregister()
+    assert a.unload(res['id']) == {}
