@@ -55,7 +55,6 @@ class Recovery:
     def __init__(self, core: RegistrarCore, journal: Journal, server: ServerSide, client: ClientSide, links: Links,
                  channels: StatusChannels, receiver: StatusReceiver, header) -> None:
         self._core = core
-        self._journal = journal
         self._server = server
         self._client = client
         self._links = links
