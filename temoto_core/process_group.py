@@ -39,3 +39,20 @@ def group_members(pgid: int, exclude: int = 0) -> List[int]:
         if len(fields) > 2 and int(fields[2]) == pgid and fields[0] != b'Z':
             members.append(int(entry))
     return members
+
+
+def start_ticks(pid: int) -> Optional[int]:
+    """When ``pid`` started, in clock ticks since boot (``/proc/<pid>/stat`` field 22); None if there is no
+    such live process (gone, or a zombie).
+
+    A pid and its start time name one process for as long as the machine runs: a pid that was reused
+    belongs to a process that started later. Check both before acting on a pid that is not your child.
+    """
+    try:
+        with open('/proc/%d/stat' % pid, 'rb') as f:
+            fields = f.read().rsplit(b')', 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    if len(fields) < 20 or fields[0] in (b'Z', b'X'):
+        return None
+    return int(fields[19])

@@ -10,10 +10,14 @@ at once (the message names the node), after which its other nodes are stopped. E
 reported FAILED to every consumer at once, with its exit reason, output tail
 and command; an unload is never reported as a failure.
 
-Processes are not recovered across a manager restart: children die with the
-manager (``death_signal``), see :mod:`temoto_er_manager.supervisor`. With
-``preload_python`` Python nodes are forked from a zygote that has their common
-imports done (:mod:`temoto_er_manager.zygote`); they die with it, and it with the manager.
+Across a restart: without a journal, children die with the manager
+(``death_signal``). With one (``~journal``), children outlive it on a leash
+(:mod:`temoto_er_manager.leash`); each resource's processes (pid and start time)
+are kept in the journal, and the next incarnation adopts those that still run
+(:meth:`ERManager._recover`). A resource with a process that died meanwhile is
+reported FAILED to its consumers by the registrar, and a child that no resource
+claims is stopped. With ``preload_python`` Python nodes are forked from a zygote
+that has their common imports done (:mod:`temoto_er_manager.zygote`).
 """
 from __future__ import annotations
 
@@ -30,14 +34,19 @@ from temoto_core.errors import ErrorCode, Subsystem, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_core.rr import ResourceRegistrar
+from temoto_core.rr.registrar import journal_param
 
 from temoto_core import master_lookup as master
+from temoto_core.process_group import start_ticks
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as NAME
 from .policy import ERConfig, RequestRefused, validate_request
-from .resolve import Resolver
+from .leash import Leash, LeashError, address_for
+from .resolve import Plan, Resolver
 from .resource import Resource
-from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSupervisor, ReadyTimeout,
-                         StartCancelled, SupervisorError)
+from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSpec, ProcessSupervisor,
+                         ReadyTimeout, StartCancelled, SupervisorError)
+
+PROCESS_KEY = 'process/%d'            # owner state: the processes of a loaded resource, by internal id
 
 
 
@@ -53,22 +62,40 @@ class ERManager:
 
     def __init__(self, config: ERConfig, rr: Optional[ResourceRegistrar] = None, namespace: Optional[str] = None):
         self.config = config
-        self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=Subsystem.ER_MANAGER)
         self.master_uri = rosgraph.get_master_uri()
         self.resolver = Resolver(config)
-        preload_log = os.path.join(self.resolver.log_dir, '%s-%d-zygote.log' % (time.strftime('%Y%m%d-%H%M%S'),
-                                                                               os.getpid()))
+        stamp = '%s-%d' % (time.strftime('%Y%m%d-%H%M%S'), os.getpid())
+        preload_log = os.path.join(self.resolver.log_dir, stamp + '-zygote.log')
+        journal = rr.journal_path if rr is not None else journal_param()
+        self.leash: Optional[Leash] = None
+        leashed: list = []
+        if journal:
+            # before the registrar exists: a second manager on this journal is refused here, before it
+            # advertises anything over the first one's services
+            self.leash = Leash(address_for(journal), config.adoption_bound, config.sigint_grace,
+                               config.sigterm_grace, os.path.join(self.resolver.log_dir, 'leash.log'),
+                               on_restart=lambda text: rospy.logwarn('%s: %s', NAME, text))
+            try:
+                leashed = self.leash.attach()
+            except LeashError as e:
+                raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER, str(e)) from None
+        self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=Subsystem.ER_MANAGER, journal=journal)
         self.supervisor = ProcessSupervisor(self._on_exit, sigint_grace=config.sigint_grace,
                                             sigterm_grace=config.sigterm_grace,
-                                            death_signal=config.death_signal_number(),
+                                            death_signal=0 if self.leash else config.death_signal_number(),
                                             tail_lines=config.log_tail_lines,
                                             preload_modules=config.preload_modules if config.preload_python else None,
-                                            preload_log=preload_log, preload_env=self.resolver.env)
+                                            preload_log=preload_log, preload_env=self.resolver.env,
+                                            leash=self.leash)
+        self._records = {int(k.split('/')[1]): json.loads(v) for k, v in self.rr.owner_state().items()
+                         if k.startswith('process/')}
         self._lock = threading.Lock()
         self._names_lock = threading.Lock()              # held from choosing a request's node names to claiming them
         self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
         self._closing = False
-        self.rr.add_server(LOAD_PROCESS, LOAD_PROCESS_TYPE, self._load, self._unload)
+        self.rr.add_server(LOAD_PROCESS, LOAD_PROCESS_TYPE, self._load, self._unload, recover=self._recover)
+        self._stop_unclaimed(leashed)
+        self.rr.resume()
         self._processes_srv = rospy.Service('/%s/%s/processes' % (self.rr.namespace, NAME), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.processes_json()))
         rospy.loginfo('%s: ready (sys_execute allowlist: %s; package allowlist: %s; logs in %s; Python nodes %s)',
@@ -125,6 +152,7 @@ class ERManager:
             raise
         res.pid = resource.pid
         res.log_path = plan.log_path
+        self.rr.put_owner_state(PROCESS_KEY % rid, json.dumps(_record_of(resource)))
         rospy.loginfo('%s: started %s for %s: pid %s, log %s', NAME, plan.label, client,
                       ', '.join(str(p.pid) for p in resource.procs), plan.log_path)
 
@@ -188,6 +216,7 @@ class ERManager:
         rid = res.trr.resource_id
         with self._lock:
             resource = self._resources.pop(rid, None)
+        self.rr.drop_owner_state(PROCESS_KEY % rid)
         if resource is None:
             return
         with resource.lock:
@@ -240,6 +269,63 @@ class ERManager:
             return False
         # a stale registration (a node that was SIGKILLed never unregisters) does not count
         return uri is not None and master.node_pid(uri) is not None
+
+    # -- recovery after a restart ---------------------------------------------------------------------
+
+    def _recover(self, req, res) -> None:
+        """A resource the previous incarnation served: adopt its processes, or raise if one is gone."""
+        rid = res.trr.resource_id
+        record = self._records.pop(rid, None)
+        if record is None:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER,
+                              'the journal has no record of the processes of resource %d' % rid)
+        specs, procs = [], []
+        for p in record['processes']:
+            spec = ProcessSpec(argv=p['argv'], env={}, log_path=p['log_path'], label=p['label'],
+                               node_names=p['node_names'])
+            specs.append(spec)
+            proc = self.supervisor.adopt(spec, p['pid'], p['start'], p['started'])
+            if proc is None:
+                self._stop_all(procs)
+                if spec.node_names:
+                    threading.Thread(target=self._cleanup_master, args=(list(spec.node_names),),
+                                     name='er-master-cleanup', daemon=True).start()
+                raise TemotoError(ErrorCode.PROCESS_STOPPED, Subsystem.ER_MANAGER,
+                                  '%s: process %d (%s) exited while the ER Manager was down; last output:\n%s'
+                                  % (record['label'], p['pid'], spec.command,
+                                     _tail(p['log_path'], self.config.log_tail_lines)))
+            procs.append(proc)
+        resource = Resource(rid, Plan(record['label'], record['log_path'], specs, record['command']))
+        for proc in procs:
+            proc.resource = resource
+        resource.procs, resource.ready = procs, True
+        with self._lock:
+            self._resources[rid] = resource
+        rospy.loginfo('%s: adopted %s (pid %s) after a restart', NAME, resource.label,
+                      ', '.join(str(p.pid) for p in procs))
+
+    def _stop_unclaimed(self, leashed: list) -> None:
+        """Children the leash kept that no recovered resource claimed (they were starting, or their
+        resource was released, when the manager died): stopped, so that nothing runs unowned."""
+        with self._lock:
+            claimed = {p.pid for r in self._resources.values() for p in r.procs}
+        strays = []
+        for pid, start in leashed:
+            if pid in claimed:
+                continue
+            proc = self.supervisor.adopt(ProcessSpec(argv=['pid %d' % pid], env={}, log_path=os.devnull,
+                                                     label='unclaimed child'), pid, start, time.time())
+            if proc is not None:
+                strays.append(proc)
+        if strays:
+            rospy.logwarn('%s: stopping %d child(ren) of the previous incarnation that no resource claims: pid %s',
+                          NAME, len(strays), ', '.join(str(p.pid) for p in strays))
+            for proc in strays:
+                proc.stopping = True
+            self._stop_all(strays)
+        for rid in self._records:
+            self.rr.drop_owner_state(PROCESS_KEY % rid)
+        self._records.clear()
 
     # -- failures ----------------------------------------------------------------------------------
 
@@ -300,7 +386,17 @@ class ERManager:
         except Exception as e:
             rospy.logwarn('%s: registrar shutdown: %s', NAME, e)
         self.supervisor.shutdown()
+        if self.leash is not None:
+            self.leash.release()
         self._processes_srv.shutdown()
+
+
+def _record_of(resource: Resource) -> dict:
+    """What a restarted manager needs to adopt the resource's processes (kept in the journal)."""
+    return {'label': resource.label, 'command': resource.plan.command, 'log_path': resource.plan.log_path,
+            'processes': [{'pid': p.pid, 'start': start_ticks(p.pid), 'started': p.started, 'argv': p.spec.argv,
+                           'label': p.spec.label, 'node_names': p.spec.node_names, 'log_path': p.spec.log_path}
+                          for p in resource.procs]}
 
 
 def _tail(path: str, lines: int) -> str:

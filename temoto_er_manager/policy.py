@@ -50,7 +50,8 @@ class ERConfig:
     sys_settle_time: float = 0.2         # a sys_execute command must stay alive this long to count as started
     sigint_grace: float = 3.0            # unload: SIGINT, wait this, then SIGTERM
     sigterm_grace: float = 2.0           # ... wait this, then SIGKILL
-    death_signal: str = 'SIGKILL'        # sent to children if the manager dies; '' to let them outlive it
+    death_signal: str = 'SIGKILL'        # without a journal: sent to children if the manager dies
+    adoption_bound: float = 30.0         # with a journal: how long children wait for a restarted manager
     log_dir: str = ''                    # per-process logs; empty: <ROS log dir>/temoto_er_manager
     log_tail_lines: int = 20             # lines of output quoted in a FAILED status
     preload_python: bool = False         # fork Python node scripts from a zygote that has imported preload_modules
@@ -77,7 +78,7 @@ class ERConfig:
                 raise ValueError('%s must be a list of non-empty strings, got %r' % (name, v))
             setattr(cfg, name, list(v))
         for name in ('registration_timeout', 'ready_poll_interval', 'sys_settle_time', 'sigint_grace',
-                     'sigterm_grace'):
+                     'sigterm_grace', 'adoption_bound'):
             v = getattr(cfg, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
                 raise ValueError('%s must be a number >= 0, got %r' % (name, v))

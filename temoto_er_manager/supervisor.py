@@ -13,14 +13,17 @@ the original):
   exit was asked for (an intentional stop is never reported as a failure).
 - **Escalating stop.** SIGINT to the group, then SIGTERM, then SIGKILL, with
   configurable grace periods; the stop returns only once the child is reaped.
-- **Children die with the manager.** Each child gets ``PR_SET_PDEATHSIG``
-  (``death_signal``, SIGKILL by default) so that a SIGKILLed manager leaves no
-  orphan: no recovery of running children is configured in this port, so an
-  orphan would be a process nobody can stop or watch. The kernel sends the
-  signal when the *thread* that forked the child exits, so every fork happens on
-  one spawner thread that lives as long as the supervisor (rospy runs each
-  service request in a short-lived thread, which would otherwise kill the child
-  as soon as the request returned).
+- **Children die with the manager, or are kept on a leash.** Without a
+  ``leash``, each child gets ``PR_SET_PDEATHSIG`` (``death_signal``, SIGKILL by
+  default) so that a SIGKILLed manager leaves no orphan that nobody can stop or
+  watch. The kernel sends the signal when the *thread* that forked the child
+  exits, so every fork happens on one spawner thread that lives as long as the
+  supervisor (rospy runs each service request in a short-lived thread, which
+  would otherwise kill the child as soon as the request returned). With a
+  ``leash`` (:mod:`temoto_er_manager.leash`, a manager with a journal), children
+  outlive the manager: the leash is told of each one, a restarted manager
+  :meth:`adopts <ProcessSupervisor.adopt>` them, and the leash stops those that
+  nobody adopts within its bound.
 - **Optional preloading.** With ``preload_modules``, Python node scripts
   (``ProcessSpec.preloadable``) are forked from a zygote that has already
   imported those modules (:mod:`temoto_er_manager.zygote`), which saves most of
@@ -48,7 +51,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
-from temoto_core.process_group import group_members
+from temoto_core.process_group import group_members, start_ticks
 
 from .preload import Zygote, ZygoteError
 
@@ -167,7 +170,8 @@ class ManagedProcess:
         self.spec = spec
         self.popen = popen                  # a plain child, reaped here
         self.zygote = zygote                # or a child of the zygote, reaped there on our word
-        self.orphan = False                 # its zygote died: exit status unknown, reaped by init
+        self.orphan = False                 # not our child (its zygote died, or adopted): exit status unknown
+        self.adopted = False                # started by an earlier incarnation of the manager
         self.reaped = False                 # gone for good (its pid may be reused from now on)
         self.pid = pid
         self.pidfd = pidfd
@@ -196,7 +200,7 @@ class ManagedProcess:
             'log_path': self.spec.log_path, 'node_names': list(self.spec.node_names),
             'started': self.started, 'uptime': (info.when if info else time.time()) - self.started,
             'state': self.state, 'returncode': info.returncode if info else None,
-            'preloaded': self.zygote is not None,
+            'preloaded': self.zygote is not None, 'adopted': self.adopted,
         }
 
 
@@ -215,12 +219,13 @@ class ProcessSupervisor:
     def __init__(self, on_exit: Optional[ExitCallback] = None, *, sigint_grace: float = 3.0,
                  sigterm_grace: float = 2.0, death_signal: int = signal.SIGKILL, tail_lines: int = 20,
                  preload_modules: Optional[list] = None, preload_log: str = '', preload_env: Optional[dict] = None,
-                 preload_ready_timeout: float = 30.0):
+                 preload_ready_timeout: float = 30.0, leash=None):
         self.on_exit = on_exit
         self.sigint_grace = sigint_grace
         self.sigterm_grace = sigterm_grace
         self.death_signal = int(death_signal)
         self.tail_lines = tail_lines
+        self.leash = leash                                   # told of every child; see leash.py
         self._lock = threading.Lock()
         self._procs: dict[int, ManagedProcess] = {}          # pidfd -> process, while not reaped
         self._all: dict[int, ManagedProcess] = {}            # key -> process, until forgotten
@@ -353,7 +358,41 @@ class ProcessSupervisor:
             self._procs[pidfd] = proc
             self._all[proc.key] = proc
         os.write(self._wake_w, b'x')          # let the reaper select on the new pidfd
+        self._leash_watch(proc)
         _log.info('started pid %d: %s (log %s)', proc.pid, spec.command, spec.log_path)
+        return proc
+
+    def _leash_watch(self, proc: ManagedProcess) -> None:
+        if self.leash is not None:
+            start = start_ticks(proc.pid)
+            if start is not None:             # None: it died already, and the reaper reports it
+                self.leash.watch(proc.pid, start)
+
+    def adopt(self, spec: ProcessSpec, pid: int, start: int, started: float) -> Optional[ManagedProcess]:
+        """Watch a process that an earlier incarnation of the manager started; None if it is gone.
+
+        ``start`` is its start time in clock ticks (:func:`start_ticks`), checked before and after the pidfd
+        is opened, so a pid that was reused meanwhile is never adopted. The adopted process is not this
+        manager's child: its exit is seen through the pidfd, but its exit status is unknown (init reaps it).
+        """
+        if self._closed or start_ticks(pid) != start:
+            return None
+        try:
+            pidfd = os.pidfd_open(pid)
+        except OSError:
+            return None
+        if start_ticks(pid) != start:         # it died, and the pid was maybe reused, before the open
+            os.close(pidfd)
+            return None
+        proc = ManagedProcess(spec, pid, pidfd, started)
+        proc.orphan = proc.adopted = proc.ready = True
+        with self._lock:
+            self._procs[pidfd] = proc
+            self._all[proc.key] = proc
+        os.write(self._wake_w, b'x')
+        if self.leash is not None:
+            self.leash.watch(pid, start)
+        _log.info('adopted pid %d: %s', pid, spec.command)
         return proc
 
     def _spawn_from_zygote(self, zygote: Zygote, spec: ProcessSpec, log_fd: int) -> Optional[ManagedProcess]:
@@ -373,6 +412,7 @@ class ProcessSupervisor:
         if failure is not None:
             self._drop_zygote(failure)
             return None
+        self._leash_watch(proc)
         _log.info('started pid %d from the preload zygote: %s (log %s)', pid, spec.command, spec.log_path)
         return proc
 
@@ -494,6 +534,11 @@ class ProcessSupervisor:
         # Before reaping: while the dead leader is a zombie, its pid (and so its group id) cannot be
         # reused, so the group can be signalled safely. pid_max is 32768 here and wraps within minutes:
         # a group id signalled after the reap may already belong to somebody else's new session.
+        if proc.adopted:
+            # init reaps it, maybe already: its group id may be reused; never signal it
+            self._record_exit(proc, -int(signal.SIGKILL), 'exited (exit status unknown: it was adopted after a '
+                              'restart of the manager, so it is not the manager\'s child)')
+            return
         if proc.orphan:
             # its zygote died, so init reaps it, maybe already: its group id may be reused; never signal it
             self._record_exit(proc, -int(self.death_signal or signal.SIGKILL),
@@ -545,6 +590,8 @@ class ProcessSupervisor:
             proc.exit_info = info
             proc.cond.notify_all()
         self._recent_exits.append(info)
+        if self.leash is not None:
+            self.leash.forget(proc.pid)
         if info.intentional:
             _log.info('pid %d stopped: %s', proc.pid, info.reason)
         else:

@@ -228,6 +228,10 @@ class Journal:
         with self._transaction() as db:
             db.execute('INSERT OR REPLACE INTO owner_state VALUES (?, ?)', (key, value))
 
+    def drop_owner_state(self, key: str) -> None:
+        with self._transaction() as db:
+            db.execute('DELETE FROM owner_state WHERE key = ?', (key,))
+
     def owner_state(self) -> Dict[str, str]:
         with self._lock:
             return dict(self._db.execute('SELECT key, value FROM owner_state').fetchall())

@@ -23,8 +23,10 @@ Manager's ``receiver`` maps it to its own id, forwards it through the link
 (``links``) to the sensor's consumers (``server_side.propagate``), and so on up to
 the action's callback.
 """
-from typing import Callable, Optional
+import os
+from typing import Callable, Dict, Optional
 
+import rospkg
 import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
@@ -49,6 +51,18 @@ RESERVED_LEAVES = ('unload', 'status', 'registry', 'reclaim')
 DEFAULT_RECOVERY_GRACE = 10.0
 
 
+def default_journal_path() -> str:
+    """Where ``~journal: auto`` keeps a node's journal: under the ROS home, one file per node name."""
+    return os.path.join(rospkg.get_ros_home(), 'temoto', 'journal', rospy.get_name().strip('/').replace('/', '.')
+                        + '.sqlite')
+
+
+def journal_param() -> str:
+    """The journal path the node's ``~journal`` parameter asks for ('' for none, ``auto`` for the default)."""
+    journal = str(rospy.get_param('~journal', ''))
+    return default_journal_path() if journal == 'auto' else journal
+
+
 class ResourceRegistrar:
     """See the module docstring. ``rospy.init_node`` must have run in this process."""
 
@@ -61,7 +75,8 @@ class ResourceRegistrar:
         to come back (default: ``~recovery_grace``, 10 s)."""
         ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
         if journal is None:
-            journal = str(rospy.get_param('~journal', ''))
+            journal = journal_param()
+        self.journal_path = journal
         if recovery_grace is None:
             recovery_grace = float(rospy.get_param('~recovery_grace', DEFAULT_RECOVERY_GRACE))
         self._journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
@@ -92,6 +107,25 @@ class ResourceRegistrar:
                                            lambda _req: GetRegistryResponse(json=self.registry().to_json()))
         self._unload_srv = None
         self._reclaim_srv = None
+
+    @property
+    def journaled(self) -> bool:
+        """This registrar keeps a journal, so its node recovers after a restart."""
+        return self._journal is not None
+
+    # ------------------------------------------------------------------------------------------ owner state
+    def owner_state(self) -> Dict[str, str]:
+        """What the owner kept in the journal (:meth:`put_owner_state`); empty without a journal."""
+        return self._journal.owner_state() if self._journal is not None else {}
+
+    def put_owner_state(self, key: str, value: str) -> None:
+        """Keep ``value`` across a crash of this node (a no-op without a journal)."""
+        if self._journal is not None:
+            self._journal.put_owner_state(key, value)
+
+    def drop_owner_state(self, key: str) -> None:
+        if self._journal is not None:
+            self._journal.drop_owner_state(key)
 
     @property
     def consumer_check_period(self) -> float:
