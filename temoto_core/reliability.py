@@ -38,6 +38,20 @@ class Reliability:
     def failure(self) -> float:
         return self.adjust(0.0)
 
+    def samples(self) -> list:
+        """The window, oldest first: what :meth:`restore` takes back (a manager keeps it across a crash)."""
+        with self._lock:
+            return list(self._samples)
+
+    def restore(self, samples: list) -> None:
+        """Continue from ``samples`` (as :meth:`samples` gave them); a window of another size is refitted."""
+        values = [min(1.0, max(0.0, float(x))) for x in samples][-self._samples.maxlen:]
+        with self._lock:
+            prior = list(self._samples)[:self._samples.maxlen - len(values)]
+            self._samples.clear()
+            self._samples.extend(prior + values)
+            self._sum = sum(self._samples)
+
     @property
     def value(self) -> float:
         with self._lock:

@@ -13,6 +13,14 @@ topic silent for longer than its limit makes this manager send FAILED for the
 sensor, exactly as the registrar forwards a crash reported by the ER Manager.
 The stalled driver is stopped when the consumer unloads the failed sensor
 (the registrar's cascade).
+
+With a journal (``~journal``) the manager survives its own restart: the
+registrar brings back the sensors it served, their consumers and the driver
+processes linked to them; :meth:`SensorManager._recover` re-creates each
+sensor's topic watch, and ``rr.resume()`` asks the ER Manager which drivers
+still run. A driver that died meanwhile reaches the consumers as FAILED then;
+one that stalled meanwhile is caught by the watch. Reliabilities are kept in
+the journal after every change.
 """
 import json
 import threading
@@ -37,6 +45,8 @@ SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)
 # before its rate counts; the VaultBot's simulated drivers need 0.4 to 0.9 s (BENCHMARKS.md, bench_sim.py)
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
+RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
+SENSOR_KEY = 'sensor/%d'              # owner state: the driver process of a served sensor, by internal id
 
 
 def _gaps(probes: List[TopicProbe]) -> str:
@@ -94,9 +104,18 @@ class SensorManager:
         self.watchdog = Watchdog(self._on_stall)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
-        self.rr.add_server(START_SENSOR, START_SENSOR_TYPE, self._load, self._unload)
+        kept = self.rr.owner_state()
+        self._restore_reliabilities(kept.get(RELIABILITIES_KEY))
+        self._records = {int(k.split('/')[1]): json.loads(v) for k, v in kept.items() if k.startswith('sensor/')}
+        # one callback for every driver process held, also those a restart brings back
+        self.rr.register_status_callback(self._on_process_status)
+        self.rr.add_server(START_SENSOR, START_SENSOR_TYPE, self._load, self._unload, recover=self._recover)
         self._catalogue_srv = rospy.Service('/%s/%s/%s' % (self.rr.namespace, NAME, CATALOGUE), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.catalogue_json()))
+        for stale in self._records:
+            self.rr.drop_owner_state(SENSOR_KEY % stale)
+        self._records.clear()
+        self.rr.resume()
         rospy.loginfo('%s: ready with %d sensor(s) of type(s) %s', NAME, len(catalogue.entries),
                       ', '.join(catalogue.types()) or 'none')
 
@@ -112,12 +131,17 @@ class SensorManager:
         def report(tried: Tried) -> None:
             rospy.logwarn('%s: candidate %s for %r failed (reliability now %.3f): %s', NAME, tried.name,
                           query.sensor_type, tried.candidate.reliability.value, tried.error)
-        entry, (launch, held) = first_that_works(
-            candidates(self.catalogue, query), attempt, what='a %r sensor' % query.sensor_type, subsystem=SUB,
-            code=ErrorCode.SENSOR_NOT_FOUND, name=lambda e: e.name, reliability=lambda e: e.reliability,
-            # the ER Manager being away says nothing of the device
-            counts_against=lambda err: getattr(err, 'code', None) != ErrorCode.SERVICE_REQ_FAIL,
-            on_failure=report)
+        try:
+            entry, (launch, held) = first_that_works(
+                candidates(self.catalogue, query), attempt, what='a %r sensor' % query.sensor_type, subsystem=SUB,
+                code=ErrorCode.SENSOR_NOT_FOUND, name=lambda e: e.name, reliability=lambda e: e.reliability,
+                # the ER Manager being away says nothing of the device
+                counts_against=lambda err: getattr(err, 'code', None) != ErrorCode.SERVICE_REQ_FAIL,
+                on_failure=report)
+        finally:
+            self._keep_reliabilities()
+        self.rr.put_owner_state(SENSOR_KEY % held.internal_id,
+                                json.dumps({'process_id': held.process_id, 'sensor': entry.name}))
         self.watchdog.arm(held.probes)
         res.sensor_name = entry.name
         res.package_name = entry.package
@@ -146,8 +170,7 @@ class SensorManager:
         probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
                   for key, topic in launch.topics.items()]
         try:
-            started = self.rr.call(self.er_manager, LOAD_PROCESS, request, status_cb=self._on_process_status,
-                                   link=False)
+            started = self.rr.call(self.er_manager, LOAD_PROCESS, request, link=False)
         except BaseException:
             for probe in probes:
                 probe.close()
@@ -208,11 +231,49 @@ class SensorManager:
             held = self._held.pop(res.trr.resource_id, None)
             if held is not None:
                 self._by_process.pop(held.process_id, None)
+        self.rr.drop_owner_state(SENSOR_KEY % res.trr.resource_id)
         if held is None:
             return
         for probe in held.probes:
             probe.close()
         rospy.loginfo('%s: released %s (its driver goes with it); %s', NAME, held.entry.name, _gaps(held.probes))
+
+    # -- recovery after a restart ------------------------------------------------------------------
+    def _recover(self, req, res) -> None:
+        """A sensor the previous incarnation served: watch its topics again (a restart of this manager
+        leaves the driver running; whether it still runs is asked of the ER Manager in ``resume``)."""
+        rid = res.trr.resource_id
+        record = self._records.pop(rid, None)
+        entry = self.catalogue.get(res.sensor_name)
+        if record is None or entry is None:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'sensor %s: %s' % (
+                res.sensor_name, 'the journal has no record of its driver' if record is None
+                else 'it is not in the catalogue any more'))
+        probes = [TopicProbe(kv.value, entry.output_topics[kv.key].silence_limit())
+                  for kv in res.output_topics if kv.key in entry.output_topics]
+        held = _Held(rid, entry, int(record['process_id']), probes)
+        with self._lock:
+            self._held[rid] = held
+            self._by_process[held.process_id] = held
+        # the new subscriptions still connect: data must arrive within the first-data allowance
+        self.watchdog.arm(probes, grace=self.first_data_allowance)
+        rospy.loginfo('%s: took %s back after a restart (driver resource %d); watching %s', NAME, entry.name,
+                      held.process_id, ', '.join(p.topic for p in probes))
+
+    def _restore_reliabilities(self, kept: Optional[str]) -> None:
+        if not kept:
+            return
+        for name, samples in json.loads(kept).items():
+            entry = self.catalogue.get(name)
+            if entry is not None:
+                entry.reliability.restore(samples)
+        rospy.loginfo('%s: reliabilities restored from the journal: %s', NAME, ', '.join(
+            '%s %.3f' % (e.name, e.reliability.value) for e in self.catalogue.entries))
+
+    def _keep_reliabilities(self) -> None:
+        if self.rr.journaled:
+            self.rr.put_owner_state(RELIABILITIES_KEY, json.dumps(
+                {e.name: e.reliability.samples() for e in self.catalogue.entries}))
 
     # -- failures ------------------------------------------------------------------------------
     def _on_process_status(self, event: StatusEvent) -> None:
@@ -245,6 +306,7 @@ class SensorManager:
         for probe in held.probes:
             probe.close()
         value = held.entry.reliability.failure()
+        self._keep_reliabilities()
         rospy.logerr('%s: %s (reliability now %.3f); before that, %s', NAME, message, value, _gaps(held.probes))
         if report:
             err = TemotoError(ErrorCode.TIMEOUT, SUB, message)

@@ -29,6 +29,7 @@ class TopicProbe:
         self.max_gap = 0.0                   # longest time between two messages seen (what a limit must exceed)
         self.first = threading.Event()
         self.armed = False
+        self.quiet_from = 0.0                # silence counts from max(last, quiet_from): see Watchdog.arm
         self.owner = None                    # set by the watchdog user (what stalled)
         self._on_first = on_first
         self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
@@ -64,15 +65,22 @@ class Watchdog:
         self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
         self._thread.start()
 
-    def arm(self, probes: List[TopicProbe]) -> None:
-        """Start watching ``probes`` (with a limit > 0) from their last message."""
+    def arm(self, probes: List[TopicProbe], grace: float = 0.0) -> None:
+        """Start watching ``probes`` (with a limit > 0) from their last message.
+
+        ``grace``: a probe that has seen no message yet (a sensor taken over after a restart of the
+        manager, whose new subscription still connects) stalls only after ``max(grace, limit)``.
+        """
         now = time.monotonic()
         with self._cond:
             for probe in probes:
                 if probe.limit <= 0:
                     continue
                 probe.armed = True
-                heapq.heappush(self._heap, (max(probe.last, now - probe.limit) + probe.limit, next(self._seq), probe))
+                if grace > 0:
+                    probe.quiet_from = now + max(0.0, grace - probe.limit)
+                start = max(probe.last, now - probe.limit, probe.quiet_from)
+                heapq.heappush(self._heap, (start + probe.limit, next(self._seq), probe))
             self._cond.notify()
 
     def _run(self) -> None:
@@ -90,13 +98,14 @@ class Watchdog:
                 heapq.heappop(self._heap)
                 if not probe.armed:
                     continue
-                due = probe.last + probe.limit
+                since = max(probe.last, probe.quiet_from)
+                due = since + probe.limit
                 if due > now:
                     heapq.heappush(self._heap, (due, next(self._seq), probe))
                     continue
                 probe.armed = False
             try:
-                self._on_stall(probe, now - probe.last)
+                self._on_stall(probe, now - since)
             except Exception as err:     # a reporting error must not stop the watchdog
                 rospy.logerr('sensor watchdog: stall callback for %s raised %r', probe.topic, err)
 

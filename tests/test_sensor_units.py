@@ -92,8 +92,8 @@ def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_a
     done = threading.Event()
     dog = Watchdog(lambda probe, silence: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
     try:
-        busy = types.SimpleNamespace(topic='busy', limit=0.15, last=time.monotonic(), armed=False)
-        quiet = types.SimpleNamespace(topic='quiet', limit=0.15, last=time.monotonic(), armed=False)
+        busy = types.SimpleNamespace(topic='busy', limit=0.15, last=time.monotonic(), armed=False, quiet_from=0.0)
+        quiet = types.SimpleNamespace(topic='quiet', limit=0.15, last=time.monotonic(), armed=False, quiet_from=0.0)
         dog.arm([busy, quiet])
         start = time.monotonic()
         while time.monotonic() - start < 0.5:          # 'busy' gets a message every 20 ms
@@ -106,6 +106,24 @@ def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_a
         busy.armed = False                              # disarmed (unloaded): never fires
         time.sleep(0.3)
         assert [f[0] for f in fired] == ['quiet']
+    finally:
+        dog.stop()
+
+
+def test_watchdog_grace_gives_a_probe_without_messages_time_to_connect():
+    """A sensor taken back after a restart has a new, still connecting subscription: no stall before the
+    grace, one stall after it if nothing comes."""
+    fired = threading.Event()
+    stalls = []
+    dog = Watchdog(lambda probe, silence: (stalls.append((time.monotonic(), silence)), fired.set()))
+    try:
+        probe = types.SimpleNamespace(topic='new', limit=0.05, last=0.0, armed=False, quiet_from=0.0)
+        start = time.monotonic()
+        dog.arm([probe], grace=0.4)
+        assert fired.wait(5.0)
+        when, silence = stalls[0]
+        assert when - start >= 0.4, 'a stall within the grace: %.3f s' % (when - start)
+        assert 0.05 <= silence < 5.0, 'the silence counts from the end of the grace, not from boot: %.3f' % silence
     finally:
         dog.stop()
 
@@ -140,3 +158,17 @@ def test_likely_topics_follow_the_ranking_of_the_catalogue_rows():
     assert likely_topics(rows, 'lidar', ['image']) is None
     assert likely_topics([{'type': 'lidar', 'output_topics': {'lidar_data': 'not a mapping'}}], 'lidar',
                          ['lidar_data']) is None
+
+
+def test_reliability_continues_from_a_kept_window():
+    from temoto_core.reliability import Reliability
+    before = Reliability(0.8, window=10)
+    before.failure()
+    before.failure()
+    after = Reliability(0.8, window=10)
+    after.restore(before.samples())
+    assert after.value == pytest.approx(before.value) and after.value < 0.8
+    assert after.failure() == pytest.approx(before.failure())
+    wider = Reliability(0.8, window=20)
+    wider.restore(before.samples())     # another window: the kept samples are the newest, the prior fills up
+    assert wider.value == pytest.approx((10 * 0.8 + sum(before.samples())) / 20)

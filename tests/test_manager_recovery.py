@@ -1,0 +1,154 @@
+"""Managers survive their own crash: the Sensor Manager and the ER Manager, SIGKILLed for real mid-use,
+come back with the registry they had, keep the driver running, keep watching it, and still report what
+failed while they were down.
+
+Real roscore, real ER Manager and Sensor Manager processes with journals, fake drivers; the consumer is a
+Sensor Manager interface in this test process.
+"""
+import json
+import os
+import signal
+
+import pytest
+import rosgraph
+import rospy
+
+from temoto_core.msg import ResourceStatus
+from temoto_core.process_group import start_ticks
+from temoto_core.testing import ProcessGroupLauncher, made_interfaces, wait_for
+from temoto_sensor_manager.interface import SensorManagerInterface
+from temoto_sensor_manager.testing import (ER_PARAMS, FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue,
+                                           er_processes, registry)
+
+SM, ER = 'temoto_sensor_manager', 'temoto_er_manager'
+
+
+class Managers:
+    """An ER Manager and a Sensor Manager, each with a journal, that a test can kill and restart."""
+
+    def __init__(self, env, tmp):
+        self.launcher = ProcessGroupLauncher(env, str(tmp / 'launch'))
+        os.makedirs(self.launcher.workdir, exist_ok=True)
+        self.params = {
+            ER: dict(ER_PARAMS, log_dir=str(tmp / 'er_logs'), journal=str(tmp / 'er.sqlite'), adoption_bound=20.0),
+            SM: {'extra_catalogues': FAKE_CATALOGUE, 'first_data_timeout': 3.0, 'journal': str(tmp / 'sm.sqlite'),
+                 'first_data_allowance': 2.0},
+        }
+        self.procs = {}
+
+    def start(self, name):
+        self.procs[name] = self.launcher.node(name, name, name=name, params=self.params[name])
+        rospy.wait_for_service('/temoto/%s/%s' % (name, 'start_sensor' if name == SM else 'load_process'),
+                               timeout=30)
+
+    def kill(self, *names):
+        for name in names:
+            os.kill(self.procs[name].pid, signal.SIGKILL)
+        for name in names:
+            wait_for(lambda: not self.procs[name].alive(), 10, '%s to die' % name)
+
+
+@pytest.fixture
+def managers(ros_master, rospy_client, tmp_path):
+    m = Managers(ros_master.env, tmp_path)
+    m.start(ER)
+    m.start(SM)
+    yield m
+    m.launcher.stop_all()
+
+
+@pytest.fixture
+def sensor(managers):
+    """A fake lidar held by an interface that records every status and keeps a failed sensor (no reload)."""
+    with made_interfaces(SensorManagerInterface) as make:
+        sm = make()
+        sm.events = []
+        sm.register_update_callback(sm.events.append)
+        result = sm.start_sensor('fake lidar', ['lidar_data'], executable='fake_sensor')
+        yield sm, result
+
+
+def failed(events):
+    return [e for e in events if e.code == ResourceStatus.FAILED]
+
+
+def registry_state(rr):
+    """The registry, as JSON lines (a failed comparison then shows the lines that differ)."""
+    snapshot = registry(rr)
+    snapshot.pop('node', None)
+    for query in snapshot['server_queries']:
+        for consumer in query['consumers']:
+            consumer.pop('client_uri')      # a restarted consumer is the same consumer at a new URI
+    return json.dumps(snapshot, indent=1, sort_keys=True).splitlines()
+
+
+def driver_pid():
+    rows = er_processes()
+    assert len(rows) == 1, rows
+    return rows[0]['pid']
+
+
+def test_killed_sensor_manager_comes_back_with_its_registry_and_keeps_watching(managers, sensor):
+    sm, result = sensor
+    before, pid = registry_state(SM), driver_pid()
+    watch = TopicWatch(result.topic('lidar_data'))
+    managers.kill(SM)
+    managers.start(SM)
+    assert registry_state(SM) == before, 'the registry after the restart is the one before the kill'
+    assert driver_pid() == pid, 'nothing that still runs is restarted'
+    seen = watch.count
+    wait_for(lambda: watch.count > seen + 5, 10, 'data still flowing')
+    watch.close()
+    assert not failed(sm.events)
+    # the restored watch still catches a stall, and the consumer hears it from the new incarnation
+    FakeCables().send('stall', result.sensor_name[len('fake_'):])
+    wait_for(lambda: failed(sm.events), 15, 'the stall FAILED at the client')
+    assert 'stalled' in failed(sm.events)[0].message, failed(sm.events)[0].message
+
+
+def test_a_driver_crash_while_the_sensor_manager_is_down_reaches_the_client_after_the_restart(managers, sensor):
+    sm, result = sensor
+    pid = driver_pid()
+    managers.kill(SM)
+    FakeCables().send('crash', result.sensor_name[len('fake_'):])
+    wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to crash')
+    assert not failed(sm.events), 'nobody could tell the client while its manager was down'
+    managers.start(SM)
+    wait_for(lambda: failed(sm.events), 20, 'the FAILED of the crash at the client')
+    event = failed(sm.events)[0]
+    assert event.resource_id == result.resource_id
+    text = event.message + ' ' + ' '.join(f.message for f in event.error_stack)
+    assert 'exit' in text.lower() or 'failed' in text.lower(), text
+
+
+def test_reliabilities_survive_a_restart(managers, sensor):
+    sm, result = sensor
+    FakeCables().send('stall', result.sensor_name[len('fake_'):])
+    wait_for(lambda: failed(sm.events), 15, 'the stall FAILED')
+    lowered = catalogue()[result.sensor_name]['reliability']
+    assert lowered < 0.8
+    managers.kill(SM)
+    managers.start(SM)
+    assert catalogue()[result.sensor_name]['reliability'] == lowered
+
+
+def test_two_neighbours_killed_at_once_recover_from_their_journals(managers, sensor):
+    sm, result = sensor
+    before = {rr: registry_state(rr) for rr in (SM, ER)}
+    pid = driver_pid()
+    managers.kill(SM, ER)
+    assert start_ticks(pid) is not None, 'the driver outlives both managers'
+    managers.start(ER)
+    managers.start(SM)
+    for rr in (SM, ER):
+        assert registry_state(rr) == before[rr], rr
+    # the driver's owner now reports to the Sensor Manager's new incarnation
+    uris = [c['client_uri'] for q in registry(ER)['server_queries'] for c in q['consumers']]
+    assert uris == [rosgraph.Master('/recovery_test').lookupNode('/' + SM)]
+    assert driver_pid() == pid
+    watch = TopicWatch(result.topic('lidar_data'))
+    wait_for(lambda: watch.count > 5, 10, 'data still flowing')
+    watch.close()
+    sm.stop_sensor(result.resource_id)
+    wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to stop with the sensor')
+    assert not failed(sm.events)
