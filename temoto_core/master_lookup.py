@@ -93,19 +93,49 @@ def registered_nodes(master_uri: str, timeout: float = 1.0) -> set[str]:
     return names
 
 
+# topics every rospy node may have: they say nothing of which node answers at a URI
+COMMON_TOPICS = frozenset(('/rosout', '/clock', '/rosout_agg'))
+
+
+def _stale(uri: str, node_name: str, publishers: list, subscribers: list, timeout: float) -> bool:
+    """Whether the registration of ``node_name`` at ``uri`` is left over from a dead process.
+
+    Nobody answering is the plain case. The other: the dead node's port was reused by another node, which
+    answers. It is told apart by what it says it publishes and subscribes to: the topics the master has for
+    ``node_name`` (beyond the ones every node has) must all be among them. A node with no such topic cannot be
+    told apart, so it counts as alive.
+    """
+    if node_pid(uri, timeout) is None:
+        return True
+    expected = {t for t, nodes in publishers + subscribers if node_name in nodes} - COMMON_TOPICS
+    if not expected:
+        return False
+    node = _proxy(uri, timeout)
+    try:
+        pubs = node.getPublications(CALLER_ID)
+        subs = node.getSubscriptions(CALLER_ID)
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException):
+        return True
+    there = {t for t, _type in (pubs[2] if pubs[0] == 1 else []) + (subs[2] if subs[0] == 1 else [])}
+    return not expected <= there
+
+
 def cleanup_dead_node(master_uri: str, node_name: str, timeout: float = 1.0) -> int:
     """Unregister what a dead node left at the master, as ``rosnode cleanup`` does for one node.
 
     A node that is SIGKILLed (or crashes) never unregisters, so it stays in ``rosnode list`` and its
-    topics look served. Nothing is touched unless the name is registered *and* nobody answers at its
-    URI: a new incarnation under the same name is left alone. Returns how many registrations went.
+    topics look served. Worse, a node started later under the same name makes the master send
+    ``shutdown`` to the dead node's URI, and if another node has since been given that port, that node is
+    shut down instead. Nothing is touched unless the name is registered *and* the registration is stale
+    (:func:`_stale`): a live incarnation under the same name is left alone. Returns how many registrations
+    went.
     """
     uri = lookup_node(master_uri, node_name, timeout)
-    if uri is None or node_pid(uri, timeout) is not None:
+    if uri is None:
         return 0
     master = _proxy(master_uri, timeout)
     code, _msg, (publishers, subscribers, services) = master.getSystemState(CALLER_ID)
-    if code != 1:
+    if code != 1 or not _stale(uri, node_name, publishers, subscribers, timeout):
         return 0
     calls = [('unregisterPublisher', topic, uri) for topic, nodes in publishers if node_name in nodes]
     calls += [('unregisterSubscriber', topic, uri) for topic, nodes in subscribers if node_name in nodes]

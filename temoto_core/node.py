@@ -19,13 +19,20 @@ safe. ``init_node`` hands the signal to the main thread, whose ``spin()`` or
 """
 from __future__ import annotations
 
+import http.client
 import os
 import signal
+import sys
 import threading
 import time
+import xmlrpc.client
 from typing import Callable, Iterable
 
+import rosgraph
+import rosgraph.names
 import rospy
+
+from temoto_core import master_lookup
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -90,8 +97,29 @@ def init_node(name: str, **kwargs) -> None:
     # stop it from then on (Python's default SIGINT handler would raise KeyboardInterrupt mid-registration)
     on_signals(on_stop)
     kwargs['disable_signals'] = True
+    _clear_stale_registration(name, kwargs.get('anonymous', False))
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
+
+
+def _clear_stale_registration(name: str, anonymous: bool) -> None:
+    """Before registering: remove what a dead earlier process under this node's name left at the master.
+
+    A respawned node registers under the name of one that was killed, and the master then sends
+    ``shutdown`` to the old URI. If the dead node's port has been given to another process meanwhile,
+    that process is shut down instead of nobody (``master_lookup.cleanup_dead_node``).
+    """
+    if anonymous:
+        return
+    mappings = rosgraph.names.load_mappings(sys.argv)
+    full = rosgraph.names.ns_join(rosgraph.names.get_ros_namespace(argv=sys.argv), mappings.get('__name', name))
+    try:
+        gone = master_lookup.cleanup_dead_node(rosgraph.get_master_uri(), full)
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException):
+        return                            # no master yet: rospy waits for it, and nothing stale can be there
+    if gone:
+        sys.stderr.write('%s: removed %d registration(s) a dead earlier %s left at the master\n'
+                         % (full, gone, full))
 
 
 def ok() -> bool:

@@ -9,6 +9,7 @@ import time
 import xmlrpc.client
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from temoto_core.master_lookup import cleanup_dead_node
 from temoto_core.process_group import exit_status, group_members
 
 SESSION_ENV = 'TEMOTO_TEST_SESSION'
@@ -147,10 +148,13 @@ class ProcessGroupLauncher:
             argv.append('__ns:=' + namespace)
         for key, value in (params or {}).items():
             argv.append('_%s:=%s' % (key, value))
+        full = '/' + '/'.join(p for p in (namespace.strip('/'), name) if p)
+        # a dead node of this name would pass the registration wait at once, and the master would send its
+        # shutdown to whoever has the dead node's port now
+        cleanup_dead_node(self.env['ROS_MASTER_URI'], full)
         proc = self.command(argv, name)
         if wait:
-            full = '/'.join(p for p in (namespace.strip('/'), name) if p)
-            self.wait_registered(proc, ['/' + full], timeout)
+            self.wait_registered(proc, [full], timeout)
         return proc
 
     def launch(self, package: str, launch_file: str, args: Sequence[str] = (), wait: bool = True,

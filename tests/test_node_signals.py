@@ -115,3 +115,51 @@ def test_a_node_stopped_the_moment_it_registers_exits_cleanly(procs):
         os.killpg(node.pid, signal.SIGINT)
         wait_for(lambda: node.returncode is not None, 15, 'the node to exit')
         assert node.returncode == 0, 'attempt %d: exit %r\n%s' % (attempt, node.returncode, node.log())
+
+
+PORTLY = textwrap.dedent('''
+    import rospy
+    from std_msgs.msg import String
+    from temoto_core.node import init_node, spin
+    init_node('portly')
+    rospy.Subscriber('/portly/only_mine', String, lambda msg: None)
+    spin()
+''')
+
+STRANGER = textwrap.dedent('''
+    import sys
+    import rospy
+    rospy.init_node('stranger', xmlrpc_port=int(sys.argv[1]))
+    rospy.spin()
+''')
+
+
+def test_a_node_restarted_after_a_sigkill_does_not_shut_down_whoever_got_the_dead_ones_port(procs, ros_master,
+                                                                                          tmp_path):
+    """The master sends ``shutdown`` to the old URI of a name that registers again. If the killed node's port
+    went to another node meanwhile, that node was shut down: init_node removes the stale registration first."""
+    import xmlrpc.client
+    from temoto_core import master_lookup
+    master = xmlrpc.client.ServerProxy(ros_master.env['ROS_MASTER_URI'])
+    (tmp_path / 'portly.py').write_text(PORTLY)
+    (tmp_path / 'stranger.py').write_text(STRANGER)
+
+    def subscribed():
+        return any(t == '/portly/only_mine' and '/portly' in n for t, n in master.getSystemState('/t')[2][1])
+    first = procs.command([sys.executable, str(tmp_path / 'portly.py')], 'portly')
+    procs.wait_registered(first, ['/portly'], 20)
+    wait_for(subscribed, 20, 'the subscription of the first portly')
+    port = int(master.lookupNode('/t', '/portly')[2].rstrip('/').rsplit(':', 1)[1])
+    os.killpg(first.pid, signal.SIGKILL)
+    wait_for(lambda: not first.alive(), 10, 'the first portly to die')
+    stranger = procs.command([sys.executable, str(tmp_path / 'stranger.py'), str(port)], 'stranger')
+    procs.wait_registered(stranger, ['/stranger'], 20)
+    assert master.lookupNode('/t', '/stranger')[2].rstrip('/').endswith(':%d' % port), 'the stranger has the port'
+    assert master_lookup.node_pid(master.lookupNode('/t', '/portly')[2]) == stranger.pid, \
+        'the stale registration of portly now answers with the stranger'
+    second = procs.command([sys.executable, str(tmp_path / 'portly.py')], 'portly')
+    # (the stale name is registered all along: wait for the new process behind it)
+    wait_for(lambda: master_lookup.node_pid(master.lookupNode('/t', '/portly')[2]) == second.pid, 20,
+             'the second portly to register')
+    assert 'registration(s) a dead earlier /portly left' in second.log(), second.log()
+    assert stranger.alive() and 'shutdown request' not in stranger.log(), stranger.log()
