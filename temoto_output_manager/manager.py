@@ -15,9 +15,16 @@ reference to it. Concretely, ``load_rviz_plugin``'s load callback
 
 A crashed host is remembered as dead, so that unloading a display of the dead
 host never removes a same-named display of the next host.
+
+With a journal (``~journal``) the manager survives its own restart while the host
+keeps running (the ER Manager holds it): each display's name and host are kept
+in the journal, :meth:`OutputManager._recover` checks that the display is still
+in the host, and ``rr.resume()`` asks the ER Manager whether the host still runs
+(one that died meanwhile reaches the displays' consumers as FAILED).
 """
 from __future__ import annotations
 
+import json
 import threading
 from typing import Callable, Dict, Optional, Tuple
 
@@ -37,6 +44,7 @@ from .host_client import RvizHostClient, RvizHostError
 HOST_PACKAGE = 'temoto_output_manager'
 HOST_EXECUTABLE = 'rviz_host'
 HOST_NODE = 'rviz_host'
+DISPLAY_KEY = 'display/%d'      # owner state: a display's name and host, by internal id
 
 
 def _error(code: ErrorCode, message: str) -> TemotoError:
@@ -61,7 +69,15 @@ class OutputManager:
         self._dead_hosts: set = set()                     # pids of hosts that failed
         self._host_pid_by_local: Dict[int, int] = {}
         self._host_failures: Dict[int, str] = {}          # local id of a host resource -> why it failed
-        rr.add_server(LOAD_RVIZ_PLUGIN, LOAD_RVIZ_PLUGIN_TYPE, self.load_cb, self.unload_cb)
+        self._records = {int(k.split('/')[1]): json.loads(v) for k, v in rr.owner_state().items()
+                         if k.startswith('display/')}
+        # one callback for every host held, also the one a restart brings back
+        rr.register_status_callback(self._on_host_status)
+        rr.add_server(LOAD_RVIZ_PLUGIN, LOAD_RVIZ_PLUGIN_TYPE, self.load_cb, self.unload_cb, recover=self._recover)
+        for stale in self._records:
+            rr.drop_owner_state(DISPLAY_KEY % stale)
+        self._records.clear()
+        rr.resume()
 
     # ------------------------------------------------------------------ the host process
     def _host_request(self):
@@ -82,8 +98,8 @@ class OutputManager:
                     self._dead_hosts.add(pid)
             rospy.logwarn('%s: the RViz host failed: %s', self.rr.prefix, ev.message)
 
-    def _start_or_share_host(self) -> int:
-        """The pid of a host whose services answer: the running one, or a new one.
+    def _start_or_share_host(self) -> Tuple[int, int]:
+        """(local id, pid) of a host whose services answer: the running one, or a new one.
 
         A host that dies while starting (Mesa's llvmpipe segfaults now and then in
         the first frames under load) is released and started once more; the
@@ -91,8 +107,7 @@ class OutputManager:
         """
         for attempt in range(1, self.host_start_attempts + 1):
             try:
-                resp = self.rr.call(ER_MANAGER, LOAD_PROCESS, self._host_request(),
-                                    status_cb=self._on_host_status)
+                resp = self.rr.call(ER_MANAGER, LOAD_PROCESS, self._host_request())
             except TemotoError as e:     # died before it registered at the master: the same start-up crash
                 if e.origin.code != ErrorCode.PROCESS_STOPPED or attempt == self.host_start_attempts:
                     raise
@@ -108,7 +123,7 @@ class OutputManager:
                     return self._host_failures.get(local_id)
             try:
                 self.client.wait_ready(self.host_ready_timeout, failed=failed)
-                return resp.pid
+                return local_id, resp.pid
             except RvizHostError as e:
                 if failed() is None or attempt == self.host_start_attempts:
                     raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
@@ -135,7 +150,7 @@ class OutputManager:
             config = display_config.with_defaults(DEFAULT_CONFIG.get(cls, {}), req.config)
         except ValueError as e:
             raise _error(ErrorCode.BAD_REQUEST, str(e)) from None
-        pid = self._start_or_share_host()
+        host_id, pid = self._start_or_share_host()
         name = req.name.strip() or ('%s %s' % (req.type.strip(), topic)).strip()
         try:
             try:
@@ -149,10 +164,13 @@ class OutputManager:
             raise _error(ErrorCode.DISPLAY_FAIL, str(e)) from None
         with self._lock:
             self._displays[resp.trr.resource_id] = (shown, pid)
+        self.rr.put_owner_state(DISPLAY_KEY % resp.trr.resource_id,
+                                json.dumps({'name': shown, 'host_pid': pid, 'host_id': host_id}))
         resp.display_name = shown
         rospy.loginfo("%s: showing %s on %s as '%s'", self.rr.prefix, req.type, topic or '-', shown)
 
     def unload_cb(self, req, resp) -> None:
+        self.rr.drop_owner_state(DISPLAY_KEY % resp.trr.resource_id)
         with self._lock:
             name, pid = self._displays.pop(resp.trr.resource_id, (resp.display_name, None))
             dead = pid in self._dead_hosts
@@ -162,6 +180,25 @@ class OutputManager:
             self.client.remove_display(name)
         except RvizHostError as e:
             rospy.logwarn("%s: could not remove display '%s': %s", self.rr.prefix, name, e)
+
+    def _recover(self, req, resp) -> None:
+        """A display the previous incarnation showed: still in the host? (The host runs on; whether it
+        still does is asked of the ER Manager in ``resume``.)"""
+        rid = resp.trr.resource_id
+        record = self._records.pop(rid, None)
+        if record is None:
+            raise _error(ErrorCode.DISPLAY_FAIL, 'the journal has no record of display %r' % resp.display_name)
+        try:
+            shown = self.client.display_names()
+        except RvizHostError as e:
+            raise _error(ErrorCode.DISPLAY_FAIL, "display '%s': %s" % (record['name'], e)) from None
+        if record['name'] not in shown:
+            raise _error(ErrorCode.DISPLAY_FAIL, "display '%s' is not in the RViz host any more (it shows: %s)"
+                         % (record['name'], ', '.join(shown) or 'nothing'))
+        with self._lock:
+            self._displays[rid] = (record['name'], record['host_pid'])
+            self._host_pid_by_local[record['host_id']] = record['host_pid']
+        rospy.loginfo("%s: took display '%s' back after a restart", self.rr.prefix, record['name'])
 
     def displays(self) -> Dict[int, str]:
         with self._lock:

@@ -20,7 +20,8 @@ from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.testing import (ER_PARAMS, FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue,
                                            er_processes, registry)
 
-SM, ER = 'temoto_sensor_manager', 'temoto_er_manager'
+SM, ER, OM = 'temoto_sensor_manager', 'temoto_er_manager', 'temoto_output_manager'
+SERVES = {SM: 'start_sensor', ER: 'load_process', OM: 'load_rviz_plugin'}
 
 
 class Managers:
@@ -33,13 +34,13 @@ class Managers:
             ER: dict(ER_PARAMS, log_dir=str(tmp / 'er_logs'), journal=str(tmp / 'er.sqlite'), adoption_bound=20.0),
             SM: {'extra_catalogues': FAKE_CATALOGUE, 'first_data_timeout': 3.0, 'journal': str(tmp / 'sm.sqlite'),
                  'first_data_allowance': 2.0},
+            OM: {'host_ready_timeout': 20.0, 'journal': str(tmp / 'om.sqlite')},
         }
         self.procs = {}
 
     def start(self, name):
         self.procs[name] = self.launcher.node(name, name, name=name, params=self.params[name])
-        rospy.wait_for_service('/temoto/%s/%s' % (name, 'start_sensor' if name == SM else 'load_process'),
-                               timeout=30)
+        rospy.wait_for_service('/temoto/%s/%s' % (name, SERVES[name]), timeout=30)
 
     def kill(self, *names):
         for name in names:
@@ -152,3 +153,47 @@ def test_two_neighbours_killed_at_once_recover_from_their_journals(managers, sen
     sm.stop_sensor(result.resource_id)
     wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to stop with the sensor')
     assert not failed(sm.events)
+
+
+@pytest.fixture
+def display(managers):
+    """A laser scan display held by an Output Manager interface that records every status."""
+    from temoto_output_manager.interface import OutputManagerInterface
+    managers.start(OM)
+    with made_interfaces(lambda: OutputManagerInterface(namespace='temoto')) as make:
+        om = make()
+        om.events = []
+        om.register_update_callback(om.events.append)
+        yield om, om.show('laser scan', '/recovery/scan')
+
+
+def host_pid():
+    rows = [r for r in er_processes() if r['label'].endswith('/rviz_host')]
+    assert len(rows) == 1, rows
+    return rows[0]['pid']
+
+
+def test_killed_output_manager_leaves_the_display_on_screen_and_comes_back_with_it(managers, display):
+    from temoto_output_manager.host_client import RvizHostClient
+    om, shown = display
+    before, pid = registry_state(OM), host_pid()
+    host = RvizHostClient('/temoto/rviz_host')
+    managers.kill(OM)
+    assert shown.display_name in host.display_names(), 'the view stays up while its manager is down'
+    managers.start(OM)
+    assert registry_state(OM) == before
+    assert host_pid() == pid, 'the RViz host is not started again'
+    assert not failed(om.events)
+    os.kill(pid, signal.SIGKILL)          # the host's crash reaches the display's holder through the new incarnation
+    wait_for(lambda: failed(om.events), 20, 'the FAILED of the host crash')
+    assert failed(om.events)[0].resource_id == shown.trr.resource_id
+
+
+def test_a_display_gone_while_the_output_manager_is_down_is_reported_failed_after_the_restart(managers, display):
+    from temoto_output_manager.host_client import RvizHostClient
+    om, shown = display
+    managers.kill(OM)
+    RvizHostClient('/temoto/rviz_host').remove_display(shown.display_name)
+    managers.start(OM)
+    wait_for(lambda: failed(om.events), 20, 'the FAILED of the display that went')
+    assert 'not in the RViz host any more' in failed(om.events)[0].message, failed(om.events)[0].message
