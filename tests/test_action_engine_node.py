@@ -108,7 +108,8 @@ def test_chatter_with_wake_word_runs_a_graph_and_stop_graph_ends_it(engine, rosp
     nodes = {'%s_%d' % (n['name'], n['instance_id']): n for n in graphs['hold_emit']['nodes']}
     assert nodes['hold_0']['state'] == 'RUNNING'
     assert nodes['emit_1']['outputs'] == {'value': 'held+bang'}  # data passed across the edge
-    assert engine.feedback_with('grounded', 'hold()', 'hold -> emit(tag=bang, value from hold)', 'hold_emit')
+    wait_for(lambda: engine.feedback_with('grounded', 'hold()', 'hold -> emit(tag=bang, value from hold)',
+                                          'hold_emit'), 10, 'the grounding on the feedback topic')
     resp = stop(graph_name='hold_emit')
     assert resp.code == 0, resp.message
     assert graph_names(list_graphs)['hold_emit']['state'] == 'FINISHED'

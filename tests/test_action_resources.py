@@ -249,7 +249,8 @@ def test_a_plugin_that_kills_its_process_fails_its_graph_and_the_engine_lives_on
     g = graphs(rospy_client)[name]
     assert reason in g['reason'] and 'worker process died' in g['reason'], g
     assert [n['state'] for n in g['nodes']] == ['FAILED']
-    assert world.feedback_with('crash failed', reason)
+    # the feedback topic is asynchronous to the graph listing: the message may still be on its way
+    wait_for(lambda: world.feedback_with('crash failed', reason), 10, 'the failure on the feedback topic')
     assert world.engine_proc.alive()
     wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the dead graph\'s resource released')
     consumers_left = [q for q in registry(rospy_client, 'test_server')['server_queries']]

@@ -14,6 +14,7 @@ import pytest
 from temoto_core.msg import ResourceStatus
 from temoto_core.process_group import start_ticks
 from temoto_core.testing import ProcessGroupLauncher, wait_for
+from temoto_er_manager.leash import address_for
 
 MGR = 'temoto_er_manager'
 
@@ -22,13 +23,15 @@ def running(pid: int) -> bool:
     return start_ticks(pid) is not None
 
 
-def leash_pids() -> list:
+def leash_pids(journal: str) -> list:
+    """The live leash processes of the manager on ``journal`` (other tests run leashes of their own)."""
+    address = address_for(journal).encode()
     found = []
     for entry in os.listdir('/proc'):
         if entry.isdigit():
             try:
                 with open('/proc/%s/cmdline' % entry, 'rb') as f:
-                    if b'temoto_er_manager.leash' in f.read() and running(int(entry)):
+                    if address in f.read() and running(int(entry)):
                         found.append(int(entry))
             except OSError:
                 pass
@@ -63,7 +66,7 @@ def stack(ros_master, rospy_client, tmp_path):
     s = Stack(ros_master.env, tmp_path)
     yield s
     s.launcher.stop_all()
-    wait_for(lambda: not leash_pids(), 15, 'the leash to exit after a clean stop')
+    wait_for(lambda: not leash_pids(s.params['journal']), 15, 'the leash to exit after a clean stop')
 
 
 @pytest.fixture
@@ -129,7 +132,7 @@ def test_a_child_that_dies_while_the_manager_is_down_is_reported_failed_after_th
 def test_children_nobody_adopts_are_stopped_within_the_bound(stack, consumer):
     stack.start(adoption_bound=1.0)
     res = load(consumer, 'unclaimed')
-    leashes = leash_pids()
+    leashes = leash_pids(stack.params['journal'])
     assert len(leashes) == 1, leashes
     began = time.monotonic()
     stack.kill()
@@ -137,7 +140,7 @@ def test_children_nobody_adopts_are_stopped_within_the_bound(stack, consumer):
     wait_for(lambda: not running(res.pid), 20, 'the leash to stop the unclaimed child')
     took = time.monotonic() - began
     assert took >= 1.0, 'stopped before the bound: %.2f s' % took
-    wait_for(lambda: not leash_pids(), 10, 'the leash to exit')
+    wait_for(lambda: not leash_pids(stack.params['journal']), 10, 'the leash to exit')
     log = open(os.path.join(stack.params['log_dir'], 'leash.log')).read()
     assert 'no ER Manager claimed them' in log and str(res.pid) in log, log
 
