@@ -14,10 +14,18 @@ response means data flows), an algorithm filter asks the ER Manager for the
 node with its inputs and outputs remapped, and waits for its first output.
 A failure of any sub-resource lowers the tracker's reliability (the owner
 status callback); the registrar forwards the FAILED up the chain.
+
+With a journal (``~journal``; the tracker registrar keeps its own beside it,
+``<name>.trackers.sqlite``) the manager survives its own restart: the pipes (which
+tracker, which sub-resources), the tracked objects and the reliabilities are kept
+in the journals; the registrars bring back the resources and their links, and
+``resume()`` asks the Sensor and ER Managers whether each filter still runs (one
+that died meanwhile reaches the action as FAILED).
 """
 import collections
 import itertools
 import json
+import os
 import shlex
 import threading
 import time
@@ -30,6 +38,7 @@ from temoto_core.errors import ErrorCode, Subsystem, TemotoError
 from temoto_core.fallback import first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
+from temoto_core.rr.registrar import journal_param
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_context_manager.contract import (LOAD_TRACKER, LOAD_TRACKER_TYPE, RR_NAME as NAME, TRACK_OBJECT,
                                              TRACK_OBJECT_TYPE, TRACKER_RR_NAME as TRACKER_RR)
@@ -40,6 +49,15 @@ from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENS
 from temoto_sensor_manager.watchdog import TopicProbe
 
 SUB = Subsystem.CONTEXT_MANAGER
+PIPE_KEY = 'pipe/%d'                  # owner state of either registrar: a loaded tracker's pipe, by internal id
+OBJECT_KEY = 'object/%d'              # owner state: a tracked object, by internal id
+RELIABILITIES_KEY = 'reliabilities'   # owner state: trackers' and detection methods' reliability windows
+
+
+def tracker_journal(journal: str) -> str:
+    """The tracker registrar's journal, beside the manager's: ``x.sqlite`` -> ``x.trackers.sqlite``."""
+    base, ext = os.path.splitext(journal)
+    return base + '.trackers' + ext if journal else ''
 _pipe_numbers = itertools.count(1)
 
 
@@ -56,8 +74,10 @@ class _Pipe:
 class ContextManager:
     def __init__(self, catalogue: TrackerCatalogue, namespace: Optional[str] = None) -> None:
         self.catalogue = catalogue
-        self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB)
-        self.tracker_rr = ResourceRegistrar(TRACKER_RR, namespace=namespace, subsystem=SUB)
+        journal = journal_param()
+        self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB, journal=journal)
+        self.tracker_rr = ResourceRegistrar(TRACKER_RR, namespace=namespace, subsystem=SUB,
+                                            journal=tracker_journal(journal))
         self.namespace = self.rr.namespace
         self._lock = threading.Lock()
         self._pipes: Dict[tuple, _Pipe] = {}                 # (rr name, internal id) -> pipe
@@ -68,12 +88,25 @@ class ContextManager:
         self.status_log = collections.deque(maxlen=100)      # owner callbacks that ran (introspection)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
+        kept = {rr.name: rr.owner_state() for rr in (self.rr, self.tracker_rr)}
+        self._restore_reliabilities(kept[NAME].get(RELIABILITIES_KEY))
+        # one callback per registrar for everything it holds, also what a restart brings back
+        self.rr.register_status_callback(self._on_held_status)
+        self.tracker_rr.register_status_callback(self._on_pipe_status)
         for rr in (self.rr, self.tracker_rr):
             rr.add_server(LOAD_TRACKER, LOAD_TRACKER_TYPE, lambda q, s, rr=rr: self._load_tracker(rr, q, s),
-                          lambda q, s, rr=rr: self._unload_tracker(rr, q, s))
-        self.rr.add_server(TRACK_OBJECT, TRACK_OBJECT_TYPE, self._track_object, self._untrack_object)
+                          lambda q, s, rr=rr: self._unload_tracker(rr, q, s),
+                          recover=lambda q, s, rr=rr: self._recover_tracker(rr, kept[rr.name], s))
+        self.rr.add_server(TRACK_OBJECT, TRACK_OBJECT_TYPE, self._track_object, self._untrack_object,
+                           recover=lambda q, s: self._recover_object(kept[NAME], s))
         self._info_srv = rospy.Service('/%s/%s/trackers' % (self.namespace, NAME), GetRegistry,
                                        lambda _req: GetRegistryResponse(json=self.info_json()))
+        for rr in (self.rr, self.tracker_rr):
+            for key in kept[rr.name]:
+                if key != RELIABILITIES_KEY and not self._recovered(rr, key):
+                    rr.drop_owner_state(key)
+        for rr in (self.tracker_rr, self.rr):     # the filters' owners first: an object's tracker is local
+            rr.resume()
         rospy.loginfo('%s: ready with tracker categories %s and objects %s', NAME,
                       ', '.join(catalogue.categories()) or 'none', ', '.join(sorted(catalogue.objects)) or 'none')
 
@@ -107,9 +140,12 @@ class ContextManager:
         tracker, (pipe, topics) = first_that_works(
             matching, attempt, what='a %r tracker' % category, subsystem=SUB, code=ErrorCode.NO_TRACKERS_FOUND,
             name=lambda t: t.name, reliability=lambda t: t.reliability,
-            on_failure=lambda t: rospy.logwarn('%s: tracker %s failed: %s', NAME, t.name, t.error))
+            on_failure=lambda t: (rospy.logwarn('%s: tracker %s failed: %s', NAME, t.name, t.error),
+                                  self._keep_reliabilities()))
         with self._lock:
             self._pipes[(rr.name, res.trr.resource_id)] = pipe
+        rr.put_owner_state(PIPE_KEY % res.trr.resource_id, json.dumps(
+            {'tracker': tracker.name, 'pipe_id': pipe.pipe_id, 'sub_ids': pipe.sub_ids}))
         res.tracker_name = tracker.name
         res.pipe_id = pipe.pipe_id
         res.output_topics = [KeyValue(t, topics[t]) for t in (wanted or tracker.output_types)]
@@ -150,7 +186,7 @@ class ContextManager:
         return outputs
 
     def _nested(self, pipe: _Pipe, manager: str, server: str, request):
-        resp = pipe.rr.call(manager, server, request, status_cb=self._on_pipe_status)
+        resp = pipe.rr.call(manager, server, request)
         with self._lock:
             pipe.sub_ids.append(resp.trr.resource_id)
             self._pipe_of_sub[(pipe.rr.name, resp.trr.resource_id)] = pipe
@@ -169,6 +205,7 @@ class ContextManager:
                 rospy.logwarn('%s: %s: %s', NAME, why, err)
 
     def _unload_tracker(self, rr: ResourceRegistrar, req, res) -> None:
+        rr.drop_owner_state(PIPE_KEY % res.trr.resource_id)
         with self._lock:
             pipe = self._pipes.pop((rr.name, res.trr.resource_id), None)
             if pipe is not None:
@@ -185,6 +222,7 @@ class ContextManager:
         name = pipe.tracker.name if pipe else '?'
         if pipe is not None:
             pipe.tracker.reliability.failure()
+            self._keep_reliabilities()
         self.status_log.append({'owner': 'tracker', 'tracker': name, 'from': '%s/%s' % (event.rr_name,
                                                                                        event.server_name),
                                 'message': event.message, 'time': time.time()})
@@ -202,14 +240,18 @@ class ContextManager:
 
         def attempt(method):
             request = LOAD_TRACKER_TYPE._request_class(tracker_category=method, output_topics=[KeyValue('pose', '')])
-            return self.rr.call(TRACKER_RR, LOAD_TRACKER, request, status_cb=self._on_tracker_status,
-                                namespace=self.namespace)
-        method, resp = first_that_works(methods, attempt, what='tracking %r' % name, subsystem=SUB,
-                                        code=ErrorCode.NO_TRACKERS_FOUND,
-                                        reliability=lambda m: self._method(name, m))
+            return self.rr.call(TRACKER_RR, LOAD_TRACKER, request, namespace=self.namespace)
+        try:
+            method, resp = first_that_works(methods, attempt, what='tracking %r' % name, subsystem=SUB,
+                                            code=ErrorCode.NO_TRACKERS_FOUND,
+                                            reliability=lambda m: self._method(name, m))
+        finally:
+            self._keep_reliabilities()
         with self._lock:
             self._object_of_tracker[resp.trr.resource_id] = (name, method)
             self._objects[res.trr.resource_id] = (name, method, resp.trr.resource_id)
+        self.rr.put_owner_state(OBJECT_KEY % res.trr.resource_id,
+                                json.dumps({'object': name, 'method': method, 'tracker_id': resp.trr.resource_id}))
         res.object_name = name
         res.object_topic = next(kv.value for kv in resp.output_topics if kv.key == 'pose')
         res.detection_method = method
@@ -217,6 +259,7 @@ class ContextManager:
         res.pipe_id = resp.pipe_id
 
     def _untrack_object(self, req, res) -> None:
+        self.rr.drop_owner_state(OBJECT_KEY % res.trr.resource_id)
         with self._lock:
             entry = self._objects.pop(res.trr.resource_id, None)
             if entry is not None:
@@ -230,10 +273,71 @@ class ContextManager:
             entry = self._object_of_tracker.get(event.resource_id)
         if entry is not None:
             self._method(*entry).failure()
+            self._keep_reliabilities()
         self.status_log.append({'owner': 'object', 'object': entry[0] if entry else '?',
                                 'from': '%s/%s' % (event.rr_name, event.server_name), 'message': event.message,
                                 'time': time.time()})
         rospy.logerr('%s: the tracker of %s failed: %s', NAME, entry[0] if entry else '?', event.message)
+
+    def _on_held_status(self, event: StatusEvent) -> None:
+        """The manager's registrar holds objects' trackers and the filters of trackers loaded from it."""
+        with self._lock:
+            tracker = event.resource_id in self._object_of_tracker
+        (self._on_tracker_status if tracker else self._on_pipe_status)(event)
+
+    # -- recovery after a restart ------------------------------------------------------------------
+    def _recover_tracker(self, rr: ResourceRegistrar, kept: Dict[str, str], res) -> None:
+        """A pipe the previous incarnation loaded: its filters run on in their owners (``resume`` asks)."""
+        record = kept.get(PIPE_KEY % res.trr.resource_id)
+        tracker = next((t for t in self.catalogue.trackers if t.name == res.tracker_name), None)
+        if record is None or tracker is None:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'tracker %s: %s' % (
+                res.tracker_name, 'the journal has no record of its pipe' if record is None
+                else 'it is not in the catalogue any more'))
+        record = json.loads(record)
+        pipe = _Pipe(tracker, rr, record['pipe_id'])
+        pipe.sub_ids = list(record['sub_ids'])
+        with self._lock:
+            self._pipes[(rr.name, res.trr.resource_id)] = pipe
+            for local_id in pipe.sub_ids:
+                self._pipe_of_sub[(rr.name, local_id)] = pipe
+        rospy.loginfo('%s: took tracker %s (%s) back after a restart', NAME, tracker.name, pipe.pipe_id)
+
+    def _recover_object(self, kept: Dict[str, str], res) -> None:
+        record = kept.get(OBJECT_KEY % res.trr.resource_id)
+        if record is None:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'the journal has no record of tracking %s'
+                              % res.object_name)
+        record = json.loads(record)
+        with self._lock:
+            self._object_of_tracker[record['tracker_id']] = (record['object'], record['method'])
+            self._objects[res.trr.resource_id] = (record['object'], record['method'], record['tracker_id'])
+
+    def _recovered(self, rr: ResourceRegistrar, key: str) -> bool:
+        kind, _, number = key.partition('/')
+        with self._lock:
+            if kind == 'pipe':
+                return (rr.name, int(number)) in self._pipes
+            return kind == 'object' and int(number) in self._objects
+
+    def _restore_reliabilities(self, kept: Optional[str]) -> None:
+        if not kept:
+            return
+        values = json.loads(kept)
+        for tracker in self.catalogue.trackers:
+            if tracker.name in values.get('trackers', {}):
+                tracker.reliability.restore(values['trackers'][tracker.name])
+        for key, samples in values.get('methods', {}).items():
+            obj, _, method = key.partition('/')
+            self._method(obj, method).restore(samples)
+
+    def _keep_reliabilities(self) -> None:
+        if not self.rr.journaled:
+            return
+        with self._lock:
+            methods = {'%s/%s' % k: r.samples() for k, r in self._methods.items()}
+        self.rr.put_owner_state(RELIABILITIES_KEY, json.dumps(
+            {'trackers': {t.name: t.reliability.samples() for t in self.catalogue.trackers}, 'methods': methods}))
 
     def _method(self, obj: str, method: str) -> Reliability:
         with self._lock:

@@ -21,7 +21,8 @@ from temoto_sensor_manager.testing import (ER_PARAMS, FAKE_CATALOGUE, FakeCables
                                            er_processes, registry)
 
 SM, ER, OM = 'temoto_sensor_manager', 'temoto_er_manager', 'temoto_output_manager'
-SERVES = {SM: 'start_sensor', ER: 'load_process', OM: 'load_rviz_plugin'}
+CM, CM_TRACKERS = 'temoto_context_manager', 'temoto_context_manager_trackers'
+SERVES = {SM: 'start_sensor', ER: 'load_process', OM: 'load_rviz_plugin', CM: 'track_object'}
 
 
 class Managers:
@@ -197,3 +198,45 @@ def test_a_display_gone_while_the_output_manager_is_down_is_reported_failed_afte
     managers.start(OM)
     wait_for(lambda: failed(om.events), 20, 'the FAILED of the display that went')
     assert 'not in the RViz host any more' in failed(om.events)[0].message, failed(om.events)[0].message
+
+
+@pytest.fixture
+def vaultbot(ros_master, rospy_client, tmp_path):
+    """The simulated VaultBot with ER, Sensor and Context Managers, each with a journal."""
+    from temoto_sensor_manager.testing import start_sim
+    m = Managers(ros_master.env, tmp_path)
+    m.params[SM] = {'first_data_timeout': 20.0, 'journal': str(tmp_path / 'sm.sqlite')}
+    m.params[CM] = {'journal': str(tmp_path / 'cm.sqlite')}
+    start_sim(m.launcher)
+    for name in (ER, SM, CM):
+        m.start(name)
+    yield m
+    from temoto_sensor_manager.testing import set_cable
+    set_cable('d435', 'plugged')
+    m.launcher.stop_all()
+
+
+def test_killed_context_manager_keeps_the_tracker_pipe_and_a_later_camera_crash_still_reaches_the_client(vaultbot):
+    from geometry_msgs.msg import PoseStamped
+    from temoto_context_manager.interface import ContextManagerInterface
+    from temoto_sensor_manager.testing import set_cable
+    with made_interfaces(ContextManagerInterface) as make:
+        cm = make()
+        cm.events = []
+        cm.register_update_callback(cm.events.append)
+        obj = cm.track_object('hand')
+        before = {rr: registry_state(rr) for rr in (CM, CM_TRACKERS)}
+        vaultbot.kill(CM)
+        vaultbot.start(CM)
+        for rr in (CM, CM_TRACKERS):
+            assert registry_state(rr) == before[rr], rr
+        poses = []
+        sub = rospy.Subscriber(obj.topic, PoseStamped, poses.append)
+        wait_for(lambda: len(poses) > 3, 15, 'poses still flowing after the restart')
+        sub.unregister()
+        assert not failed(cm.events)
+        set_cable('d435', 'unplugged', 'crash')
+        wait_for(lambda: failed(cm.events), 20, 'the camera crash at the track_object client')
+        event = failed(cm.events)[0]
+        assert event.resource_id == obj.resource_id
+        assert sum('sub-resource' in f.message for f in event.error_stack) >= 3, event.error_stack
