@@ -24,6 +24,7 @@ from .graph import FAILED, CANCELLED, GraphRun, NodeRun
 from .grounding import TOKEN_RE, Grounder, inflections, word_forms
 from .indexer import ActionIndex
 from .isolation import WorkerGraph, WorkerPool
+from .lost_graphs import GraphRecords, LostGraph, end_workers_in_background
 from . import worker_protocol as wp
 from .umrf import GraphSpec, UmrfError, parse_graph
 
@@ -35,7 +36,8 @@ class ActionEngine:
                  action_config: dict | None = None, rr_factory: Callable[[str], Any] | None = None,
                  publish_event: Callable[[dict], None] | None = None,
                  publish_feedback: Callable[[str], None] | None = None, history: int = 20,
-                 interface_factories: dict | None = None, workers: WorkerPool | None = None):
+                 interface_factories: dict | None = None, workers: WorkerPool | None = None,
+                 records: GraphRecords | None = None):
         self.index = index
         self.namespace = namespace
         self.wake_words = [w for w in wake_words if w]
@@ -52,6 +54,23 @@ class ActionEngine:
         self._grounder = None
         self._closed = False
         self.workers = workers
+        self.records = records          # running graphs, kept across a crash of the engine (lost_graphs.py)
+        self.lost: list = []            # graphs an earlier incarnation left running: reported FAILED
+        if records is not None:
+            self.lost = records.take_lost()
+            for record in self.lost:
+                lost = LostGraph(record)
+                self._finished[lost.name] = lost
+
+    def report_lost(self, stop_bound: float) -> None:
+        """Tell the operator about the graphs an earlier incarnation left running, and end their workers."""
+        for record in self.lost:
+            lost = LostGraph(record)
+            rospy.logerr('graph %s: %s' % (lost.name, lost.reason))
+            self._publish_event({'event': 'graph_finished', 'graph': lost.name, 'state': FAILED,
+                                 'reason': lost.reason})
+            self.feedback('graph %s failed: %s' % (lost.name, lost.reason))
+        end_workers_in_background(self.lost, stop_bound, rospy.logwarn)
 
     # ------------------------------------------------------------------ index
     def reindex(self) -> dict:
@@ -131,6 +150,8 @@ class ActionEngine:
                                   self.feedback, self._graph_finished, self._serve_worker_request)
             self._graphs[spec.name] = run
             self._finished.pop(spec.name, None)
+        if self.records is not None:
+            self.records.started(spec.name, run.to_json(), worker.proc.pid if worker is not None else 0)
         run.start()
         return run
 
@@ -158,6 +179,8 @@ class ActionEngine:
             publish_feedback=self.feedback, engine=self, interface_factories=self.interface_factories)
 
     def _graph_finished(self, run: GraphRun) -> None:
+        if self.records is not None:
+            self.records.finished(run.name)
         with self._lock:
             if self._graphs.get(run.name) is run:
                 del self._graphs[run.name]

@@ -12,23 +12,30 @@ Services:
 Parameters besides the namespace: ``~action_paths``, ``~wake_words``, ``~actions`` (per-action
 settings), ``~include_bundled_actions``, ``~stop_timeout_s`` (15: the grace a stopped graph gets
 before its worker is ended), ``~isolate_graphs`` (true: each graph in a worker process of its
-own) and ``~spare_workers`` (1: workers started ahead, so a graph starts without waiting).
+own), ``~spare_workers`` (1: workers started ahead, so a graph starts without waiting) and
+``~journal`` (a path, or ``auto``; default none): with it, graphs that were running when the engine
+died are reported FAILED by its next start (``lost_graphs.py``).
 """
 from __future__ import annotations
 
 import json
 import threading
+import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core.node import on_signals
+from temoto_core.node import clear_stale_registration, on_signals
+from temoto_core.rr.journal import Journal
+from temoto_core.rr.registrar import journal_param
 
 from .engine import ActionEngine
 from .indexer import ActionIndex
-from .isolation import WorkerPool
+from .isolation import TERM_GRACE_S, WorkerPool
+from .lost_graphs import GraphRecords
 from .umrf import UmrfError
 
 MAX_TEXT = 2000            # characters of an instruction
+LISTENER_WAIT_S = 3.0      # s a restarted engine waits for listeners before it reports the graphs it lost
 MAX_GRAPH_JSON = 1 << 20   # bytes of a graph
 
 
@@ -60,9 +67,13 @@ class ActionEngineNode:
         workers = None
         if bool(rospy.get_param('~isolate_graphs', True)):
             workers = WorkerPool(self.namespace, self.stop_timeout, spares=int(rospy.get_param('~spare_workers', 1)))
+        journal = journal_param()
+        self.journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         self.engine = ActionEngine(index, namespace=self.namespace, wake_words=wake, action_config=actions_cfg,
                                    publish_event=self._publish_event, publish_feedback=self._publish_feedback,
-                                   workers=workers)
+                                   workers=workers, records=GraphRecords(self.journal) if self.journal else None)
+        if self.engine.lost:
+            threading.Thread(target=self._report_lost, name='report-lost-graphs', daemon=True).start()
         self.engine.reindex()
         from .srv import ListActions, ListGraphs, StartGraph, StopGraph
         self._services = [
@@ -75,6 +86,15 @@ class ActionEngineNode:
                                          queue_size=20)
         rospy.loginfo('action engine ready in /%s: %d action(s), %d plugin problem(s), wake words: %s'
                       % (self.namespace, len(index), len(index.problems), ', '.join(wake) or 'none'))
+
+    def _report_lost(self) -> None:
+        # a listener (a recorder, the operator's console) reconnects to a restarted engine within a moment;
+        # the listing keeps the graphs FAILED whoever hears this
+        deadline = time.monotonic() + LISTENER_WAIT_S
+        while time.monotonic() < deadline and not (self.events_pub.get_num_connections() and
+                                                   self.feedback_pub.get_num_connections()):
+            time.sleep(0.05)
+        self.engine.report_lost(self.stop_timeout + TERM_GRACE_S)
 
     # ------------------------------------------------------------------ outputs
     def _publish_feedback(self, text: str) -> None:
@@ -139,10 +159,13 @@ class ActionEngineNode:
         self.engine.shutdown(self.stop_timeout)
         for s in self._services:
             s.shutdown()
+        if self.journal is not None:
+            self.journal.close()
 
 
 def run_node(name: str = 'temoto_action_engine') -> None:
     """Entry of the node script: signals stop the graphs first, then rospy."""
+    clear_stale_registration(name)
     rospy.init_node(name, disable_signals=True)
     node = ActionEngineNode()
     stop = threading.Event()

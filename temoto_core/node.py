@@ -97,12 +97,12 @@ def init_node(name: str, **kwargs) -> None:
     # stop it from then on (Python's default SIGINT handler would raise KeyboardInterrupt mid-registration)
     on_signals(on_stop)
     kwargs['disable_signals'] = True
-    _clear_stale_registration(name, kwargs.get('anonymous', False))
+    clear_stale_registration(name, kwargs.get('anonymous', False))
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
 
 
-def _clear_stale_registration(name: str, anonymous: bool) -> None:
+def clear_stale_registration(name: str, anonymous: bool = False) -> None:
     """Before registering: remove what a dead earlier process under this node's name left at the master.
 
     A respawned node registers under the name of one that was killed, and the master then sends

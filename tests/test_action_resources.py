@@ -7,6 +7,7 @@ what the graph held is released.
 """
 import json
 import os
+import signal
 import sys
 import threading
 
@@ -112,11 +113,12 @@ def world(procs, rospy_client, tmp_path):
     server.write_text(SERVER)
     srv_proc = procs.command([sys.executable, str(server), NS], 'rr_test_server')
     procs.wait_registered(srv_proc, ['/rr_test_server'], 20)
+    engine_params = {'temoto_namespace': NS, 'action_paths': str(plugins), 'stop_timeout_s': STOP_TIMEOUT_S,
+                     'journal': str(tmp_path / 'engine.sqlite')}
     if rospy_client.has_param('/' + ENGINE):
         rospy_client.delete_param('/' + ENGINE)      # private params outlive a node on the shared master
     engine = procs.node('temoto_action_engine', 'temoto_action_engine', name=ENGINE,
-                        params={'temoto_namespace': NS, 'action_paths': str(plugins),
-                                'stop_timeout_s': STOP_TIMEOUT_S})
+                        params=engine_params)
     rospy_client.wait_for_service('/%s/test_server/load_test' % NS, timeout=20)
     rospy_client.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=20)
     events, lock = [], threading.Lock()
@@ -154,6 +156,14 @@ def world(procs, rospy_client, tmp_path):
                 return [f for f in feedback if all(w in f for w in words)]
 
         engine_proc = engine
+
+        def restart_engine(self):
+            """SIGKILL the engine alone (its workers live on) and start it again, as a respawn would."""
+            os.kill(self.engine_proc.pid, signal.SIGKILL)
+            wait_for(lambda: not self.engine_proc.alive(), 10, 'the engine to die')
+            self.engine_proc = procs.node('temoto_action_engine', 'temoto_action_engine', name=ENGINE,
+                                          params=engine_params)
+            rospy_client.wait_for_service('/%s/action_engine/list_graphs' % NS, timeout=20)
 
     yield World()
     for x in (sub, fb_sub, chatter, fail):
@@ -285,3 +295,20 @@ def test_the_stop_action_ends_an_action_that_ignores_it(world, rospy_client):
     wait_for(lambda: world.feedback_with('stop: stopped', 'wedge_0', 'did not stop within 3 s'), 30,
              'the stop action to say it ended the wedged action')
     wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the wedged graph\'s resource released')
+
+
+def test_graphs_running_when_the_engine_is_killed_are_reported_failed_by_its_next_start(world, rospy_client):
+    name = start_graph(rospy_client, 'grab', name='cup')
+    wait_for(lambda: world.events('grabbed'), 20, 'the graph to hold its resource')
+    worker = graphs(rospy_client)[name]['worker_pid']
+    assert len(served(rospy_client)) == 2
+    world.restart_engine()
+    g = graphs(rospy_client)[name]
+    assert g['state'] == 'FAILED' and 'the action engine died while this graph ran' in g['reason'], g
+    assert all(n['state'] == 'FAILED' for n in g['nodes']), g['nodes']
+    wait_for(lambda: [e for e in world.events('graph_finished') if e['graph'] == name and e['state'] == 'FAILED'],
+             10, 'the FAILED on the events topic')
+    wait_for(lambda: world.feedback_with(name, 'engine died'), 10, 'the FAILED on the feedback topic')
+    # what the graph held is released: its worker stopped it when the engine's pipe closed
+    wait_for(lambda: served(rospy_client) == [], CONSUMER_DEATH_BOUND_S + 10, 'the graph\'s resources released')
+    wait_for(lambda: not pid_alive(worker), STOP_TIMEOUT_S + 10, 'the worker to be gone')
