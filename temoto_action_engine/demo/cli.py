@@ -1,7 +1,7 @@
 """``temoto demo``, ``temoto record``, ``temoto report``.
 
     temoto demo [--live] [--stage-timeout S] [--d435-mode crash|stall] [--hokuyo-mode crash|stall]
-                [--priority rgbd,arm_cloud,base_scan] [--out runs/<timestamp>]
+                [--priority rgbd,arm_cloud,base_scan] [--kill-managers [--seed N]] [--out runs/<timestamp>]
     temoto record [--out PATH] [--ns NS]      (against the running master, until Ctrl-C)
     temoto report BAG [--out DIR]
 """
@@ -109,6 +109,9 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
                    % ', '.join(PRIORITY_ENTRIES))
     p.add_argument('--out', default='', help='run folder (default: runs/<timestamp>)')
     p.add_argument('--no-report', action='store_true', help='skip the report')
+    p.add_argument('--kill-managers', action='store_true',
+                   help='run with recovery on, and SIGKILL each manager once while the first view is up')
+    p.add_argument('--seed', type=int, default=0, help='--kill-managers: the order and moments (default 0)')
     args = p.parse_args(argv)
     priority = [x.strip() for x in args.priority.split(',') if x.strip()]
     bad = [x for x in priority if x not in PRIORITY_ENTRIES]
@@ -122,5 +125,6 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     out = args.out or default_run_dir()
     opts = DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
                        modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
-                       priority=priority, report=not args.no_report)
+                       priority=priority, report=not args.no_report, kill_managers=args.kill_managers,
+                       seed=args.seed)
     return run_demo(opts)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
@@ -200,11 +201,45 @@ class Failure:
 
 
 @dataclass
+class ManagerKill:
+    """``temoto demo --kill-managers``: one manager SIGKILLed, respawned and recovered, and the view meanwhile."""
+    node: str
+    kill_t: float
+    recovered_s: Optional[float]            # SIGKILL -> its registry answers again, recovered
+    shown_topic: str = ''                   # the stream on screen when it was killed
+    longest_gap: Optional[float] = None     # between frames of that stream, from the kill to the recovery
+    frame_period: Optional[float] = None    # that stream's median frame period over the run
+    own_gap: Optional[float] = None         # its p99 gap between frames outside every kill: its own jitter
+    displays_removed: int = 0               # displays taken off screen meanwhile
+
+    @property
+    def allowed_gap(self) -> Optional[float]:
+        """The longest gap the stream shows by itself: 2 frame periods, or its own p99 gap if longer."""
+        if self.frame_period is None:
+            return None
+        return max(2 * self.frame_period, self.own_gap or 0.0) + MIN_GAP_SLACK_S
+
+    @property
+    def view_stayed_up(self) -> bool:
+        """No display removed, and no gap between frames beyond what the stream shows by itself."""
+        return (self.displays_removed == 0 and self.longest_gap is not None and self.allowed_gap is not None
+                and self.longest_gap <= self.allowed_gap)
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__, view_stayed_up=self.view_stayed_up)
+
+
+# frames arrive with the machine's jitter: a gap counts only beyond two periods and this
+MIN_GAP_SLACK_S = 0.05
+
+
+@dataclass
 class Analysis:
     t0: float
     stages: List[Stage]
     failures: List[Failure]
     labels: Dict[str, str]      # topic -> sensor label
+    kills: List[ManagerKill] = field(default_factory=list)
 
 
 def _first(items, pred):
@@ -247,7 +282,36 @@ def analyse(run: Run) -> Analysis:
             if frames:
                 f.last_frame_t = frames[-1]
         failures.append(f)
-    return Analysis(t0, stages, failures, labels)
+    return Analysis(t0, stages, failures, labels, analyse_kills(run, stages))
+
+
+def analyse_kills(run: Run, stages: List[Stage]) -> List[ManagerKill]:
+    kills, windows = [], []
+    recovered = [m for m in run.stages if m.get('stage') == 'recovered']
+    for mark in (m for m in run.stages if m.get('stage') == 'kill'):
+        t = float(mark['stamp'])
+        back = _first(recovered, lambda m: m.get('node') == mark.get('node') and float(m['stamp']) >= t)
+        kills.append(ManagerKill(str(mark.get('node')), t, float(back['seconds']) if back else None))
+        windows.append((t, float(back['stamp']) if back else run.end))
+    for kill, (t, end) in zip(kills, windows):
+        shown = [s for s in stages if s.first_frame_t is not None and s.first_frame_t <= t]
+        if shown:
+            kill.shown_topic = shown[-1].topic
+            ticks = run.ticks.get(kill.shown_topic, [])
+            inside = [x for x in ticks if t <= x <= end]
+            before = [x for x in ticks if x < t][-1:]
+            after = [x for x in ticks if x > end][:1]
+            window = before + inside + after
+            if len(window) >= 2:
+                kill.longest_gap = max(b - a for a, b in zip(window, window[1:]))
+            shown_from = shown[-1].first_frame_t
+            own = sorted(b - a for a, b in zip(ticks, ticks[1:]) if a >= shown_from and
+                         not any(a <= w_end and b >= w_t for w_t, w_end in windows))
+            if len(own) >= 3:
+                kill.frame_period = statistics.median(own)
+                kill.own_gap = own[min(len(own) - 1, int(0.99 * len(own)))]
+        kill.displays_removed = sum(1 for e in run.display if e.event == 'removed' and t <= e.t <= end)
+    return kills
 
 
 # ============================================================================ the pictures
@@ -361,7 +425,8 @@ class Report:
     def summary(self) -> dict:
         return {'bag': self.run.bag, 'report': self.path, 'timeline': self.timeline, 'screenshots': self.screenshots,
                 'stages': [s.__dict__ for s in self.analysis.stages],
-                'failures': [f.as_dict() for f in self.analysis.failures]}
+                'failures': [f.as_dict() for f in self.analysis.failures],
+                'kills': [k.as_dict() for k in self.analysis.kills]}
 
 
 def _screenshots(run: Run, bag_dir: str, out_dir: str) -> List[Tuple[str, str]]:
@@ -442,6 +507,20 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
               '| display gap | %s | last frame of the failed stream → first frame of the substitute |'
               % _fmt(f.display_gap),
               '| switch time | %s | unplug → first frame of the substitute |' % _fmt(f.switch), '']
+    if an.kills:
+        L += ['## Managers killed (`--kill-managers`)', '',
+              'Each manager was SIGKILLed once, respawned, and recovered from its journal while the view was up. '
+              'The view stayed up if no display was removed and the shown stream\'s frames kept coming: no gap '
+              'longer than the stream shows by itself (two median periods, or its p99 gap outside the kills if '
+              'longer, + 50 ms).', '',
+              '| manager | killed at | recovered in | stream on screen | longest gap between frames | the stream '
+              'by itself: median period / p99 gap | displays removed | view stayed up |',
+              '| --- | --- | --- | --- | --- | --- | --- | --- |']
+        for k in an.kills:
+            L.append('| %s | %.3f s | %s | `%s` | %s | %s / %s | %d | %s |' % (
+                k.node, k.kill_t - an.t0, _fmt(k.recovered_s), k.shown_topic or '-', _fmt(k.longest_gap),
+                _fmt(k.frame_period), _fmt(k.own_gap), k.displays_removed, 'yes' if k.view_stayed_up else '**no**'))
+        L.append('')
     L += ['## Recorded topics', '', '| topic | type | messages |', '| --- | --- | --- |']
     L += ['| `%s` | %s | %d |' % (t, k, n) for t, (k, n) in sorted(run.topics.items())]
     L.append('')

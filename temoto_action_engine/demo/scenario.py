@@ -6,6 +6,11 @@
 4. stop everything in reverse order and check, by the session token every child inherits, that no
    process is left; then the report.
 
+With ``--kill-managers`` the stack runs with ``recovery:=true`` (journals, respawn), and once the first
+view is on screen every manager is SIGKILLed once, in a seeded random order at seeded random moments;
+each must come back with its registry before the next is killed, and the view must stay up. The
+failover stages then run on the recovered managers.
+
 A stage is reached when the action reported ``sensor_active`` for that priority index and the RViz
 host reported ``first_frame`` for the topic it named.
 """
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 import threading
 import time
@@ -28,6 +34,12 @@ PRIORITY_ENTRIES = OrderedDict([('rgbd', (0, 'd435')), ('arm_cloud', (1, 'hokuyo
 PRIORITY_PARAM = '/temoto_action_engine/actions/show_environment/sensor_priority'
 INSTRUCTION = 'show the environment'
 STARTUP_TIMEOUT = 60.0
+# --kill-managers: node -> the registrars it runs (each must answer, recovered, before the next kill)
+KILLABLE = OrderedDict([('/temoto_er_manager', ['temoto_er_manager']),
+                        ('/temoto_sensor_manager', ['temoto_sensor_manager']),
+                        ('/temoto_output_manager', ['temoto_output_manager']),
+                        ('/temoto_context_manager', ['temoto_context_manager', 'temoto_context_manager_trackers'])])
+RECOVERY_TIMEOUT = 30.0
 
 
 def _rel(path: str) -> str:
@@ -49,6 +61,8 @@ class DemoOptions:
     report: bool = True
     namespace: str = T.DEFAULT_NS
     launch_args: List[str] = field(default_factory=list)
+    kill_managers: bool = False
+    seed: int = 0
 
 
 class Progress:
@@ -143,7 +157,7 @@ class Demo:
         self.omi = None
         self.screenshots: List[str] = []
         self.token = os.environ.get('TEMOTO_TEST_SESSION') or 'demo_' + uuid.uuid4().hex
-        self.results: dict = {'stages': [], 'errors': []}
+        self.results: dict = {'stages': [], 'errors': [], 'kills': []}
 
     # ------------------------------------------------------------------ setup
     def _env(self) -> Dict[str, str]:
@@ -167,9 +181,10 @@ class Demo:
         self.progress.line('roscore on 127.0.0.1:%d' % self.master.port)
         env = self._env()
         launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch', 'demo.launch')
-        _, params = load_launch(launch, self.opts.launch_args)
+        launch_args = list(self.opts.launch_args) + (['recovery:=true'] if self.opts.kill_managers else [])
+        _, params = load_launch(launch, launch_args)
         overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
-        self.stack = Stack(launch, env, os.path.join(self.opts.out_dir, 'logs'), self.opts.launch_args, overrides)
+        self.stack = Stack(launch, env, os.path.join(self.opts.out_dir, 'logs'), launch_args, overrides)
         self.stack.start(STARTUP_TIMEOUT)
         self._init_rospy(env)
         self._wait_services(env)
@@ -281,7 +296,53 @@ class Demo:
             self._screenshot(name)
             if k == 0:
                 self._hold_host()
+            if k == 0 and self.opts.kill_managers:
+                self._kill_managers()
         self._empty_view()
+
+    # ------------------------------------------------------------------ --kill-managers
+    def _kill_managers(self) -> None:
+        import random
+        rng = random.Random(self.opts.seed)
+        order = [name for name in KILLABLE if any(spec.name == name for spec, _ in self.stack.running)]
+        rng.shuffle(order)
+        since = time.monotonic()
+        for name in order:
+            time.sleep(rng.uniform(0.2, 1.0))       # a seeded moment of the run, not a wait for anything
+            victim = self.stack.node(name)
+            self._mark('kill', node=name, pid=victim.pid)
+            killed = time.monotonic()
+            os.kill(victim.pid, signal.SIGKILL)
+            self._wait_recovered(name, victim.pid)
+            seconds = time.monotonic() - killed
+            self._mark('recovered', node=name, seconds=seconds, pid=self.stack.node(name).pid)
+            self.results['kills'].append({'node': name, 'recovered_s': seconds})
+            self.progress.line('SIGKILLed %s: respawned and recovered in %.2f s' % (name, seconds))
+        failed = [e for e in self.watcher.actions if e['arrival'] >= since and
+                  e.get('event') in ('sensor_failed', 'graph_finished')]
+        if failed:
+            raise RuntimeError('the view did not survive the manager kills: %s' % '; '.join(
+                '%s %s' % (e.get('event'), e.get('message') or e.get('reason') or '') for e in failed))
+
+    def _wait_recovered(self, name: str, old_pid: int) -> None:
+        """The node was respawned, and every registrar of it answers with its registry recovered."""
+        import rospy
+        from temoto_core.srv import GetRegistry
+        from temoto_core.wait import wait_for
+
+        def back() -> bool:
+            if self.stack.node(name).pid == old_pid:
+                return False
+            for rr in KILLABLE[name]:
+                try:
+                    snapshot = json.loads(rospy.ServiceProxy('/%s/%s/registry' % (self.opts.namespace, rr),
+                                                             GetRegistry)().json)
+                except (rospy.ServiceException, rospy.ROSException, OSError, ValueError):
+                    return False        # its services are not up yet (or still point at the dead process)
+                if snapshot.get('recovering', True) or snapshot.get('node') != name:
+                    return False
+            return True
+        wait_for(back, RECOVERY_TIMEOUT, '%s to come back with its registry' % name)
 
     def _set_operator_view(self) -> None:
         """Turn the view, then wait (bounded) until RViz has drawn two frames with it."""

@@ -6,12 +6,18 @@ while the managers still run), each component must have its own group so a stuck
 without touching the rest, and the parameters can be overridden (the sensor priority). So the launch
 file is *read* with roslaunch's own loader (arguments, includes, ``rosparam`` files and remaps all
 resolved as roslaunch would) and its nodes are started here directly.
+
+Nodes with ``respawn="true"`` (``recovery:=true``) are started again when they die, as roslaunch
+does: one thread waits on a pidfd per such node, so a death is seen at once.
 """
 from __future__ import annotations
 
 import os
+import select
 import shlex
 import sys
+import threading
+import time
 import xmlrpc.client
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
@@ -33,6 +39,8 @@ class NodeSpec:
     name: str           # fully qualified, e.g. /temoto_er_manager
     argv: List[str]
     env: Dict[str, str]
+    respawn: bool = False
+    respawn_delay: float = 0.0
 
 
 def load_launch(path: str, args: Sequence[str] = ()) -> tuple:
@@ -64,7 +72,8 @@ def node_specs(config, env: Dict[str, str]) -> List[NodeSpec]:
         argv += ['__name:=' + n.name] + (['__ns:=' + ns] if ns else [])
         node_env = dict(env)
         node_env.update(dict(n.env_args))
-        specs.append(NodeSpec(n.package, n.type, full, argv, node_env))
+        specs.append(NodeSpec(n.package, n.type, full, argv, node_env, bool(n.respawn),
+                              float(n.respawn_delay or 0.0)))
     return specs
 
 
@@ -80,6 +89,11 @@ class Stack:
         self.param_overrides = dict(param_overrides or {})
         self.running: List[tuple] = []      # (NodeSpec, ManagedProcess)
         self.params: Dict[str, object] = {}
+        self.respawns: List[dict] = []      # {'name', 'died', 'started', 'pid'} (time.monotonic())
+        self._lock = threading.Lock()
+        self._wake_r, self._wake_w = os.pipe2(os.O_CLOEXEC | os.O_NONBLOCK)
+        self._stopping = False
+        self._respawner: Optional[threading.Thread] = None
 
     @property
     def pids(self) -> List[int]:
@@ -99,8 +113,7 @@ class Stack:
                 raise RuntimeError('could not set %s: %s' % (key, msg))
         os.makedirs(self.log_dir, exist_ok=True)
         for spec in node_specs(config, self.env):
-            log = os.path.join(self.log_dir, spec.name.strip('/').replace('/', '.') + '.log')
-            self.running.append((spec, ManagedProcess(spec.argv, spec.env, log, spec.name)))
+            self.running.append((spec, ManagedProcess(spec.argv, spec.env, self._log_of(spec), spec.name)))
 
         def all_registered():
             for spec, proc in self.running:
@@ -110,6 +123,55 @@ class Stack:
             return all(master.lookupNode('/temoto_demo', spec.name)[0] == 1 for spec, _ in self.running)
 
         wait_for(all_registered, timeout, 'the nodes of demo.launch to register')
+        if any(spec.respawn for spec, _ in self.running):
+            self._respawner = threading.Thread(target=self._respawn_loop, name='demo-respawn', daemon=True)
+            self._respawner.start()
+
+    def node(self, name: str) -> ManagedProcess:
+        """The process running node ``name`` now (a respawn replaces it)."""
+        with self._lock:
+            return next(proc for spec, proc in self.running if spec.name == name)
+
+    def _respawn_loop(self) -> None:
+        while True:
+            with self._lock:
+                if self._stopping:
+                    return
+                watched = {}
+                for i, (spec, proc) in enumerate(self.running):
+                    if spec.respawn:
+                        try:
+                            watched[os.pidfd_open(proc.pid)] = i
+                        except OSError:         # gone between the listing and the open: the next round sees it
+                            pass
+            try:
+                readable, _, _ = select.select([self._wake_r] + list(watched), [], [])
+            finally:
+                for fd in watched:
+                    os.close(fd)
+            for fd in readable:
+                if fd != self._wake_r and fd in watched:
+                    self._respawn(watched[fd])
+
+    def _respawn(self, index: int) -> None:
+        died = time.monotonic()
+        with self._lock:
+            if self._stopping:
+                return
+            spec, old = self.running[index]
+        old.proc.wait()
+        if spec.respawn_delay:
+            time.sleep(spec.respawn_delay)
+        with self._lock:
+            if self._stopping:
+                return
+            proc = ManagedProcess(spec.argv, spec.env, self._log_of(spec), spec.name)
+            self.running[index] = (spec, proc)
+            self.respawns.append({'name': spec.name, 'died': died, 'started': time.monotonic(), 'pid': proc.pid,
+                                  'returncode': old.proc.returncode})
+
+    def _log_of(self, spec: NodeSpec) -> str:
+        return os.path.join(self.log_dir, spec.name.strip('/').replace('/', '.') + '.log')
 
     def dead(self) -> List[str]:
         return ['%s (rc %s)' % (s.name, p.returncode) for s, p in self.running if not p.alive()]
@@ -118,7 +180,11 @@ class Stack:
         """The action engine first (its actions release what they hold through the managers), then the
         managers and the simulation together: each stops its own children, and rospy's shutdown takes
         most of a second per node, which in series added up to ~10 s. Returns (name, rc)."""
-        import threading
+        with self._lock:
+            self._stopping = True
+        os.write(self._wake_w, b'x')
+        if self._respawner is not None:
+            self._respawner.join(10.0)
         results = []
         lock = threading.Lock()
 

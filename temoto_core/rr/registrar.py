@@ -101,6 +101,8 @@ class ResourceRegistrar:
         self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
         self._recovery = Recovery(core, self._journal, self._server, self._client, self._links, self._channels,
                                   self._receiver, header) if self._journal else None
+        # with a journal, the registry is being recovered until resume() is done (the registry says so)
+        self._recovering = self._journal is not None
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._receiver.on_status_msg,
                                             queue_size=1000, tcp_nodelay=True)
         self._registry_srv = rospy.Service(core.topic('registry'), GetRegistry,
@@ -170,6 +172,7 @@ class ResourceRegistrar:
         without a journal."""
         if self._recovery is not None:
             self._recovery.resume()
+        self._recovering = False
 
     def _handle_unload(self, req) -> UnloadResourceResponse:
         try:
@@ -236,7 +239,8 @@ class ResourceRegistrar:
                     response=encode_message(q.response) if q.response is not None else None,
                     summary={k: v for k, v in readable(q.request).items() if k != 'trr'}))
             return RegistrySnapshot(name=core.name, namespace=core.namespace, node=rospy.get_name(),
-                                    servers=sorted(server.servers), server_queries=servers, client_queries=clients)
+                                    servers=sorted(server.servers), server_queries=servers, client_queries=clients,
+                                    recovering=self._recovering)
 
     # ------------------------------------------------------------------------------------------ lifetime
     def shutdown(self) -> None:

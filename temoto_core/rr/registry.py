@@ -87,6 +87,7 @@ class RegistrySnapshot:
     servers: List[str]
     server_queries: List[ServerEntry]
     client_queries: List[ClientEntry]
+    recovering: bool = False  # a restarted registrar that has not finished taking its registry back
 
     def to_json(self, indent: Optional[int] = None) -> str:
         return json.dumps(dataclasses.asdict(self), indent=indent, sort_keys=True)
