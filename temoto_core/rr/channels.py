@@ -65,19 +65,24 @@ class StatusChannels:
         The first request from a consumer waits (bounded) for the connection; later
         requests find it open.
         """
-        if not topic:
-            return
+        self.acquire_all([topic])
+
+    def acquire_all(self, topics: List[str]) -> None:
+        """:meth:`acquire` for several channels, connected together (a restarted registrar has many)."""
+        topics = [t for t in topics if t]
         with self._lock:
-            self._users[topic] = self._users.get(topic, 0) + 1
-            self._idle.pop(topic, None)
-        pub = self._publisher(topic)
+            for topic in topics:
+                self._users[topic] = self._users.get(topic, 0) + 1
+                self._idle.pop(topic, None)
+        pubs = {topic: self._publisher(topic) for topic in topics}
         deadline = time.monotonic() + self._connect_timeout
         delay = 0.0005
-        while pub.get_num_connections() == 0 and time.monotonic() < deadline:
+        while any(p.get_num_connections() == 0 for p in pubs.values()) and time.monotonic() < deadline:
             time.sleep(delay)
             delay = min(delay * 2, 0.02)
-        if pub.get_num_connections() == 0:
-            rospy.logwarn('%s: no subscriber on status topic %s yet; statuses may be lost', self._prefix, topic)
+        for topic, pub in pubs.items():
+            if pub.get_num_connections() == 0:
+                rospy.logwarn('%s: no subscriber on status topic %s yet; statuses may be lost', self._prefix, topic)
 
     def release(self, topic: str) -> None:
         """One user fewer; an unused channel is unregistered by ``reap_idle`` after a grace period

@@ -120,9 +120,7 @@ class Recovery:
                         self._links.attach(local_id, query)
                         del self._parents[local_id]
                 restored.append(query)
-        for query in restored:
-            for consumer in query.consumers.values():
-                self._channels.acquire(consumer.status_topic)
+        self._channels.acquire_all([c.status_topic for q in restored for c in q.consumers.values()])
         for query in restored:
             if query.state is not ACTIVE:
                 continue
