@@ -62,6 +62,7 @@ def registry(rr, restarted=''):
     if raw.get('recovering', True):
         return None
     raw.pop('node', None)
+    raw.pop('incarnation', None)        # one more after a restart, by design
     for query in raw['server_queries']:
         for consumer in query['consumers']:
             if consumer['client_name'] == restarted:

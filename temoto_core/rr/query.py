@@ -84,7 +84,7 @@ class Server:
 
 class ServerQuery(_Query):
     __slots__ = ('server', 'key', 'internal_id', 'request', 'response', 'state', 'consumers', 'links', 'failure',
-                 'link_failures')
+                 'link_failures', 'backup')
 
     def __init__(self, server: Server, key: Hashable, internal_id: int, request) -> None:
         self.server = server
@@ -97,6 +97,7 @@ class ServerQuery(_Query):
         self.links: List[int] = []                              # local ids of the client queries it holds
         self.failure: Optional[TemotoError] = None             # FAILED sent for this resource while loading
         self.link_failures: Dict[int, TemotoError] = {}         # FAILED of a linked sub-resource while loading
+        self.backup = ''                                        # the record its consumers keep (backup.py)
 
     def __repr__(self) -> str:
         return 'server query %s:%d' % (self.server.name, self.internal_id)

@@ -1,5 +1,6 @@
-"""Recovery: a restarted registrar rebuilds its registry from its journal, checks it against reality, and
-takes back from its neighbours what its previous incarnation held.
+"""Recovery: a restarted registrar rebuilds its registry from its journal (or, if the journal is lost,
+from what its neighbours keep: ``backup.py``), checks it against reality, and takes back from its
+neighbours what its previous incarnation held.
 
 Three steps, in the owner's order:
 
@@ -30,7 +31,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.client_side import ClientSide
 from temoto_core.rr.core import RegistrarCore
-from temoto_core.rr.journal import Journal, JournaledServed
+from temoto_core.rr.journal import JournalContents, JournaledServed
 from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.query import ACTIVE, FAILED, ClientQuery, Consumer, Server, ServerQuery, Target, target_name
@@ -52,8 +53,8 @@ def service_of(request_type: str):
 
 
 class Recovery:
-    def __init__(self, core: RegistrarCore, journal: Journal, server: ServerSide, client: ClientSide, links: Links,
-                 channels: StatusChannels, receiver: StatusReceiver, header) -> None:
+    def __init__(self, core: RegistrarCore, contents: JournalContents, server: ServerSide, client: ClientSide,
+                 links: Links, channels: StatusChannels, receiver: StatusReceiver, header) -> None:
         self._core = core
         self._server = server
         self._client = client
@@ -61,7 +62,6 @@ class Recovery:
         self._channels = channels
         self._receiver = receiver
         self._header = header
-        contents = journal.contents()
         self._served: Dict[str, List[JournaledServed]] = {}
         for entry in contents.served:
             self._served.setdefault(entry.server, []).append(entry)
@@ -119,6 +119,7 @@ class Recovery:
                     if parent == query.internal_id and local_id in self._client.by_local:
                         self._links.attach(local_id, query)
                         del self._parents[local_id]
+                query.backup = side.record_of(query)
                 restored.append(query)
         self._channels.acquire_all([c.status_topic for q in restored for c in q.consumers.values()])
         for query in restored:

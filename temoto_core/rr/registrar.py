@@ -31,6 +31,7 @@ import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.msg import RMPRequest, ResourceStatus
+from temoto_core.rr import backup
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.client_side import ClientSide, StatusCallback
 from temoto_core.rr.core import DEFAULT_NAMESPACE, RegistrarCore
@@ -42,7 +43,7 @@ from temoto_core.rr.messages import legal_name
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
 from temoto_core.rr.recorder import Recorder
-from temoto_core.rr.recovery import RecoverCallback, Recovery
+from temoto_core.rr.recovery import RecoverCallback, Recovery, service_of
 from temoto_core.rr.registry import ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message, readable
 from temoto_core.rr.server_side import ServerSide
 from temoto_core.srv import GetRegistry, GetRegistryResponse, Reclaim, UnloadResource, UnloadResourceResponse
@@ -99,8 +100,16 @@ class ResourceRegistrar:
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
         self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
-        self._recovery = Recovery(core, self._journal, self._server, self._client, self._links, self._channels,
-                                  self._receiver, header) if self._journal else None
+        self._owner_state: Dict[str, str] = {}
+        self._recovery = None
+        if self._journal is not None:
+            contents = self._journal.contents()
+            self._owner_state = self._journal.owner_state()
+            if not contents.served and not contents.holds:
+                contents = self._rebuild_from_neighbours()
+            self._recovery = Recovery(core, contents, self._server, self._client, self._links, self._channels,
+                                      self._receiver, header)
+        self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
         # with a journal, the registry is being recovered until resume() is done (the registry says so)
         self._recovering = self._journal is not None
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._receiver.on_status_msg,
@@ -115,17 +124,32 @@ class ResourceRegistrar:
         """This registrar keeps a journal, so its node recovers after a restart."""
         return self._journal is not None
 
+    def _rebuild_from_neighbours(self):
+        """An empty journal: a first start, or a journal that was lost. What the neighbours keep about this
+        registrar (``backup.py``) rebuilds it; on a first start they keep nothing."""
+        core = self._core
+        contents, kept = backup.gather(core.namespace, core.name, rospy.get_name(), core.ids.next, service_of)
+        if contents.served or contents.holds:
+            rospy.logwarn('%s: the journal is empty; rebuilt %d served and %d held resource(s) from the neighbours',
+                          core.prefix, len(contents.served), len(contents.holds))
+            for key, value in kept.items():
+                self.put_owner_state(key, value)
+        return contents
+
     # ------------------------------------------------------------------------------------------ owner state
     def owner_state(self) -> Dict[str, str]:
-        """What the owner kept in the journal (:meth:`put_owner_state`); empty without a journal."""
-        return self._journal.owner_state() if self._journal is not None else {}
+        """What the owner kept (:meth:`put_owner_state`), as the journal or the neighbours gave it back."""
+        return dict(self._owner_state)
 
     def put_owner_state(self, key: str, value: str) -> None:
-        """Keep ``value`` across a crash of this node (a no-op without a journal)."""
+        """Keep ``value`` across a crash of this node: in the journal, and, for a key ``<kind>/<internal id>``,
+        with that resource's record at its consumers (``backup.py``)."""
+        self._owner_state[key] = value
         if self._journal is not None:
             self._journal.put_owner_state(key, value)
 
     def drop_owner_state(self, key: str) -> None:
+        self._owner_state.pop(key, None)
         if self._journal is not None:
             self._journal.drop_owner_state(key)
 
@@ -240,7 +264,7 @@ class ResourceRegistrar:
                     summary={k: v for k, v in readable(q.request).items() if k != 'trr'}))
             return RegistrySnapshot(name=core.name, namespace=core.namespace, node=rospy.get_name(),
                                     servers=sorted(server.servers), server_queries=servers, client_queries=clients,
-                                    recovering=self._recovering)
+                                    recovering=self._recovering, incarnation=core.incarnation)
 
     # ------------------------------------------------------------------------------------------ lifetime
     def shutdown(self) -> None:

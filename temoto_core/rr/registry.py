@@ -88,6 +88,7 @@ class RegistrySnapshot:
     server_queries: List[ServerEntry]
     client_queries: List[ClientEntry]
     recovering: bool = False  # a restarted registrar that has not finished taking its registry back
+    incarnation: int = 0      # the registrar's incarnation (0: it keeps no journal)
 
     def to_json(self, indent: Optional[int] = None) -> str:
         return json.dumps(dataclasses.asdict(self), indent=indent, sort_keys=True)

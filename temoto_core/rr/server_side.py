@@ -29,6 +29,7 @@ class ServerSide:
         self._channels = channels
         self.recorder = recorder
         self._release_held = release_held         # the client side's unload: cascade and rollback go through it
+        self.record_of: Callable[[ServerQuery], str] = lambda query: ''   # backup.record, set by the registrar
         self.servers: Dict[str, Server] = {}
         self.by_internal: Dict[int, ServerQuery] = {}
         self.by_external: Dict[Tuple[str, int], ServerQuery] = {}
@@ -118,6 +119,7 @@ class ServerSide:
                 response.trr.code = 0
                 query.response = response
                 query.move(ACTIVE)
+                query.backup = self.record_of(query)      # its links are all made: loads link while loading
                 rollback = []
             core.notify_change()
             if error is None:
@@ -134,6 +136,7 @@ class ServerSide:
         out = shallow_copy(query.response)
         out.trr = shallow_copy(query.response.trr)
         out.trr.resource_id = external_id
+        out.trr.backup = query.backup
         return out
 
     # ------------------------------------------------------------------------------------------ unload

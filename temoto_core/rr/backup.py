@@ -1,0 +1,136 @@
+"""P2P backup: each neighbour keeps the part of a registrar's registry that concerns it, so a registrar
+whose journal is lost rebuilds its registry from its neighbours (the paper's section 5).
+
+What each neighbour keeps:
+
+- a **consumer** keeps, for each resource it holds, the owner's response; with it travels the owner's
+  *record* of the resource (``trr.backup``, built by :func:`record` when the resource becomes active):
+  its internal id, the sub-resources linked to it (their owner, id, request, response and the local id
+  they are held under) and the owner state kept for it (keys ``<kind>/<internal id>``, such as the
+  ER Manager's pids and start times). The consumer keeps the response anyway, and journals it;
+- an **owner** keeps its consumer records: who holds what, under which id.
+
+Links are made while a resource loads (a sub-resource is loaded inside the load callback, or linked with
+``rr.link`` before it returns), so the record is complete when the response leaves.
+
+:func:`gather` asks every other registrar of the namespace for its registry and turns what they keep
+about this one into the shape of a journal: the resources it served (with their consumers and links),
+and what it held. Held resources that no served resource links are released by the recovery that follows
+(nothing references them any more). Owner state that is not per resource (the reliabilities) is not
+backed up: it is only in the journal.
+"""
+import base64
+import json
+from typing import Callable, Dict, List, Optional, Tuple
+
+import rosgraph
+import rospy
+
+from temoto_core.rr.journal import JournalContents, JournaledConsumer, JournaledHold, JournaledServed
+from temoto_core.rr.query import ClientQuery, ServerQuery
+from temoto_core.rr.recorder import serialized
+from temoto_core.srv import GetRegistry
+
+BACKUP_VERSION = 1
+NO_PARENT = -1      # a held resource that no served one links: released by the recovery
+
+
+def _b64(data: bytes) -> str:
+    return base64.b64encode(data).decode('ascii')
+
+
+def record(query: ServerQuery, by_local: Dict[int, ClientQuery], owner_state: Dict[str, str]) -> str:
+    """The owner's record of ``query``, as its consumers keep it (lock held)."""
+    links = []
+    for local_id in sorted(query.links):
+        held = by_local.get(local_id)
+        if held is None or held.response is None:
+            continue
+        links.append({'local_id': local_id, 'target': list(held.target), 'external_id': held.external_id,
+                      'request_type': held.request._type, 'request': _b64(serialized(held.request)),
+                      'response': _b64(serialized(held.response))})
+    suffix = '/%d' % query.internal_id
+    return json.dumps({'v': BACKUP_VERSION, 'internal_id': query.internal_id, 'links': links,
+                       'owner_state': {k: v for k, v in owner_state.items() if k.endswith(suffix)}},
+                      separators=(',', ':'))
+
+
+def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], service_of: Callable,
+           timeout: float = 2.0) -> Tuple[JournalContents, Dict[str, str]]:
+    """What the other registrars of ``namespace`` keep about registrar ``name`` (of node ``node``)."""
+    mine = '/%s/%s/registry' % (namespace, name)
+    try:
+        services = [s for s, _ in rosgraph.Master(node).getSystemState()[2]]
+    except Exception as err:          # no master: nothing to ask
+        rospy.logwarn('/%s/%s: cannot list the registrars to rebuild from: %s', namespace, name, err)
+        return JournalContents([], []), {}
+    served: Dict[int, JournaledServed] = {}
+    holds: List[JournaledHold] = []
+    linked = set()
+    owned_by_them: List[Tuple[tuple, int, str, bytes, bytes]] = []
+    owner_state: Dict[str, str] = {}
+    for service in services:
+        if not (service.startswith('/%s/' % namespace) and service.endswith('/registry')) or service == mine:
+            continue
+        snapshot = _registry(service, timeout)
+        if snapshot is None:
+            continue
+        theirs = (snapshot['namespace'], snapshot['name'])
+        uri = _uri(node, snapshot['node'])
+        for query in snapshot['client_queries']:
+            ns, rr, server = query['target'].strip('/').split('/', 2)
+            if (ns, rr) != (namespace, name) or query['response'] is None:
+                continue
+            request_type = query['request']['type']
+            response = service_of(request_type)._response_class()
+            response.deserialize(base64.b64decode(query['response']['data']))
+            try:
+                kept = json.loads(response.trr.backup or '{}')
+            except ValueError:
+                kept = {}
+            internal_id = kept.get('internal_id')
+            if not isinstance(internal_id, int) or internal_id <= 0:
+                continue                  # an owner before the backup existed: nothing to rebuild it from
+            response.trr.resource_id = internal_id       # the owner keeps its own id, and no copy of the record
+            response.trr.backup = ''
+            entry = served.get(internal_id)
+            if entry is None:
+                entry = served[internal_id] = JournaledServed(
+                    internal_id, server, query['state'], request_type, base64.b64decode(query['request']['data']),
+                    serialized(response), [])
+                for link in kept.get('links', []):
+                    target = tuple(link['target'])
+                    linked.add((target, link['external_id']))
+                    holds.append(JournaledHold(link['local_id'], target, link['external_id'], link['request_type'],
+                                               base64.b64decode(link['request']), base64.b64decode(link['response']),
+                                               internal_id))
+                owner_state.update(kept.get('owner_state', {}))
+            entry.consumers.append(JournaledConsumer(query['external_id'], '/%s/%s/status' % theirs,
+                                                     snapshot['node'], theirs[0], uri,
+                                                     int(snapshot.get('incarnation', 0))))
+        for query in snapshot['server_queries']:
+            for consumer in query['consumers']:
+                if consumer['client_name'] == node and consumer['namespace'] == namespace and query['response']:
+                    owned_by_them.append(((theirs[0], theirs[1], query['server']), consumer['resource_id'],
+                                          query['request']['type'], base64.b64decode(query['request']['data']),
+                                          base64.b64decode(query['response']['data'])))
+    for target, external_id, request_type, request, response in owned_by_them:
+        if (target, external_id) not in linked:
+            holds.append(JournaledHold(new_id(), target, external_id, request_type, request, response, NO_PARENT))
+    return JournalContents(sorted(served.values(), key=lambda e: e.internal_id), holds), owner_state
+
+
+def _registry(service: str, timeout: float) -> Optional[dict]:
+    try:
+        rospy.wait_for_service(service, timeout=timeout)
+        return json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+    except (rospy.ROSException, rospy.ServiceException, OSError, ValueError) as err:
+        rospy.logwarn('rebuilding from neighbours: %s did not answer (%s)', service, err)
+        return None
+
+
+def _uri(caller: str, node: str) -> str:
+    try:
+        return rosgraph.Master(caller).lookupNode(node)
+    except Exception:                 # gone meanwhile: its liveness watch finds it dead
+        return ''
