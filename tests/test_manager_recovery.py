@@ -85,6 +85,19 @@ def registry_state(rr):
     return json.dumps(snapshot, indent=1, sort_keys=True).splitlines()
 
 
+def data_flows(result):
+    """The sensor's data keeps coming (a few messages more, seen by a fresh subscriber)."""
+    watch = TopicWatch(result.topic('lidar_data'))
+    try:
+        wait_for(lambda: watch.count > 5, 10, 'data still flowing')
+    finally:
+        watch.close()
+
+
+def pull_cable(result, how):
+    FakeCables().send(how, result.sensor_name[len('fake_'):])
+
+
 def driver_pid():
     rows = er_processes()
     assert len(rows) == 1, rows
@@ -94,17 +107,14 @@ def driver_pid():
 def test_killed_sensor_manager_comes_back_with_its_registry_and_keeps_watching(managers, sensor):
     sm, result = sensor
     before, pid = registry_state(SM), driver_pid()
-    watch = TopicWatch(result.topic('lidar_data'))
     managers.kill(SM)
     managers.start(SM)
     assert registry_state(SM) == before, 'the registry after the restart is the one before the kill'
     assert driver_pid() == pid, 'nothing that still runs is restarted'
-    seen = watch.count
-    wait_for(lambda: watch.count > seen + 5, 10, 'data still flowing')
-    watch.close()
+    data_flows(result)
     assert not failed(sm.events)
     # the restored watch still catches a stall, and the consumer hears it from the new incarnation
-    FakeCables().send('stall', result.sensor_name[len('fake_'):])
+    pull_cable(result, 'stall')
     wait_for(lambda: failed(sm.events), 15, 'the stall FAILED at the client')
     assert 'stalled' in failed(sm.events)[0].message, failed(sm.events)[0].message
 
@@ -113,7 +123,7 @@ def test_a_driver_crash_while_the_sensor_manager_is_down_reaches_the_client_afte
     sm, result = sensor
     pid = driver_pid()
     managers.kill(SM)
-    FakeCables().send('crash', result.sensor_name[len('fake_'):])
+    pull_cable(result, 'crash')
     wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to crash')
     assert not failed(sm.events), 'nobody could tell the client while its manager was down'
     managers.start(SM)
@@ -126,7 +136,7 @@ def test_a_driver_crash_while_the_sensor_manager_is_down_reaches_the_client_afte
 
 def test_reliabilities_survive_a_restart(managers, sensor):
     sm, result = sensor
-    FakeCables().send('stall', result.sensor_name[len('fake_'):])
+    pull_cable(result, 'stall')
     wait_for(lambda: failed(sm.events), 15, 'the stall FAILED')
     lowered = catalogue()[result.sensor_name]['reliability']
     assert lowered < 0.8
@@ -149,9 +159,7 @@ def test_two_neighbours_killed_at_once_recover_from_their_journals(managers, sen
     uris = [c['client_uri'] for q in registry(ER)['server_queries'] for c in q['consumers']]
     assert uris == [rosgraph.Master('/recovery_test').lookupNode('/' + SM)]
     assert driver_pid() == pid
-    watch = TopicWatch(result.topic('lidar_data'))
-    wait_for(lambda: watch.count > 5, 10, 'data still flowing')
-    watch.close()
+    data_flows(result)
     sm.stop_sensor(result.resource_id)
     wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to stop with the sensor')
     assert not failed(sm.events)
@@ -261,11 +269,8 @@ def test_a_manager_whose_journal_is_lost_rebuilds_its_registry_from_its_neighbou
     managers.start(victim)
     assert registry_state(victim) == before
     assert driver_pid() == pid, 'the driver runs on, adopted: nothing is started again'
-    watch = TopicWatch(result.topic('lidar_data'))
-    seen = watch.count
-    wait_for(lambda: watch.count > seen + 5, 10, 'data still flowing')
-    watch.close()
+    data_flows(result)
     assert not failed(sm.events)
     # the rebuilt registry carries status as before
-    FakeCables().send('crash', result.sensor_name[len('fake_'):])
+    pull_cable(result, 'crash')
     wait_for(lambda: failed(sm.events), 20, 'the crash FAILED at the client')
