@@ -109,3 +109,37 @@ def test_the_journal_survives_a_sigkill_at_any_point_of_a_write_loop(tmp_path):
         assert writer.returncode == -signal.SIGKILL
         _check(path, acknowledged)
     assert Journal(path, run_id='run').incarnation == 2 * runs + 1      # each writer and each check opened it
+
+
+def test_the_writer_commits_in_order_many_changes_per_transaction_and_close_writes_the_rest(tmp_path):
+    """The registrar's writes leave its hot path: queued, then committed by one thread in batches."""
+    import threading
+    from temoto_core.rr.recorder import JournalWriter
+    path = str(tmp_path / 'w.sqlite3')
+    journal = Journal(path, run_id='run')
+    batches = []
+    real_batch = journal.batch
+
+    def counting_batch():
+        batches.append(1)
+        return real_batch()
+    journal.batch = counting_batch
+    writer = JournalWriter(journal)
+    started, go = threading.Event(), threading.Event()
+
+    def first():
+        started.set()
+        assert go.wait(10)
+        journal.put_owner_state('order', '0')
+    writer.put(first)
+    assert started.wait(10)
+    for i in range(1, 101):                 # queued while the first batch is being written
+        writer.put(lambda i=i: journal.put_owner_state('order', str(i)))
+        writer.put(lambda i=i: journal.put_owner_state('k%d' % i, str(i)))
+    go.set()
+    writer.close()
+    journal.close()
+    assert len(batches) == 2, 'the 200 changes queued meanwhile went in one transaction'
+    kept = Journal(path, run_id='run').owner_state()
+    assert kept['order'] == '100', 'in the order queued'
+    assert len([k for k in kept if k.startswith('k')]) == 100

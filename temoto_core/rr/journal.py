@@ -17,12 +17,13 @@ A journal belongs to one run of the ROS master: a new master (``/run_id``)
 means the processes, topics and consumers it records are gone, so the journal
 starts empty (its incarnation count and id floor are kept).
 """
+import contextlib
 import dataclasses
 import os
 import sqlite3
 import threading
 import time
-from typing import Dict, List, Optional
+from typing import Dict, Iterator, List, Optional
 
 SCHEMA_VERSION = 1
 
@@ -96,7 +97,8 @@ class Journal:
         directory = os.path.dirname(os.path.abspath(path))
         os.makedirs(directory, exist_ok=True)
         self.path = path
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
+        self._in_batch = False
         try:
             self._db = sqlite3.connect(path, timeout=5.0, isolation_level=None, check_same_thread=False)
             self._db.execute('PRAGMA journal_mode=WAL')
@@ -122,19 +124,41 @@ class Journal:
 
     # ------------------------------------------------------------------------------------------ plumbing
     class _Tx:
+        """One transaction, or one step of the batch under way (:meth:`Journal.batch`)."""
+
         def __init__(self, journal: 'Journal') -> None:
             self._journal = journal
+            self._own = False
 
         def __enter__(self) -> sqlite3.Connection:
             self._journal._lock.acquire()
-            self._journal._db.execute('BEGIN IMMEDIATE')
+            self._own = not self._journal._in_batch
+            if self._own:
+                self._journal._db.execute('BEGIN IMMEDIATE')
             return self._journal._db
 
         def __exit__(self, kind, value, tb) -> None:
             try:
-                self._journal._db.execute('COMMIT' if kind is None else 'ROLLBACK')
+                if self._own:
+                    self._journal._db.execute('COMMIT' if kind is None else 'ROLLBACK')
             finally:
                 self._journal._lock.release()
+
+    @contextlib.contextmanager
+    def batch(self) -> Iterator[None]:
+        """Many changes in one transaction (group commit): all of them are there after a crash, or none."""
+        with self._lock:
+            self._db.execute('BEGIN IMMEDIATE')
+            self._in_batch = True
+            try:
+                yield
+            except BaseException:
+                self._db.execute('ROLLBACK')
+                raise
+            else:
+                self._db.execute('COMMIT')
+            finally:
+                self._in_batch = False
 
     def _transaction(self) -> '_Tx':
         return Journal._Tx(self)

@@ -3,12 +3,35 @@
 Without a journal every call is a no-op, so the sides never ask whether there is
 one. Calls are made with the registrar's lock held, so the journal sees changes
 in the order the registry made them.
+
+The writes themselves leave the registry's lock: each call takes what it needs
+from the registry *now* (a consumer count, a consumer's record) and queues the
+write; one writer thread commits what is queued, many changes per transaction
+(group commit), in order. The registrar's messages are never changed once
+stored, so serialising them on the writer thread reads what they were when
+queued.
+
+Durability before acknowledgement: a service handler that changed the registry
+(a load, an unload, a reclaim) calls :meth:`Recorder.sync` before its answer
+leaves, outside the registry's lock. So a consumer never holds a resource that
+the owner's journal does not know of, and never is told of an unload the journal
+may forget. A load costs one commit per registrar however many changes it made
+(a hold, a link, the consumer), and concurrent loads share commits. Changes
+nobody is answered about (a FAILED mark) are not waited for.
 """
+import collections
 import io
-from typing import Optional
+import threading
+import time
+from typing import Callable, Deque, Optional
+
+import rospy
 
 from temoto_core.rr.journal import Journal, JournaledConsumer
 from temoto_core.rr.query import ClientQuery, Consumer, ServerQuery
+
+# changes committed together at most: bounds a transaction's time under a burst
+MAX_BATCH = 500
 
 
 def serialized(msg) -> bytes:
@@ -22,46 +45,134 @@ def journaled(consumer: Consumer, external_id: int) -> JournaledConsumer:
                              consumer.uri, consumer.incarnation)
 
 
+class JournalWriter:
+    """Queued changes, committed in order, many per transaction: by a background thread, or at once by a
+    caller of :meth:`sync` (the service thread about to answer), which saves a hand-over between threads.
+
+    One committer at a time takes what is queued, in order, so the journal sees the changes in the order
+    they were put, whoever commits them.
+    """
+
+    def __init__(self, journal: Journal) -> None:
+        self.journal = journal
+        self._pending: Deque[Callable[[], None]] = collections.deque()
+        self._cond = threading.Condition()
+        self._commit_lock = threading.Lock()
+        self._queued = 0              # changes put so far
+        self._written = 0             # changes committed (or given up on) so far
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name='rr-journal-writer', daemon=True)
+        self._thread.start()
+
+    def put(self, change: Callable[[], None]) -> None:
+        with self._cond:
+            self._pending.append(change)
+            self._queued += 1
+            self._cond.notify_all()
+
+    def _commit_pending(self) -> None:
+        with self._commit_lock:
+            with self._cond:
+                changes = [self._pending.popleft() for _ in range(min(MAX_BATCH, len(self._pending)))]
+            if not changes:
+                return
+            try:
+                with self.journal.batch():
+                    for change in changes:
+                        change()
+            except Exception as err:        # a full disk, say: the registry goes on, the journal is behind
+                rospy.logerr('journal %s: %d change(s) not written: %r', self.journal.path, len(changes), err)
+            with self._cond:
+                self._written += len(changes)
+                self._cond.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending or self._closed)
+                if self._closed and not self._pending:
+                    return
+            self._commit_pending()
+
+    def sync(self, timeout: float = 10.0) -> bool:
+        """Return once every change put before this call is committed (not the ones put after)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            mark = self._queued
+        while time.monotonic() < deadline:
+            with self._cond:
+                if self._written >= mark:
+                    return True
+            self._commit_pending()
+        return False
+
+    def close(self) -> None:
+        """Write what is queued, then stop the thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(10.0)
+        self._commit_pending()
+
+
 class Recorder:
     def __init__(self, journal: Optional[Journal] = None) -> None:
         self.journal = journal
+        self.writer = JournalWriter(journal) if journal is not None else None
 
     def attached(self, query: ServerQuery, external_id: int, consumer: Consumer) -> None:
-        if self.journal is None:
+        if self.writer is None:
             return
+        record = journaled(consumer, external_id)
         if len(query.consumers) == 1:
-            self.journal.serve(query.internal_id, query.server.name, query.request._type, serialized(query.request),
-                               serialized(query.response), external_id, journaled(consumer, external_id))
+            internal_id, server, request, response = query.internal_id, query.server.name, query.request, query.response
+            self.writer.put(lambda: self.journal.serve(internal_id, server, request._type, serialized(request),
+                                                       serialized(response), external_id, record))
         else:
-            self.journal.attach(query.server.name, query.internal_id, journaled(consumer, external_id))
+            server, internal_id = query.server.name, query.internal_id
+            self.writer.put(lambda: self.journal.attach(server, internal_id, record))
 
     def reattached(self, query: ServerQuery, external_id: int, consumer: Consumer) -> None:
         """A consumer's new incarnation took its resource back (new URI, status topic, incarnation)."""
-        if self.journal is not None:
-            self.journal.attach(query.server.name, query.internal_id, journaled(consumer, external_id))
+        if self.writer is not None:
+            server, internal_id, record = query.server.name, query.internal_id, journaled(consumer, external_id)
+            self.writer.put(lambda: self.journal.attach(server, internal_id, record))
 
     def detached(self, server_name: str, external_id: int) -> None:
-        if self.journal is not None:
-            self.journal.detach(server_name, external_id)
+        if self.writer is not None:
+            self.writer.put(lambda: self.journal.detach(server_name, external_id))
 
     def failed(self, query: ServerQuery) -> None:
-        if self.journal is not None:
-            self.journal.mark(query.internal_id, query.state.value)
+        if self.writer is not None:
+            internal_id, state = query.internal_id, query.state.value
+            self.writer.put(lambda: self.journal.mark(internal_id, state))
 
     def gone(self, query: ServerQuery) -> None:
-        if self.journal is not None:
-            self.journal.unserve(query.internal_id)
+        if self.writer is not None:
+            internal_id = query.internal_id
+            self.writer.put(lambda: self.journal.unserve(internal_id))
 
     def held(self, local_id: int, query: ClientQuery, parent: Optional[ServerQuery]) -> None:
-        if self.journal is not None:
-            self.journal.hold(local_id, query.target, query.external_id, query.request._type,
-                              serialized(query.request), serialized(query.response),
-                              parent.internal_id if parent is not None else None)
+        if self.writer is not None:
+            target, external_id, request, response = query.target, query.external_id, query.request, query.response
+            parent_id = parent.internal_id if parent is not None else None
+            self.writer.put(lambda: self.journal.hold(local_id, target, external_id, request._type,
+                                                      serialized(request), serialized(response), parent_id))
 
     def linked(self, local_id: int, parent: ServerQuery) -> None:
-        if self.journal is not None:
-            self.journal.link(local_id, parent.internal_id)
+        if self.writer is not None:
+            internal_id = parent.internal_id
+            self.writer.put(lambda: self.journal.link(local_id, internal_id))
 
     def released(self, local_id: int) -> None:
-        if self.journal is not None:
-            self.journal.release(local_id)
+        if self.writer is not None:
+            self.writer.put(lambda: self.journal.release(local_id))
+
+    def sync(self) -> None:
+        """Before a service answer leaves: what the answer acknowledges is in the journal."""
+        if self.writer is not None and not self.writer.sync():
+            rospy.logerr('journal %s: a change is still not written after 10 s', self.journal.path)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()

@@ -95,7 +95,7 @@ class ResourceRegistrar:
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)
-        recorder = Recorder(self._journal)
+        recorder = self._recorder = Recorder(self._journal)
         self._client = ClientSide(core, self._links, header, recorder)
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
@@ -203,6 +203,7 @@ class ResourceRegistrar:
             self._server.release_consumer(req.server_name, req.resource_id)
         except TemotoError as err:
             return UnloadResourceResponse(code=1, message=str(err), error_stack=err.to_msgs())
+        self._recorder.sync()                 # a restart never brings back what the consumer was told is gone
         return UnloadResourceResponse(code=0, message='unloaded')
 
     def send_status(self, internal_id: int, code: int, message: str, error_stack=None) -> None:
@@ -308,5 +309,6 @@ class ResourceRegistrar:
         self._channels.close()
         client.close_proxies()
         self._receiver.close()
+        self._recorder.close()
         if self._journal is not None:
             self._journal.close()
