@@ -211,6 +211,8 @@ class ManagerKill:
     frame_period: Optional[float] = None    # that stream's median frame period over the run
     own_gap: Optional[float] = None         # its p99 gap between frames outside every kill: its own jitter
     displays_removed: int = 0               # displays taken off screen meanwhile
+    unplugged: str = ''                     # a device unplugged while this manager was down
+    failover_gap: Optional[float] = None    # then: its stream's last frame -> the substitute's first frame
 
     @property
     def allowed_gap(self) -> Optional[float]:
@@ -221,7 +223,10 @@ class ManagerKill:
 
     @property
     def view_stayed_up(self) -> bool:
-        """No display removed, and no gap between frames beyond what the stream shows by itself."""
+        """No display removed, and no gap between frames beyond what the stream shows by itself; or, when a
+        device was unplugged while the manager was down, the view failed over to its substitute."""
+        if self.unplugged:
+            return self.failover_gap is not None
         return (self.displays_removed == 0 and self.longest_gap is not None and self.allowed_gap is not None
                 and self.longest_gap <= self.allowed_gap)
 
@@ -282,10 +287,10 @@ def analyse(run: Run) -> Analysis:
             if frames:
                 f.last_frame_t = frames[-1]
         failures.append(f)
-    return Analysis(t0, stages, failures, labels, analyse_kills(run, stages))
+    return Analysis(t0, stages, failures, labels, analyse_kills(run, stages, failures))
 
 
-def analyse_kills(run: Run, stages: List[Stage]) -> List[ManagerKill]:
+def analyse_kills(run: Run, stages: List[Stage], failures: List[Failure]) -> List[ManagerKill]:
     kills, windows = [], []
     recovered = [m for m in run.stages if m.get('stage') == 'recovered']
     for mark in (m for m in run.stages if m.get('stage') == 'kill'):
@@ -311,6 +316,9 @@ def analyse_kills(run: Run, stages: List[Stage]) -> List[ManagerKill]:
                 kill.frame_period = statistics.median(own)
                 kill.own_gap = own[min(len(own) - 1, int(0.99 * len(own)))]
         kill.displays_removed = sum(1 for e in run.display if e.event == 'removed' and t <= e.t <= end)
+        down = _first(failures, lambda f: t <= f.unplug_t <= end)
+        if down is not None:
+            kill.unplugged, kill.failover_gap = down.device, down.display_gap
     return kills
 
 
@@ -517,9 +525,15 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
               'by itself: median period / p99 gap | displays removed | view stayed up |',
               '| --- | --- | --- | --- | --- | --- | --- | --- |']
         for k in an.kills:
+            if k.unplugged:
+                verdict = ('failed over (%s unplugged while it was down), display gap %s'
+                           % (k.unplugged, _fmt(k.failover_gap)) if k.view_stayed_up else
+                           '**no** (%s unplugged while it was down, no failover)' % k.unplugged)
+            else:
+                verdict = 'yes' if k.view_stayed_up else '**no**'
             L.append('| %s | %.3f s | %s | `%s` | %s | %s / %s | %d | %s |' % (
                 k.node, k.kill_t - an.t0, _fmt(k.recovered_s), k.shown_topic or '-', _fmt(k.longest_gap),
-                _fmt(k.frame_period), _fmt(k.own_gap), k.displays_removed, 'yes' if k.view_stayed_up else '**no**'))
+                _fmt(k.frame_period), _fmt(k.own_gap), k.displays_removed, verdict))
         L.append('')
     L += ['## Recorded topics', '', '| topic | type | messages |', '| --- | --- | --- |']
     L += ['| `%s` | %s | %d |' % (t, k, n) for t, (k, n) in sorted(run.topics.items())]

@@ -109,7 +109,9 @@ class ResourceRegistrar:
                 contents = self._rebuild_from_neighbours()
             self._recovery = Recovery(core, contents, self._server, self._client, self._links, self._channels,
                                       self._receiver, header)
-        self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
+        if self._journal is not None:
+            # only a registrar that can come back needs its neighbours to keep its records
+            self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
         # with a journal, the registry is being recovered until resume() is done (the registry says so)
         self._recovering = self._journal is not None
         self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._receiver.on_status_msg,
