@@ -32,6 +32,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from temoto_action_engine.demo.stack import Stack  # noqa: E402
+from temoto_core import master_lookup  # noqa: E402
 from temoto_core.master import RosMaster  # noqa: E402
 from temoto_core.process_group import start_ticks  # noqa: E402
 
@@ -68,6 +69,11 @@ def registry(rr, restarted=''):
             if consumer['client_name'] == restarted:
                 consumer['client_uri'] = '(the restarted node)'
     return json.dumps(raw, sort_keys=True)
+
+
+def node_pid(master_uri, name):
+    uri = master_lookup.lookup_node(master_uri, name)
+    return master_lookup.node_pid(uri) if uri else None
 
 
 def er_processes():
@@ -143,12 +149,13 @@ def main(argv=None):
             # read now: a manager restarted earlier is recorded by its neighbours under its new URI
             before = {rr: wait_for(lambda rr=rr: registry(rr, name), 30, rr) for rr in MANAGERS[name]}
             time.sleep(rng.uniform(0.0, 0.3))               # a seeded moment in the manager's life
-            victim = stack.node(name)
-            os.kill(victim.pid, signal.SIGKILL)
+            victim = node_pid(master.uri, name)     # the manager's own process (a warm-respawn parent's child)
+            os.kill(victim, signal.SIGKILL)
             t0 = time.monotonic()
             deadline, back = t0 + 30.0, False
             while time.monotonic() < deadline:
-                if stack.node(name).pid != victim.pid and all(registry(rr, name) == before[rr] for rr in MANAGERS[name]):
+                if node_pid(master.uri, name) not in (None, victim) and \
+                        all(registry(rr, name) == before[rr] for rr in MANAGERS[name]):
                     back = True
                     break
                 time.sleep(0.005)

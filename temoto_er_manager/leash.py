@@ -57,6 +57,10 @@ class LeashError(RuntimeError):
     """The leash cannot be reached or started, or another manager owns it."""
 
 
+class LeashOwned(LeashError):
+    """Another manager is connected to the leash."""
+
+
 def address_for(journal_path: str) -> str:
     """The leash's abstract socket name for the manager that keeps ``journal_path``."""
     digest = hashlib.sha1(os.path.abspath(journal_path).encode()).hexdigest()[:20]
@@ -217,9 +221,14 @@ class Leash:
         self._children: Dict[int, int] = {}
         self._closed = False
 
-    def attach(self, timeout: float = 10.0) -> List[Child]:
-        """Claim the leash (starting it if there is none); the children it kept for this manager."""
+    def attach(self, timeout: float = 10.0, owned_patience: float = 2.0) -> List[Child]:
+        """Claim the leash (starting it if there is none); the children it kept for this manager.
+
+        An owner still connected may be the previous incarnation in its last moment (a warm respawn's
+        parent was killed, and the death signal is still on its way to the old node): the claim is
+        tried again for ``owned_patience`` before it is refused for good."""
         deadline = time.monotonic() + timeout
+        owned_until = time.monotonic() + owned_patience
         started = False
         while True:
             try:
@@ -229,6 +238,9 @@ class Leash:
                 if not started:
                     self._start()
                     started = True
+            except LeashOwned:
+                if time.monotonic() > owned_until:
+                    raise
             if time.monotonic() > deadline:
                 raise LeashError('the leash at @%s did not start within %.0f s (log %s)'
                                  % (self.address, timeout, self.log_path))
@@ -261,7 +273,8 @@ class Leash:
         answer = json.loads(data) if data else {'error': 'it closed the connection'}
         if 'error' in answer:
             sock.close()
-            raise LeashError('the leash at @%s refused: %s' % (self.address, answer['error']))
+            raise (LeashOwned if 'owns' in answer['error'] else LeashError)(
+                'the leash at @%s refused: %s' % (self.address, answer['error']))
         sock.settimeout(None)
         with self._lock:
             self._sock, self.leash_pid = sock, int(answer['leash'])

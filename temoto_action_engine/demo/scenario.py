@@ -318,14 +318,14 @@ class Demo:
         since = time.monotonic()
         for name in order:
             time.sleep(rng.uniform(0.2, 1.0))       # a seeded moment of the run, not a wait for anything
-            victim = self.stack.node(name)
-            self._mark('kill', node=name, pid=victim.pid)
+            victim = self._node_pid(name)           # the manager's own process (a warm-respawn parent's child)
+            self._mark('kill', node=name, pid=victim)
             killed = time.monotonic()
-            os.kill(victim.pid, signal.SIGKILL)
+            os.kill(victim, signal.SIGKILL)
             device = self._unplug_while_down() if name == SENSOR_MANAGER else None
-            self._wait_recovered(name, victim.pid)
+            self._wait_recovered(name, victim)
             seconds = time.monotonic() - killed
-            self._mark('recovered', node=name, seconds=seconds, pid=self.stack.node(name).pid)
+            self._mark('recovered', node=name, seconds=seconds, pid=self._node_pid(name))
             self.results['kills'].append({'node': name, 'recovered_s': seconds})
             self.progress.line('SIGKILLed %s: respawned and recovered in %.2f s' % (name, seconds))
             if device is not None:
@@ -351,6 +351,12 @@ class Demo:
         self.progress.line('unplugged %s (%s) while %s is down' % (device, mode, SENSOR_MANAGER))
         return device
 
+    def _node_pid(self, name: str) -> Optional[int]:
+        """The pid of the process registered as ``name`` (None while nobody answers there)."""
+        from temoto_core import master_lookup
+        uri = master_lookup.lookup_node(self.master.uri, name)
+        return master_lookup.node_pid(uri) if uri else None
+
     def _wait_recovered(self, name: str, old_pid: int) -> None:
         """The node was respawned, and every registrar of it answers with its registry recovered."""
         import rospy
@@ -358,7 +364,7 @@ class Demo:
         from temoto_core.wait import wait_for
 
         def back() -> bool:
-            if self.stack.node(name).pid == old_pid:
+            if self._node_pid(name) in (None, old_pid):
                 return False
             for rr in KILLABLE[name]:
                 try:

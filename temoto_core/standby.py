@@ -1,0 +1,153 @@
+"""Warm respawn: a manager killed by a signal is forked again at once from a parent that has done its imports.
+
+Why: a respawn by roslaunch starts a fresh interpreter, and importing ``rospy``, ``numpy`` (through genpy)
+and a manager's modules takes 0.5 to 0.7 s here before the node can even register; the registry itself
+comes back from the journal in a fraction of that (BENCHMARKS.md, bench_recovery.py). So a node with a
+journal runs under a small parent that has imported everything: the parent forks the node, waits, and
+when the node dies of a signal other than a stop (SIGKILL, SIGSEGV, the OOM killer) forks it again at once.
+
+Rules it keeps:
+
+- **Nothing outlives the parent.** Each node child gets ``PR_SET_PDEATHSIG`` (SIGKILL): a parent that is
+  killed takes its node with it, and roslaunch's (or the demo's) respawn starts both again, cold.
+- **A stop is a stop.** SIGINT or SIGTERM to the parent is passed to the node, and the parent ends with the
+  node's exit status; a node that exits by itself (any exit code) is not respawned either.
+- **No fork with threads.** The parent forks only while it is single-threaded (a thread does not survive
+  a fork, and a lock it held stays locked in the child). numpy's BLAS starts a thread pool at import, so a
+  parent that finds more than one thread starts itself once more with the pools set to one thread
+  (``OPENBLAS_NUM_THREADS=1`` and friends; the managers do no linear algebra). If that does not help, or
+  without a journal, the node runs in the parent's process as it always did.
+- **Back-off.** A node that dies within ``QUICK_DEATH_S`` of its start is forked again only after a
+  growing delay, as roslaunch's ``respawn_delay`` would, so a node that cannot start does not spin.
+"""
+from __future__ import annotations
+
+import atexit
+import ctypes
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+from typing import Callable, Optional
+
+import rosgraph
+import rosgraph.names
+
+PR_SET_PDEATHSIG = 1
+SINGLE_THREAD_ENV = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMEXPR_NUM_THREADS')
+QUICK_DEATH_S = 2.0
+BACKOFF_S = (0.0, 0.5, 1.0, 2.0, 5.0)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def thread_count() -> int:
+    try:
+        return len(os.listdir('/proc/self/task'))
+    except OSError:
+        return 1
+
+
+def node_name(default: str, argv: list) -> str:
+    """The node's full name as rospy will resolve it (``__name`` and ``__ns`` remaps, ROS_NAMESPACE)."""
+    mappings = rosgraph.names.load_mappings(argv)
+    return rosgraph.names.ns_join(rosgraph.names.get_ros_namespace(argv=argv), mappings.get('__name', default))
+
+
+def journaled(name: str, argv: list) -> bool:
+    """Whether the node's ``~journal`` parameter names a journal (read before the node exists: from its
+    command line, ``_journal:=...``, or from the parameter server, where a launch file puts it)."""
+    for arg in argv[1:]:
+        if arg.startswith('_journal:='):
+            return bool(arg.split(':=', 1)[1].strip())
+    try:
+        value = rosgraph.Master('/temoto_standby').getParam(rosgraph.names.ns_join(name, 'journal'))
+    except Exception:                 # no master yet, or no such parameter: run the node as it is
+        return False
+    return bool(str(value).strip())
+
+
+def run(main: Callable[[], int], default_name: str, argv: Optional[list] = None) -> int:
+    """``main()`` under a warm-respawn parent if the node keeps a journal; else ``main()`` as it is."""
+    argv = sys.argv if argv is None else argv
+    name = node_name(default_name, argv)
+    if not journaled(name, argv):
+        return main()
+    if thread_count() != 1:
+        if not all(os.environ.get(k) == '1' for k in SINGLE_THREAD_ENV):
+            env = dict(os.environ, **{k: '1' for k in SINGLE_THREAD_ENV})
+            os.execve(sys.executable, [sys.executable] + list(argv), env)     # never returns
+        sys.stderr.write('%s: warm respawn off: %d threads after the imports\n' % (name, thread_count()))
+        return main()
+    return _Parent(main, name).serve()
+
+
+class _Parent:
+    def __init__(self, main: Callable[[], int], name: str) -> None:
+        self.main = main
+        self.name = name
+        self.child = 0
+        self.stopping = False
+        self.libc = ctypes.CDLL(None, use_errno=True)
+
+    def _forward(self, signum: int, _frame) -> None:
+        self.stopping = True
+        if self.child:
+            try:
+                os.kill(self.child, signum)
+            except ProcessLookupError:
+                pass
+
+    def serve(self) -> int:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, self._forward)
+        quick = 0
+        while True:
+            started = time.monotonic()
+            self.child = self._fork()
+            status = self._wait()
+            code = os.waitstatus_to_exitcode(status)
+            if self.stopping or code >= 0 or -code in STOP_SIGNALS:
+                return code if code >= 0 else 128 - code
+            quick = quick + 1 if time.monotonic() - started < QUICK_DEATH_S else 0
+            delay = BACKOFF_S[min(quick, len(BACKOFF_S) - 1)]
+            sys.stderr.write('%s: the node (pid %d) was killed by %s; forking it again%s\n'
+                             % (self.name, self.child, signal.Signals(-code).name,
+                                ' in %.1f s' % delay if delay else ''))
+            if delay:
+                time.sleep(delay)            # back-off between respawns, as roslaunch's respawn_delay
+            if self.stopping:
+                return 128 - code
+
+    def _fork(self) -> int:
+        parent = os.getpid()
+        pid = os.fork()
+        if pid:
+            return pid
+        try:
+            for sig in STOP_SIGNALS:
+                signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+            self.libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+            if os.getppid() != parent:     # the parent died before prctl took effect
+                os._exit(1)
+            code = self.main()
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+        # as the interpreter would finish: non-daemon threads, then atexit (rospy's own shutdown hooks)
+        threading._shutdown()
+        atexit._run_exitfuncs()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code or 0)
+
+    def _wait(self) -> int:
+        while True:
+            try:
+                _, status = os.waitpid(self.child, 0)
+                return status
+            except InterruptedError:       # a stop signal: passed on; keep waiting for the node
+                continue

@@ -1,0 +1,74 @@
+"""temoto_core.standby: a node with a journal runs under a warm-respawn parent that forks it again at once
+when it is killed, passes a stop on, and never leaves it behind. Real roscore, real processes."""
+import os
+import signal
+import sys
+import textwrap
+
+from temoto_core import master_lookup
+from temoto_core.process_group import start_ticks
+from temoto_core.testing import wait_for
+
+PROBE = textwrap.dedent('''
+    import sys
+    import rospy
+    from temoto_core import standby
+    from temoto_core.node import init_node, spin
+
+    def main():
+        init_node('standby_probe')
+        code = int(rospy.get_param('~exit_with', -1))
+        if code >= 0:
+            return code
+        spin()
+        return 0
+
+    sys.exit(standby.run(main, 'standby_probe'))
+''')
+
+
+def registered_pid(ros_master, name):
+    uri = master_lookup.lookup_node(ros_master.uri, '/' + name)
+    return master_lookup.node_pid(uri) if uri else None
+
+
+def start(procs, tmp_path, name, *args, wait=True):
+    """The probe as node ``name`` (each test its own: private parameters outlive a node on the master)."""
+    script = tmp_path / 'standby_probe.py'
+    script.write_text(PROBE)
+    proc = procs.command([sys.executable, str(script), '__name:=' + name] + list(args), name)
+    if wait:
+        procs.wait_registered(proc, ['/' + name], 20)
+    return proc
+
+
+def test_a_killed_node_is_forked_again_by_its_parent_and_a_stop_ends_both(procs, ros_master, tmp_path):
+    parent = start(procs, tmp_path, 'standby_respawn', '_journal:=%s' % (tmp_path / 'j.sqlite'))
+    first = wait_for(lambda: registered_pid(ros_master, 'standby_respawn'), 20, 'the node to answer')
+    assert first != parent.pid, 'the node runs in a child of the parent the launcher started'
+    os.kill(first, signal.SIGKILL)
+    second = wait_for(lambda: (lambda p: p not in (None, first) and p)(registered_pid(ros_master, 'standby_respawn')),
+                      20,
+                      'the node forked again')
+    assert parent.alive() and start_ticks(first) is None
+    assert parent.stop() == 0, 'SIGINT is passed on; the node stops cleanly and the parent with it'
+    assert start_ticks(second) is None
+
+
+def test_a_node_that_exits_by_itself_is_not_forked_again(procs, ros_master, tmp_path):
+    parent = start(procs, tmp_path, 'standby_exit', '_journal:=%s' % (tmp_path / 'j.sqlite'), '_exit_with:=3',
+                   wait=False)
+    wait_for(lambda: not parent.alive(), 20, 'the parent to end with its node')
+    assert parent.returncode == 3
+
+
+def test_a_killed_parent_takes_its_node_with_it(procs, ros_master, tmp_path):
+    parent = start(procs, tmp_path, 'standby_orphan', '_journal:=%s' % (tmp_path / 'j.sqlite'))
+    node = wait_for(lambda: registered_pid(ros_master, 'standby_orphan'), 20, 'the node to answer')
+    os.kill(parent.pid, signal.SIGKILL)
+    wait_for(lambda: start_ticks(node) is None, 10, 'the node to die with its parent')
+
+
+def test_without_a_journal_the_node_is_the_process_itself(procs, ros_master, tmp_path):
+    proc = start(procs, tmp_path, 'standby_plain')
+    assert wait_for(lambda: registered_pid(ros_master, 'standby_plain'), 20, 'the node to answer') == proc.pid
