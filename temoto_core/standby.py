@@ -17,8 +17,10 @@ Rules it keeps:
   parent that finds more than one thread starts itself once more with the pools set to one thread
   (``OPENBLAS_NUM_THREADS=1`` and friends; the managers do no linear algebra). If that does not help, or
   without a journal, the node runs in the parent's process as it always did.
-- **Back-off.** A node that dies within ``QUICK_DEATH_S`` of its start is forked again only after a
-  growing delay, as roslaunch's ``respawn_delay`` would, so a node that cannot start does not spin.
+- **Back-off for a crash loop.** A node that crashes by itself (SIGSEGV, SIGABRT, ...) within
+  ``QUICK_DEATH_S`` of its start is forked again only after a growing delay, so a node that cannot start
+  does not spin. A node that was killed (SIGKILL: an operator, the OOM killer, a chaos test) is forked
+  again at once, as roslaunch's respawn does.
 """
 from __future__ import annotations
 
@@ -110,7 +112,8 @@ class _Parent:
             code = os.waitstatus_to_exitcode(status)
             if self.stopping or code >= 0 or -code in STOP_SIGNALS:
                 return code if code >= 0 else 128 - code
-            quick = quick + 1 if time.monotonic() - started < QUICK_DEATH_S else 0
+            crashed = -code != signal.SIGKILL
+            quick = quick + 1 if crashed and time.monotonic() - started < QUICK_DEATH_S else 0
             delay = BACKOFF_S[min(quick, len(BACKOFF_S) - 1)]
             sys.stderr.write('%s: the node (pid %d) was killed by %s; forking it again%s\n'
                              % (self.name, self.child, signal.Signals(-code).name,

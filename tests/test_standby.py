@@ -17,6 +17,9 @@ PROBE = textwrap.dedent('''
 
     def main():
         init_node('standby_probe')
+        if rospy.get_param('~crash', False):
+            import os, signal
+            os.kill(os.getpid(), signal.SIGSEGV)
         code = int(rospy.get_param('~exit_with', -1))
         if code >= 0:
             return code
@@ -72,3 +75,15 @@ def test_a_killed_parent_takes_its_node_with_it(procs, ros_master, tmp_path):
 def test_without_a_journal_the_node_is_the_process_itself(procs, ros_master, tmp_path):
     proc = start(procs, tmp_path, 'standby_plain')
     assert wait_for(lambda: registered_pid(ros_master, 'standby_plain'), 20, 'the node to answer') == proc.pid
+
+
+def test_a_node_that_crashes_as_it_starts_is_forked_again_ever_later(procs, ros_master, tmp_path):
+    """A crash loop backs off (0.5 s, then 1 s, ...); a SIGKILL from outside does not (the first test)."""
+    parent = start(procs, tmp_path, 'standby_crash', '_journal:=%s' % (tmp_path / 'j.sqlite'), '_crash:=true',
+                   wait=False)
+    def log():
+        with open(parent.log_path) as f:       # all of it: each crash writes a long stack dump
+            return f.read()
+    wait_for(lambda: 'killed by SIGSEGV; forking it again in 1.0 s' in log(), 30, 'the second back-off')
+    assert 'killed by SIGSEGV; forking it again in 0.5 s' in log()
+    assert parent.stop() is not None
