@@ -112,6 +112,7 @@ class ProcessGroupLauncher:
         self.env = env
         self.workdir = workdir
         self.processes: List[ManagedProcess] = []
+        self._private_params: List[str] = []     # set through a node's command line; removed by stop_all
         self._rospack = None
 
     # -- lookup -------------------------------------------------------------------------------
@@ -152,6 +153,7 @@ class ProcessGroupLauncher:
         # a dead node of this name would pass the registration wait at once, and the master would send its
         # shutdown to whoever has the dead node's port now
         cleanup_dead_node(self.env['ROS_MASTER_URI'], full)
+        self._private_params += ['%s/%s' % (full, key) for key in (params or {})]
         proc = self.command(argv, name)
         if wait:
             self.wait_registered(proc, [full], timeout)
@@ -188,9 +190,18 @@ class ProcessGroupLauncher:
 
     # -- stop ---------------------------------------------------------------------------------
     def stop_all(self) -> None:
+        """Stop every process, then remove the private parameters given on their command lines: they
+        outlive a node on the master, and the next node of that name (another test's) would inherit them."""
         for proc in reversed(self.processes):
             proc.stop()
         self.processes.clear()
+        master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
+        for name in self._private_params:
+            try:
+                master.deleteParam('/temoto_test', name)     # a missing one is answered with an error code
+            except OSError:                                  # the master is gone already: nothing to clean
+                break
+        self._private_params.clear()
 
 
 def leftover_processes(token: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:

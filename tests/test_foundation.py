@@ -161,3 +161,14 @@ def test_env_sh_names_the_logging_config_rospy_would_find_so_it_skips_its_crawl(
     own.write_text('[loggers]\n')
     assert sourced(ROS_HOME=str(tmp_path / 'ros_home')) == str(own)      # ROS_HOME's comes first, as in rospy
     assert sourced(ROS_PYTHON_LOG_CONFIG_FILE='/somewhere/mine.conf') == '/somewhere/mine.conf'
+
+
+def test_the_launcher_removes_the_private_parameters_it_set(ros_master, rospy_client, tmp_path):
+    """Private parameters outlive a node on the master: a later test's node of the same name inherited a
+    ``~journal`` and ran with a journal it was never given. The launcher removes what it set."""
+    from temoto_core.testing import ProcessGroupLauncher
+    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
+    launcher.node('temoto_test_nodes', 'talker', name='param_probe', params={'journal': '/nowhere.sqlite'})
+    assert rospy_client.get_param('/param_probe/journal') == '/nowhere.sqlite'
+    launcher.stop_all()
+    assert not rospy_client.has_param('/param_probe/journal')

@@ -21,7 +21,10 @@ backed up: it is only in the journal.
 """
 import base64
 import json
-from typing import Callable, Dict, List, Optional, Tuple
+import socket
+import threading
+import time
+from typing import Callable, Dict, List, Tuple
 
 import rosgraph
 import rospy
@@ -69,12 +72,8 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     linked = set()
     owned_by_them: List[Tuple[tuple, int, str, bytes, bytes]] = []
     owner_state: Dict[str, str] = {}
-    for service in services:
-        if not (service.startswith('/%s/' % namespace) and service.endswith('/registry')) or service == mine:
-            continue
-        snapshot = _registry(service, timeout)
-        if snapshot is None:
-            continue
+    wanted = [s for s in services if s.startswith('/%s/' % namespace) and s.endswith('/registry') and s != mine]
+    for snapshot in _registries(node, wanted, timeout):
         theirs = (snapshot['namespace'], snapshot['name'])
         uri = _uri(node, snapshot['node'])
         for query in snapshot['client_queries']:
@@ -120,13 +119,29 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     return JournalContents(sorted(served.values(), key=lambda e: e.internal_id), holds), owner_state
 
 
-def _registry(service: str, timeout: float) -> Optional[dict]:
-    try:
-        rospy.wait_for_service(service, timeout=timeout)
-        return json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
-    except (rospy.ROSException, rospy.ServiceException, OSError, ValueError) as err:
-        rospy.logwarn('rebuilding from neighbours: %s did not answer (%s)', service, err)
-        return None
+def _registries(node: str, services: List[str], timeout: float) -> List[dict]:
+    """The registries behind ``services``, asked all at once; one that does not answer within ``timeout`` is
+    left out. A registration left by a dead registrar is refused at once, so it costs nothing."""
+    found: Dict[str, dict] = {}
+
+    def ask(service: str) -> None:
+        try:
+            host, port = rospy.core.parse_rosrpc_uri(rosgraph.Master(node).lookupService(service))
+            socket.create_connection((host, port), timeout=min(timeout, 0.5)).close()
+            found[service] = json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+        except Exception as err:       # gone, refused, not a registry: nothing to rebuild from there
+            rospy.logdebug('rebuilding from neighbours: %s did not answer (%s)', service, err)
+    threads = [threading.Thread(target=ask, args=(s,), daemon=True, name='rr-backup-ask') for s in services]
+    for thread in threads:
+        thread.start()
+    deadline = time.monotonic() + timeout
+    for thread in threads:
+        thread.join(max(0.0, deadline - time.monotonic()))
+    late = [s for s, t in zip(services, threads) if t.is_alive()]
+    if late:
+        rospy.logwarn('rebuilding from neighbours: no answer within %.1f s from %s', timeout, ', '.join(late))
+    answered = dict(found)             # a late thread may still write: read one copy
+    return [answered[s] for s in services if s in answered]
 
 
 def _uri(caller: str, node: str) -> str:
