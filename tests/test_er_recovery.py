@@ -53,6 +53,7 @@ class Stack:
         import rospy
         # registered is not ready: the manager claims its leash and recovers before it serves
         rospy.wait_for_service('/temoto/%s/load_process' % MGR, timeout=30)
+        wait_for(lambda: not service_json('registry')['recovering'], 30, 'the manager to finish recovering')
         return self.manager
 
     def kill(self):

@@ -23,6 +23,7 @@ from temoto_sensor_manager.testing import (ER_PARAMS, FAKE_CATALOGUE, FakeCables
 SM, ER, OM = 'temoto_sensor_manager', 'temoto_er_manager', 'temoto_output_manager'
 CM, CM_TRACKERS = 'temoto_context_manager', 'temoto_context_manager_trackers'
 SERVES = {SM: 'start_sensor', ER: 'load_process', OM: 'load_rviz_plugin', CM: 'track_object'}
+REGISTRARS = {CM: [CM, CM_TRACKERS]}
 
 
 class Managers:
@@ -42,6 +43,9 @@ class Managers:
     def start(self, name):
         self.procs[name] = self.launcher.node(name, name, name=name, params=self.params[name])
         rospy.wait_for_service('/temoto/%s/%s' % (name, SERVES[name]), timeout=30)
+        # serving is not recovered: the registry says when it has taken everything back
+        for rr in REGISTRARS.get(name, [name]):
+            wait_for(lambda rr=rr: not registry(rr)['recovering'], 30, '%s to finish recovering' % rr)
 
     def kill(self, *names):
         for name in names:
