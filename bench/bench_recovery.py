@@ -35,6 +35,7 @@ from temoto_action_engine.demo.stack import Stack  # noqa: E402
 from temoto_core import master_lookup  # noqa: E402
 from temoto_core.master import RosMaster  # noqa: E402
 from temoto_core.process_group import start_ticks  # noqa: E402
+from temoto_core.processes import leftover_processes  # noqa: E402
 
 NS = 'temoto'
 MANAGERS = {'/temoto_er_manager': ['temoto_er_manager'], '/temoto_sensor_manager': ['temoto_sensor_manager'],
@@ -83,25 +84,12 @@ def er_processes():
     return {p['pid']: start_ticks(p['pid']) for r in rows for p in r['processes']}
 
 
-def orphans(er_pids, marker):
+def orphans(er_pids, token):
     """Live processes of this run whose parent died (reparented) that are neither a resource of the ER
     Manager (adopted children are reparented too) nor the leash that keeps them."""
-    strays = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit() or int(entry) in er_pids:
-            continue
-        try:
-            with open('/proc/%s/environ' % entry, 'rb') as f:
-                if marker not in f.read().split(b'\0'):
-                    continue
-            with open('/proc/%s/cmdline' % entry, 'rb') as f:
-                cmd = f.read()
-            parent = int(open('/proc/%s/stat' % entry, 'rb').read().rsplit(b')', 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):
-            continue
-        if parent == 1 and b'temoto_er_manager.leash' not in cmd and start_ticks(int(entry)) is not None:
-            strays.append((int(entry), cmd.replace(b'\0', b' ')[:120].decode('utf-8', 'replace')))
-    return strays
+    return [(pid, cmd[:120]) for pid, cmd in leftover_processes(token, exclude=er_pids)
+            if master_lookup.parent_pid(pid) == 1 and 'temoto_er_manager.leash' not in cmd
+            and start_ticks(pid) is not None]
 
 
 def main(argv=None):
@@ -113,7 +101,6 @@ def main(argv=None):
     work = tempfile.mkdtemp(prefix='bench_recovery_')
     token = 'bench_recovery_' + os.urandom(4).hex()
     os.environ['TEMOTO_TEST_SESSION'] = token
-    marker = ('TEMOTO_TEST_SESSION=' + token).encode()
     os.makedirs(os.path.join(work, 'ros'))
     master = RosMaster(os.path.join(work, 'ros'), session_token=token).start()
     stack = None
@@ -174,7 +161,7 @@ def main(argv=None):
             now = er_processes()
             lost += sum(1 for pid, start in procs.items() if now.get(pid) != start or start_ticks(pid) != start)
             duplicated += sum(1 for pid in now if pid not in procs)
-            strays = orphans(set(now), marker)
+            strays = orphans(set(now), token)
             if strays:
                 print('  kill %d (%s): orphaned %s' % (k, name, strays), file=sys.stderr)
             orphaned += len(strays)
