@@ -6,6 +6,7 @@ killed with SIGKILL and started again under the same name.
 """
 import os
 import signal
+import sqlite3
 
 import pytest
 import rospy
@@ -39,6 +40,20 @@ def chain(rospy_client, procs, tmp_path):
     c = RegistrarNode(procs, 'rr_rc', check_period=0.5, recovery_grace=30.0)
     b = RegistrarNode(procs, 'rr_rb', journal=journal)
     return a, b, c, (lambda: RegistrarNode(procs, 'rr_rb', journal=journal))
+
+
+def _forget_in_journal(path: str, internal_id: int) -> None:
+    """What a SIGKILL between a change and its commit loses: a served resource, its consumer and its hold."""
+    db = sqlite3.connect(path)
+    with db:
+        held = db.execute('SELECT namespace, rr, server, external_id FROM holds WHERE parent = ?',
+                          (internal_id,)).fetchall()
+        db.execute('DELETE FROM served WHERE internal_id = ?', (internal_id,))
+        db.execute('DELETE FROM consumers WHERE internal_id = ?', (internal_id,))
+        db.execute('DELETE FROM holds WHERE parent = ?', (internal_id,))
+        for row in held:
+            db.execute('DELETE FROM held WHERE namespace = ? AND rr = ? AND server = ? AND external_id = ?', row)
+    db.close()
 
 
 def test_a_killed_registrar_gets_its_registry_back_and_carries_status_and_cascade(chain):
@@ -114,3 +129,40 @@ def test_a_stale_incarnation_is_fenced_out(chain):
     assert [e['message'] for e in events] == ['live', 'live again']
     pub.unregister()
     assert a.unload(res['id']) == {}
+
+
+def test_a_load_whose_commit_the_kill_lost_comes_back_from_its_consumers_copy(chain, tmp_path):
+    a, b, c, restart = chain
+    first = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    second = a.call('rr_rb', 'cam2', [('nested', 'rr_rc/load_test/driver2')])
+    assert 'error' not in first and 'error' not in second, (first, second)
+    before = _shape(b.registry())
+    lost = [q['internal_id'] for q in b.registry()['server_queries'] if q['summary']['name'] == 'cam2'][0]
+    _kill(b)
+    _forget_in_journal(str(tmp_path / 'rr_rb.sqlite3'), lost)
+    b = restart()
+    wait_for(lambda: not b.registry()['recovering'], 20, 'rr_rb to finish recovering')
+    assert _shape(b.registry()) == before
+    assert b.counts()['loads'] == {} and c.counts()['loads'] == {'driver': 1, 'driver2': 1}
+    c.fail('driver2', 'cable pulled')
+    events = a.wait_events(1)
+    assert events[0]['id'] == second['id'] and any('cable pulled' in m for m in events[0]['stack'])
+    assert a.unload(second['id']) == {} and a.unload(first['id']) == {}
+    wait_for(lambda: c.counts()['unloads'] == {'driver': 1, 'driver2': 1}, 10, 'both drivers unloaded')
+    for node in (a, b, c):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+
+
+def test_a_resource_released_while_its_owner_was_down_is_unloaded_when_the_owner_returns(chain):
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    assert 'error' not in res, res
+    _kill(b)
+    # A lets go while B is dead: its own registry forgets the resource, the unload cannot reach B
+    assert 'could not unload' in a.unload(res['id']).get('error', '')
+    assert registry_empty(a)
+    b = restart()
+    wait_for(lambda: c.counts()['unloads'] == {'driver': 1}, 20, 'the driver unloaded in cascade')
+    assert b.counts()['unloads'] == {'cam': 1}
+    for node in (b, c):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)

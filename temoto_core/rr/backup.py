@@ -13,18 +13,29 @@ What each neighbour keeps:
 Links are made while a resource loads (a sub-resource is loaded inside the load callback, or linked with
 ``rr.link`` before it returns), so the record is complete when the response leaves.
 
-:func:`gather` asks every other registrar of the namespace for its registry and turns what they keep
-about this one into the shape of a journal: the resources it served (with their consumers and links),
-and what it held. Held resources that no served resource links are released by the recovery that follows
-(nothing references them any more). Owner state that is not per resource (the reliabilities) is not
-backed up: it is only in the journal.
+Every restart asks: :func:`gather` asks every other registrar of the namespace for its registry and
+turns what they keep about this one into the shape of a journal, and :func:`reconcile` merges it with the
+local journal. The journal is written behind the registry (``recorder.py``), so its last changes may be
+missing after a SIGKILL, and a consumer may have released a resource while its owner was down; a
+neighbour that answers knows better than the journal about what it holds:
+
+- a resource a neighbour holds that the journal lacks (its commit was lost) comes back from the neighbour;
+- a consumer that answers and no longer holds what the journal says it holds is *stale*: the recovery
+  releases it, and the last one out unloads the resource (its process is stopped);
+- a consumer record the neighbour gives is fresher than the journal's (a reclaim moved it);
+- a neighbour that does not answer, or is recovering itself, leaves the journal's word standing.
+
+Held resources that no served resource links are released by the recovery that follows (nothing
+references them any more). Owner state that is not per resource (the reliabilities) is not backed up:
+it is only in the journal, which writes it at once.
 """
 import base64
+import dataclasses
 import json
 import socket
 import threading
 import time
-from typing import Callable, Dict, List, Tuple
+from typing import Callable, Dict, List, Set, Tuple
 
 import rosgraph
 import rospy
@@ -58,23 +69,34 @@ def record(query: ServerQuery, by_local: Dict[int, ClientQuery], owner_state: Di
                       separators=(',', ':'))
 
 
+@dataclasses.dataclass
+class Kept:
+    """What the neighbours keep about one registrar."""
+    contents: JournalContents
+    owner_state: Dict[str, str]
+    answered: Set[str]       # nodes that answered and were not recovering themselves: their word is final
+
+
 def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], service_of: Callable,
-           timeout: float = 2.0) -> Tuple[JournalContents, Dict[str, str]]:
+           timeout: float = 2.0) -> Kept:
     """What the other registrars of ``namespace`` keep about registrar ``name`` (of node ``node``)."""
     mine = '/%s/%s/registry' % (namespace, name)
     try:
         services = [s for s, _ in rosgraph.Master(node).getSystemState()[2]]
     except Exception as err:          # no master: nothing to ask
         rospy.logwarn('/%s/%s: cannot list the registrars to rebuild from: %s', namespace, name, err)
-        return JournalContents([], []), {}
+        return Kept(JournalContents([], []), {}, set())
     served: Dict[int, JournaledServed] = {}
     holds: List[JournaledHold] = []
     linked = set()
     owned_by_them: List[Tuple[tuple, int, str, bytes, bytes]] = []
     owner_state: Dict[str, str] = {}
+    answered: Set[str] = set()
     wanted = [s for s in services if s.startswith('/%s/' % namespace) and s.endswith('/registry') and s != mine]
     for snapshot in _registries(node, wanted, timeout):
         theirs = (snapshot['namespace'], snapshot['name'])
+        if not snapshot.get('recovering', False):
+            answered.add(snapshot['node'])
         uri = _uri(node, snapshot['node'])
         for query in snapshot['client_queries']:
             ns, rr, server = query['target'].strip('/').split('/', 2)
@@ -84,10 +106,10 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
             response = service_of(request_type)._response_class()
             response.deserialize(base64.b64decode(query['response']['data']))
             try:
-                kept = json.loads(response.trr.backup or '{}')
+                record_kept = json.loads(response.trr.backup or '{}')
             except ValueError:
-                kept = {}
-            internal_id = kept.get('internal_id')
+                record_kept = {}
+            internal_id = record_kept.get('internal_id')
             if not isinstance(internal_id, int) or internal_id <= 0:
                 continue                  # an owner before the backup existed: nothing to rebuild it from
             response.trr.resource_id = internal_id       # the owner keeps its own id, and no copy of the record
@@ -97,13 +119,13 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
                 entry = served[internal_id] = JournaledServed(
                     internal_id, server, query['state'], request_type, base64.b64decode(query['request']['data']),
                     serialized(response), [])
-                for link in kept.get('links', []):
+                for link in record_kept.get('links', []):
                     target = tuple(link['target'])
                     linked.add((target, link['external_id']))
                     holds.append(JournaledHold(link['local_id'], target, link['external_id'], link['request_type'],
                                                base64.b64decode(link['request']), base64.b64decode(link['response']),
                                                internal_id))
-                owner_state.update(kept.get('owner_state', {}))
+                owner_state.update(record_kept.get('owner_state', {}))
             entry.consumers.append(JournaledConsumer(query['external_id'], '/%s/%s/status' % theirs,
                                                      snapshot['node'], theirs[0], uri,
                                                      int(snapshot.get('incarnation', 0))))
@@ -116,7 +138,41 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     for target, external_id, request_type, request, response in owned_by_them:
         if (target, external_id) not in linked:
             holds.append(JournaledHold(new_id(), target, external_id, request_type, request, response, NO_PARENT))
-    return JournalContents(sorted(served.values(), key=lambda e: e.internal_id), holds), owner_state
+    return Kept(JournalContents(sorted(served.values(), key=lambda e: e.internal_id), holds), owner_state, answered)
+
+
+@dataclasses.dataclass
+class Reconciled:
+    contents: JournalContents         # what to recover
+    stale: List[Tuple[str, int]]      # (server, external id): consumers that answered and hold it no more
+    added_served: int                 # served resources the journal lacked
+    added_holds: int                  # held resources the journal lacked
+
+
+def reconcile(journal: JournalContents, kept: Kept) -> Reconciled:
+    """The journal, corrected by what the neighbours keep (see the module docstring)."""
+    given = {entry.internal_id: entry for entry in kept.contents.served}
+    served: List[JournaledServed] = []
+    stale: List[Tuple[str, int]] = []
+    for entry in journal.served:
+        theirs = given.pop(entry.internal_id, None)
+        fresher = {c.external_id: c for c in theirs.consumers} if theirs is not None else {}
+        consumers = []
+        for consumer in entry.consumers:
+            if consumer.external_id in fresher:
+                consumers.append(fresher.pop(consumer.external_id))
+                continue
+            if consumer.client_name in kept.answered:
+                stale.append((entry.server, consumer.external_id))
+            consumers.append(consumer)       # a stale one too: the recovery releases it the normal way
+        consumers.extend(fresher.values())   # attached, but the journal lost it
+        served.append(dataclasses.replace(entry, consumers=consumers))
+    added_served = list(given.values())
+    known = {(hold.target, hold.external_id) for hold in journal.holds}
+    added_holds = [hold for hold in kept.contents.holds if (hold.target, hold.external_id) not in known]
+    contents = JournalContents(sorted(served + added_served, key=lambda e: e.internal_id),
+                               journal.holds + added_holds)
+    return Reconciled(contents, stale, len(added_served), len(added_holds))
 
 
 def _registries(node: str, services: List[str], timeout: float) -> List[dict]:

@@ -1,6 +1,6 @@
-"""Recovery: a restarted registrar rebuilds its registry from its journal (or, if the journal is lost,
-from what its neighbours keep: ``backup.py``), checks it against reality, and takes back from its
-neighbours what its previous incarnation held.
+"""Recovery: a restarted registrar rebuilds its registry from its journal, corrected by what its
+neighbours keep (``backup.py``; the neighbours alone if the journal is lost), checks it against reality,
+and takes back from its neighbours what its previous incarnation held.
 
 Three steps, in the owner's order:
 
@@ -11,7 +11,8 @@ Three steps, in the owner's order:
    reality (is the process still there?) and raises ``TemotoError`` if it is
    gone; then the resource's consumers hear FAILED with the reason. Nothing that
    still runs is restarted. A server without ``recover`` cannot check, so its
-   resources are reported FAILED.
+   resources are reported FAILED. A consumer that answered the neighbours' roll
+   call and no longer holds its resource is released, as an unload would.
 3. ``resume()`` asks each owner of a held resource to hand it over to this
    incarnation (``/<ns>/<rr>/reclaim``): the owner points the consumer record
    at the new node URI and status topic, and says which resources are still
@@ -22,7 +23,7 @@ Three steps, in the owner's order:
 import importlib
 import threading
 import time
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import rospy
 
@@ -54,7 +55,8 @@ def service_of(request_type: str):
 
 class Recovery:
     def __init__(self, core: RegistrarCore, contents: JournalContents, server: ServerSide, client: ClientSide,
-                 links: Links, channels: StatusChannels, receiver: StatusReceiver, header) -> None:
+                 links: Links, channels: StatusChannels, receiver: StatusReceiver, header,
+                 stale: Sequence[Tuple[str, int]] = ()) -> None:
         self._core = core
         self._server = server
         self._client = client
@@ -65,6 +67,9 @@ class Recovery:
         self._served: Dict[str, List[JournaledServed]] = {}
         for entry in contents.served:
             self._served.setdefault(entry.server, []).append(entry)
+        self._stale: Dict[str, List[int]] = {}   # server -> external ids whose consumers hold them no more
+        for server_name, external_id in stale:
+            self._stale.setdefault(server_name, []).append(external_id)
         self._parents: Dict[int, int] = {}       # held local id -> internal id of the served resource it belongs to
         self.restored_holds = self._restore_holds(contents.holds)
 
@@ -122,6 +127,18 @@ class Recovery:
                 query.backup = side.record_of(query)
                 restored.append(query)
         self._channels.acquire_all([c.status_topic for q in restored for c in q.consumers.values()])
+        # Consumers that no longer hold their resource leave first, so that no FAILED is announced to them;
+        # a resource left with none of its consumers is checked like the others (its process adopted), then
+        # unloaded as the last one out would.
+        stale = set(self._stale.pop(server.name, []))
+        unheld = []
+        for query in restored:
+            leaving = [external_id for external_id in query.consumers if external_id in stale]
+            if leaving and len(leaving) == len(query.consumers):
+                unheld.append((query, leaving))
+                continue
+            for external_id in leaving:
+                self._release_stale(server.name, external_id)
         for query in restored:
             if query.state is not ACTIVE:
                 continue
@@ -136,13 +153,26 @@ class Recovery:
                 except Exception as err:   # an owner bug: the resource cannot be vouched for
                     rospy.logerr('%s: recover callback of %s raised %r', core.prefix, server.name, err)
                     why = 'recover callback of %s raised %r' % (server.name, err)
-            if why is not None:
+            if why is not None and not any(q is query for q, _ in unheld):
                 message = 'lost while %s was down: %s' % (core.prefix, why)
                 rospy.logwarn('%s: %s resource %d %s', core.prefix, server.name, query.internal_id, message)
                 side.propagate(query, ResourceStatus.FAILED, message,
                                [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, message, core.prefix)])
+        for query, leaving in unheld:
+            for external_id in leaving:
+                self._release_stale(server.name, external_id)
         if restored:
-            rospy.loginfo('%s: recovered %d %s resource(s) from the journal', core.prefix, len(restored), server.name)
+            rospy.loginfo('%s: recovered %d %s resource(s)', core.prefix, len(restored), server.name)
+
+    def _release_stale(self, server_name: str, external_id: int) -> None:
+        core, side = self._core, self._server
+        consumer = side.consumer(server_name, external_id)
+        rospy.logwarn('%s: %s no longer holds %s resource %d: releasing it', core.prefix,
+                      consumer.client_name if consumer is not None else '?', server_name, external_id)
+        try:
+            side.release_consumer(server_name, external_id)
+        except TemotoError as err:
+            rospy.logwarn('%s: releasing stale %s resource %d: %s', core.prefix, server_name, external_id, err)
 
     # ------------------------------------------------------------------------------------------ 3. neighbours
     def resume(self) -> None:

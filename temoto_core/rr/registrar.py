@@ -37,7 +37,7 @@ from temoto_core.rr.client_side import ClientSide, StatusCallback
 from temoto_core.rr.core import DEFAULT_NAMESPACE, RegistrarCore
 from temoto_core.rr.keys import key_function, register_key
 from temoto_core.rr.links import Links
-from temoto_core.rr.journal import Journal
+from temoto_core.rr.journal import Journal, JournalContents
 from temoto_core.rr.liveness import ConsumerWatch
 from temoto_core.rr.messages import legal_name
 from temoto_core.rr.query import ACTIVE, Server, target_name
@@ -103,12 +103,10 @@ class ResourceRegistrar:
         self._owner_state: Dict[str, str] = {}
         self._recovery = None
         if self._journal is not None:
-            contents = self._journal.contents()
             self._owner_state = self._journal.owner_state()
-            if not contents.served and not contents.holds:
-                contents = self._rebuild_from_neighbours()
-            self._recovery = Recovery(core, contents, self._server, self._client, self._links, self._channels,
-                                      self._receiver, header)
+            reconciled = self._reconcile_with_neighbours(self._journal.contents())
+            self._recovery = Recovery(core, reconciled.contents, self._server, self._client, self._links,
+                                      self._channels, self._receiver, header, stale=reconciled.stale)
         if self._journal is not None:
             # only a registrar that can come back needs its neighbours to keep its records
             self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
@@ -126,19 +124,23 @@ class ResourceRegistrar:
         """This registrar keeps a journal, so its node recovers after a restart."""
         return self._journal is not None
 
-    def _rebuild_from_neighbours(self):
-        """An empty journal: a first start, or a journal that was lost. What the neighbours keep about this
-        registrar (``backup.py``) rebuilds it; on a first start they keep nothing."""
+    def _reconcile_with_neighbours(self, journal: JournalContents) -> backup.Reconciled:
+        """The journal, checked against what the neighbours keep about this registrar (``backup.py``): the
+        journal is written behind the registry, and consumers may have released what they held while this
+        registrar was down. With an empty journal (a first start, or a lost journal), the neighbours' copies
+        alone rebuild the registry; on a first start they keep nothing."""
         core = self._core
-        contents, kept = backup.gather(core.namespace, core.name, rospy.get_name(), core.ids.next, service_of)
-        if contents.served or contents.holds:
-            rospy.logwarn('%s: the journal is empty; rebuilt %d served and %d held resource(s) from the neighbours',
-                          core.prefix, len(contents.served), len(contents.holds))
-            for key, value in kept.items():
+        kept = backup.gather(core.namespace, core.name, rospy.get_name(), core.ids.next, service_of)
+        reconciled = backup.reconcile(journal, kept)
+        if reconciled.added_served or reconciled.added_holds or reconciled.stale:
+            rospy.logwarn('%s: the neighbours gave back %d served and %d held resource(s) the journal lacked, '
+                          'and %d consumer(s) no longer hold what the journal says', core.prefix,
+                          reconciled.added_served, reconciled.added_holds, len(reconciled.stale))
+        for key, value in kept.owner_state.items():
+            if key not in self._owner_state:
                 self.put_owner_state(key, value)
-        return contents
+        return reconciled
 
-    # ------------------------------------------------------------------------------------------ owner state
     def owner_state(self) -> Dict[str, str]:
         """What the owner kept (:meth:`put_owner_state`), as the journal or the neighbours gave it back."""
         return dict(self._owner_state)
@@ -205,7 +207,6 @@ class ResourceRegistrar:
             self._server.release_consumer(req.server_name, req.resource_id)
         except TemotoError as err:
             return UnloadResourceResponse(code=1, message=str(err), error_stack=err.to_msgs())
-        self._recorder.sync()                 # a restart never brings back what the consumer was told is gone
         return UnloadResourceResponse(code=0, message='unloaded')
 
     def send_status(self, internal_id: int, code: int, message: str, error_stack=None) -> None:

@@ -52,8 +52,6 @@ class ServerSide:
         try:
             response = self._serve(server, request, response, consumer)
             attached = response.trr.code == 0
-            if attached:
-                self.recorder.sync()          # the consumer never holds what the journal does not know
             return response
         finally:
             if not attached:
@@ -290,7 +288,6 @@ class ServerSide:
         for old, new in moved:
             self._channels.acquire(new)
             self._channels.release(old)
-        self.recorder.sync()                  # the new incarnation is in the journal before it hears so
         rospy.loginfo('%s: %s (incarnation %d) reclaimed %d %s resource(s)', core.prefix, req.client_name,
                       req.incarnation, len(moved), req.server_name)
         return response
