@@ -153,10 +153,23 @@ def test_a_load_whose_commit_the_kill_lost_comes_back_from_its_consumers_copy(ch
         wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
 
 
-def test_a_resource_released_while_its_owner_was_down_is_unloaded_when_the_owner_returns(chain):
+def _journaled(path: str, server: str) -> bool:
+    """Whether the journal at ``path`` has committed a resource of ``server`` (it is written behind the answer)."""
+    db = sqlite3.connect(path)
+    try:
+        return db.execute('SELECT COUNT(*) FROM served WHERE server = ?', (server,)).fetchone()[0] > 0
+    except sqlite3.OperationalError:          # not created yet
+        return False
+    finally:
+        db.close()
+
+
+def test_a_resource_released_while_its_owner_was_down_is_unloaded_when_the_owner_returns(chain, tmp_path):
     a, b, c, restart = chain
     res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
     assert 'error' not in res, res
+    # the journal knows cam (without it, only C's record of the driver is left, which the restart releases)
+    wait_for(lambda: _journaled(str(tmp_path / 'rr_rb.sqlite3'), 'load_test'), 10, 'cam in the journal')
     _kill(b)
     # A lets go while B is dead: its own registry forgets the resource, the unload cannot reach B
     assert 'could not unload' in a.unload(res['id']).get('error', '')

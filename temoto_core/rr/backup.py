@@ -74,13 +74,15 @@ class Kept:
     """What the neighbours keep about one registrar."""
     contents: JournalContents
     owner_state: Dict[str, str]
-    answered: Set[str]       # nodes that answered and were not recovering themselves: their word is final
+    answered: Set[str]       # status topics of the registrars that answered and were not recovering: their word
+                             # is final (a node may host several registrars, so a registrar, not a node)
 
 
 def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], service_of: Callable,
            timeout: float = 2.0) -> Kept:
     """What the other registrars of ``namespace`` keep about registrar ``name`` (of node ``node``)."""
     mine = '/%s/%s/registry' % (namespace, name)
+    own_topic = '/%s/%s/status' % (namespace, name)
     try:
         services = [s for s, _ in rosgraph.Master(node).getSystemState()[2]]
     except Exception as err:          # no master: nothing to ask
@@ -96,7 +98,7 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     for snapshot in _registries(node, wanted, timeout):
         theirs = (snapshot['namespace'], snapshot['name'])
         if not snapshot.get('recovering', False):
-            answered.add(snapshot['node'])
+            answered.add('/%s/%s/status' % theirs)
         uri = _uri(node, snapshot['node'])
         for query in snapshot['client_queries']:
             ns, rr, server = query['target'].strip('/').split('/', 2)
@@ -131,7 +133,8 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
                                                      int(snapshot.get('incarnation', 0))))
         for query in snapshot['server_queries']:
             for consumer in query['consumers']:
-                if consumer['client_name'] == node and consumer['namespace'] == namespace and query['response']:
+                # the status topic names the registrar: another registrar of the same node is not this one
+                if consumer['status_topic'] == own_topic and query['response']:
                     owned_by_them.append(((theirs[0], theirs[1], query['server']), consumer['resource_id'],
                                           query['request']['type'], base64.b64decode(query['request']['data']),
                                           base64.b64decode(query['response']['data'])))
@@ -162,7 +165,7 @@ def reconcile(journal: JournalContents, kept: Kept) -> Reconciled:
             if consumer.external_id in fresher:
                 consumers.append(fresher.pop(consumer.external_id))
                 continue
-            if consumer.client_name in kept.answered:
+            if consumer.status_topic in kept.answered:
                 stale.append((entry.server, consumer.external_id))
             consumers.append(consumer)       # a stale one too: the recovery releases it the normal way
         consumers.extend(fresher.values())   # attached, but the journal lost it
