@@ -17,8 +17,9 @@ lose the last changes. What they recorded is not lost: every acknowledged load
 carries the owner's record to its consumer (``backup.py``), and a restarted
 registrar always checks its journal against its neighbours' copies, which give
 back a load whose commit was lost and release a consumer that left meanwhile.
-Waiting for the commit before each answer (as this registrar once did) cost 75%
-of a registrar chain's time and bought nothing the neighbours do not give.
+Waiting for the commit before each answer (as this registrar once did) made a
+load through three journaling registrars 2.67 times a bare chain, against 1.54
+without journals; written behind, 1.67 against 1.50 (``bench_journal.py``).
 :meth:`Recorder.sync` remains for a caller that needs the journal to be current
 (closing, tests).
 """
