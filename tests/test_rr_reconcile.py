@@ -1,0 +1,48 @@
+"""The journal checked against the neighbours' copies at a restart (backup.reconcile): pure logic; the
+cross-process cases are in test_rr_recovery.py."""
+from temoto_core.rr.backup import NO_PARENT, Kept, reconcile
+from temoto_core.rr.journal import JournalContents, JournaledConsumer, JournaledHold, JournaledServed
+
+A, B, C = '/temoto/rr_a/status', '/temoto/rr_b/status', '/temoto/rr_c/status'
+
+
+def consumer(ext, topic, uri='http://old:1/'):
+    return JournaledConsumer(ext, topic, '/node_' + topic.split('/')[2], 'temoto', uri, 1)
+
+
+def served(internal_id, *consumers):
+    return JournaledServed(internal_id, 'load_test', 'active', 'temoto_core/LoadTestResourceRequest', b'q', b'r',
+                           list(consumers))
+
+
+def hold(local_id, external_id, parent):
+    return JournaledHold(local_id, ('temoto', 'rr_z', 'load_test'), external_id, 'temoto_core/LoadTestResourceRequest',
+                         b'q', b'r', parent)
+
+
+def test_a_consumer_that_answered_and_holds_nothing_is_stale_one_that_did_not_answer_stays():
+    journal = JournalContents([served(1, consumer(11, A), consumer(12, B), consumer(13, C))], [])
+    kept = Kept(JournalContents([served(1, consumer(11, A, uri='http://new:2/'))], []), {}, {A, B})
+    out = reconcile(journal, kept)
+    assert out.stale == [('load_test', 12)]                      # B answered without it
+    by_ext = {c.external_id: c for c in out.contents.served[0].consumers}
+    assert set(by_ext) == {11, 12, 13}                           # the stale one stays, for the recovery to release
+    assert by_ext[11].uri == 'http://new:2/'                     # the neighbour's record is the fresher one
+    assert by_ext[13].uri == 'http://old:1/'                     # C did not answer: the journal's word stands
+
+
+def test_what_the_journal_lacks_comes_back_from_the_neighbours_and_nothing_is_doubled():
+    journal = JournalContents([served(1, consumer(11, A))], [hold(5, 50, 1)])
+    kept = Kept(JournalContents([served(1, consumer(11, A), consumer(14, B)), served(2, consumer(21, A))],
+                                [hold(5, 50, 1), hold(6, 60, 2), hold(99, 90, NO_PARENT)]), {}, {A, B})
+    out = reconcile(journal, kept)
+    assert [e.internal_id for e in out.contents.served] == [1, 2]
+    assert sorted(c.external_id for c in out.contents.served[0].consumers) == [11, 14]
+    assert sorted(h.external_id for h in out.contents.holds) == [50, 60, 90]
+    assert (out.added_served, out.added_holds, out.stale) == (1, 2, [])
+
+
+def test_a_recovering_neighbour_is_not_asked_to_judge():
+    journal = JournalContents([served(1, consumer(11, A))], [])
+    out = reconcile(journal, Kept(JournalContents([], []), {}, set()))
+    assert out.stale == [] and out.contents.served[0].consumers[0].external_id == 11
