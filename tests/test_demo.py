@@ -104,12 +104,13 @@ def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run
 
 
 def test_report_files_exist_and_screenshots_show_data(demo_run):
-    _, out, _ = demo_run
+    proc, out, _ = demo_run
     from temoto_action_engine.demo.report import diff_fraction
     report = (out / 'report.md').read_text()
     assert (out / 'timeline.png').stat().st_size > 10000
     shots = {p.name.split('_', 2)[2][:-4]: p.read_bytes() for p in out.glob('screenshot_*.png')}
-    assert set(shots) == {'rgbd', 'arm_cloud', 'base_scan', 'empty_view'}
+    # (a missing screenshot is one of the demo's problems, which it prints)
+    assert set(shots) == {'rgbd', 'arm_cloud', 'base_scan', 'empty_view'}, proc.stderr[-3000:]
     for name in ('rgbd', 'arm_cloud', 'base_scan'):
         assert '](screenshot_' in report and name in report
         # a scan is a few thin lines: a real but small share of the 960x600 view

@@ -520,5 +520,7 @@ def run_demo(opts: DemoOptions) -> int:
                         screenshots=demo.screenshots, bag=demo.bag_path)
     with open(os.path.join(opts.out_dir, 'demo.json'), 'w') as f:
         json.dump(demo.results, f, indent=2, default=str)
+    for error in demo.results['errors']:       # what went wrong on the way is said, not only kept in demo.json
+        print('temoto demo: problem: %s' % error, file=sys.stderr, flush=True)
     print('temoto demo: %s in %.1f s' % ('done' if rc == 0 else 'FAILED', demo.results['total_s']), flush=True)
     return rc
