@@ -97,8 +97,9 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     wanted = [s for s in services if s.startswith('/%s/' % namespace) and s.endswith('/registry') and s != mine]
     for snapshot in _registries(node, wanted, timeout):
         theirs = (snapshot['namespace'], snapshot['name'])
+        their_topic = '/%s/%s/status' % theirs
         if not snapshot.get('recovering', False):
-            answered.add('/%s/%s/status' % theirs)
+            answered.add(their_topic)
         uri = _uri(node, snapshot['node'])
         for query in snapshot['client_queries']:
             ns, rr, server = query['target'].strip('/').split('/', 2)
@@ -128,7 +129,7 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
                                                base64.b64decode(link['request']), base64.b64decode(link['response']),
                                                internal_id))
                 owner_state.update(record_kept.get('owner_state', {}))
-            entry.consumers.append(JournaledConsumer(query['external_id'], '/%s/%s/status' % theirs,
+            entry.consumers.append(JournaledConsumer(query['external_id'], their_topic,
                                                      snapshot['node'], theirs[0], uri,
                                                      int(snapshot.get('incarnation', 0))))
         for query in snapshot['server_queries']:

@@ -20,13 +20,10 @@ back a load whose commit was lost and release a consumer that left meanwhile.
 Waiting for the commit before each answer (as this registrar once did) made a
 load through three journaling registrars 2.67 times a bare chain, against 1.54
 without journals; written behind, 1.67 against 1.50 (``bench_journal.py``).
-:meth:`Recorder.sync` remains for a caller that needs the journal to be current
-(closing, tests).
 """
 import collections
 import io
 import threading
-import time
 from typing import Callable, Deque, Optional
 
 import rospy
@@ -50,11 +47,9 @@ def journaled(consumer: Consumer, external_id: int) -> JournaledConsumer:
 
 
 class JournalWriter:
-    """Queued changes, committed in order, many per transaction: by a background thread, or at once by a
-    caller of :meth:`sync` (the service thread about to answer), which saves a hand-over between threads.
-
-    One committer at a time takes what is queued, in order, so the journal sees the changes in the order
-    they were put, whoever commits them.
+    """Queued changes, committed in order, many per transaction, by a background thread (and by
+    :meth:`close` for what is left). One committer at a time takes what is queued, in order, so the journal
+    sees the changes in the order they were put, whoever commits them.
     """
 
     def __init__(self, journal: Journal) -> None:
@@ -62,8 +57,6 @@ class JournalWriter:
         self._pending: Deque[Callable[[], None]] = collections.deque()
         self._cond = threading.Condition()
         self._commit_lock = threading.Lock()
-        self._queued = 0              # changes put so far
-        self._written = 0             # changes committed (or given up on) so far
         self._closed = False
         self._thread = threading.Thread(target=self._run, name='rr-journal-writer', daemon=True)
         self._thread.start()
@@ -71,7 +64,6 @@ class JournalWriter:
     def put(self, change: Callable[[], None]) -> None:
         with self._cond:
             self._pending.append(change)
-            self._queued += 1
             self._cond.notify_all()
 
     def _commit_pending(self) -> None:
@@ -86,9 +78,6 @@ class JournalWriter:
                         change()
             except Exception as err:        # a full disk, say: the registry goes on, the journal is behind
                 rospy.logerr('journal %s: %d change(s) not written: %r', self.journal.path, len(changes), err)
-            with self._cond:
-                self._written += len(changes)
-                self._cond.notify_all()
 
     def _run(self) -> None:
         while True:
@@ -97,18 +86,6 @@ class JournalWriter:
                 if self._closed and not self._pending:
                     return
             self._commit_pending()
-
-    def sync(self, timeout: float = 10.0) -> bool:
-        """Return once every change put before this call is committed (not the ones put after)."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            mark = self._queued
-        while time.monotonic() < deadline:
-            with self._cond:
-                if self._written >= mark:
-                    return True
-            self._commit_pending()
-        return False
 
     def close(self) -> None:
         """Write what is queued, then stop the thread."""
@@ -171,11 +148,6 @@ class Recorder:
     def released(self, local_id: int) -> None:
         if self.writer is not None:
             self.writer.put(lambda: self.journal.release(local_id))
-
-    def sync(self) -> None:
-        """Return once every change recorded so far is committed."""
-        if self.writer is not None and not self.writer.sync():
-            rospy.logerr('journal %s: a change is still not written after 10 s', self.journal.path)
 
     def close(self) -> None:
         if self.writer is not None:

@@ -139,6 +139,7 @@ class Recovery:
                 continue
             for external_id in leaving:
                 self._release_stale(server.name, external_id)
+        unheld_ids = {query.internal_id for query, _ in unheld}
         for query in restored:
             if query.state is not ACTIVE:
                 continue
@@ -153,12 +154,12 @@ class Recovery:
                 except Exception as err:   # an owner bug: the resource cannot be vouched for
                     rospy.logerr('%s: recover callback of %s raised %r', core.prefix, server.name, err)
                     why = 'recover callback of %s raised %r' % (server.name, err)
-            if why is not None and not any(q is query for q, _ in unheld):
+            if why is not None and query.internal_id not in unheld_ids:
                 message = 'lost while %s was down: %s' % (core.prefix, why)
                 rospy.logwarn('%s: %s resource %d %s', core.prefix, server.name, query.internal_id, message)
                 side.propagate(query, ResourceStatus.FAILED, message,
                                [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, message, core.prefix)])
-        for query, leaving in unheld:
+        for _query, leaving in unheld:
             for external_id in leaving:
                 self._release_stale(server.name, external_id)
         if restored:

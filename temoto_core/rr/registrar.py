@@ -141,6 +141,7 @@ class ResourceRegistrar:
                 self.put_owner_state(key, value)
         return reconciled
 
+    # ------------------------------------------------------------------------------------------ owner state
     def owner_state(self) -> Dict[str, str]:
         """What the owner kept (:meth:`put_owner_state`), as the journal or the neighbours gave it back."""
         return dict(self._owner_state)
