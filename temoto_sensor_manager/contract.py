@@ -3,6 +3,7 @@
 Its server and every client (``interface.py``, the Context Manager) import this
 module, never each other, so both sides share a sensor by one rule.
 """
+from temoto_core.rr.deadlines import register_deadlines
 from temoto_core.rr.keys import register_key
 from temoto_sensor_manager.srv import LoadSensor
 
@@ -22,3 +23,6 @@ def sensor_key(request) -> tuple:
 
 
 register_key(LoadSensor._request_class, sensor_key)
+# The longest a load may take (deadlines.py): the driver's process start (15 s) and its first data (20 s at
+# most by default); an unload stops the driver.
+register_deadlines(LoadSensor._request_class, load=40.0, unload=15.0)

@@ -4,7 +4,10 @@ Equal calls share one *client query* and one remote resource; each call gets its
 own local id. A call made while a load runs on the same thread is linked to that
 load (``links.py``), unless the caller says ``link=False``.
 """
+import json
 import threading
+import time
+import xmlrpc.client
 from typing import Callable, Dict, Hashable, List, Optional, Tuple
 
 import rospy
@@ -12,20 +15,28 @@ import rospy
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import RMPRequest
 from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.deadlines import (DEFAULT_DEADLINE, WATCH, connect, load_deadline, lookup_service,
+                                      unload_deadline)
 from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.messages import clone, legal_name, service_class, shallow_copy
+from temoto_core.rr.owners import OwnerWatch, owned_by
 from temoto_core.rr.query import ACTIVE, FAILED, GONE, LOADING, ClientQuery, ServerQuery, Target, target_name
 from temoto_core.rr.recorder import Recorder
 from temoto_core.rr.status import StatusEvent
-from temoto_core.srv import UnloadResource
+from temoto_core.srv import GetRegistry, UnloadResource
 
 StatusCallback = Callable[[StatusEvent], None]
 
+# how often a call polls the master for a service that is not registered yet (its manager is starting)
+SERVICE_POLL = 0.05
+
 
 class ClientSide:
-    def __init__(self, core: RegistrarCore, links: Links, header: RMPRequest, recorder: Recorder) -> None:
+    def __init__(self, core: RegistrarCore, links: Links, header: RMPRequest, recorder: Recorder,
+                 default_deadline: float = DEFAULT_DEADLINE) -> None:
         self._core = core
+        self.default_deadline = default_deadline
         self._links = links
         self._recorder = recorder
         self._header = header     # the same for every request of this registrar; never mutated
@@ -35,13 +46,17 @@ class ClientSide:
         self._proxies: Dict[str, List[rospy.ServiceProxy]] = {}
         self._proxies_lock = threading.Lock()
         # set by the status receiver: statuses that overtook the response announcing their resource
+        self.owners: Optional[OwnerWatch] = None      # set by the registrar: the owners this side depends on
         self.take_parked: Callable[[Target, int], list] = lambda target, external_id: []
         self.deliver: Callable[[object], None] = lambda msg: None
 
     # ------------------------------------------------------------------------------------------ call
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[StatusCallback],
-             namespace: Optional[str], timeout: Optional[float], link: bool):
+             namespace: Optional[str], deadline: Optional[float], link: bool):
         core = self._core
+        if deadline is not None and not deadline > 0:
+            raise core.error(ErrorCode.BAD_REQUEST, 'deadline %r: a call needs a positive deadline in seconds'
+                             % (deadline,))
         ns = (namespace if namespace is not None else core.namespace).strip('/')
         for label, value in (('registrar', rr_name), ('server', server_name)):
             if not legal_name(value, base=True):
@@ -71,10 +86,11 @@ class ClientSide:
                     core.wait_for_change()
                 if shared.state is FAILED and shared.error is not None and shared.response is None:
                     raise shared.error
-        return self._call_remote(query, local_id, status_cb, parent, request, timeout)
+        seconds = deadline if deadline is not None else load_deadline(request, self.default_deadline)
+        return self._call_remote(query, local_id, status_cb, parent, request, seconds)
 
     def _call_remote(self, query: ClientQuery, local_id: int, status_cb, parent: Optional[ServerQuery], request,
-                     timeout: Optional[float]):
+                     seconds: float):
         core = self._core
         request = shallow_copy(request)      # the caller's object keeps its own header
         request.trr = self._header
@@ -82,7 +98,7 @@ class ClientSide:
         service = target_name(query.target)
         error = None
         try:
-            response = self.invoke(service, request, timeout)
+            response = self.invoke(service, request, seconds)
             if response.trr.code != 0:
                 # the remote stack says what failed, once; this hop only adds where it was asked
                 error = TemotoError.from_msgs(response.trr.error_stack, response.trr.message,
@@ -105,6 +121,8 @@ class ClientSide:
             out = self._attach(query, local_id, status_cb, parent)
             parked = self.take_parked(query.target, query.external_id)
             core.notify_change()
+        if self.owners is not None:
+            self.owners.notice(response.trr.owner_node, response.trr.owner_uri, response.trr.owner_incarnation)
         for msg in parked:
             self.deliver(msg)
         return out
@@ -140,35 +158,67 @@ class ClientSide:
             self._recorder.linked(local_id, parent)
 
     # ------------------------------------------------------------------------------------------ transport
-    def invoke(self, service: str, request, timeout: Optional[float]):
-        """One service call on a pooled persistent connection; one retry on a stale one."""
+    def invoke(self, service: str, request, seconds: float, watched: bool = True):
+        """One service call on a pooled persistent connection, within ``seconds`` (``deadlines.py``): one
+        retry on a connection found stale, if time is left. ``watched``: the owner watch counts the call
+        (``owners.py``), which a reconciliation's own reads must not."""
+        core = self._core
+        deadline = time.monotonic() + seconds
         srv_class = service_class(request)
         for attempt in (1, 2):
-            proxy = self._take_proxy(service, srv_class, timeout)
+            proxy = self._take_proxy(service, srv_class, deadline, seconds)
+            peer = getattr(proxy.transport, 'callerid_pub', '')      # the node serving it, from the TCPROS header
+            owner = self.owners.calling(peer, registrar_of(service)) if watched and self.owners is not None else None
+            answered = False
             try:
-                response = proxy.call(request)
+                with WATCH.guard(proxy.transport.socket, deadline, peer) as guard:
+                    response = proxy.call(request)
+                answered = not (guard.expired or guard.aborted)
             except (rospy.ServiceException, rospy.ROSException, OSError) as err:
                 proxy.close()
-                if attempt == 2 or not _service_exists(service):
-                    raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s failed: %s (did the server '
-                                           'die?)' % (service, err))
+                if guard.expired:
+                    raise core.error(ErrorCode.TIMEOUT, 'no answer from %s within its deadline of %.2f s'
+                                     % (service, seconds))
+                if guard.aborted:
+                    raise core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s cut short: %s' % (service, guard.aborted))
+                if attempt == 2 or not self._service_exists(service, deadline):
+                    raise core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s failed: %s (did the server '
+                                     'die?)' % (service, err))
                 continue
-            with self._proxies_lock:
-                self._proxies.setdefault(service, []).append(proxy)
+            finally:
+                if owner is not None:
+                    self.owners.done_calling(owner, answered or not (guard.expired or guard.aborted))
+            if guard.expired or guard.aborted:      # answered as it was cut: the connection is not reusable
+                proxy.close()
+            else:
+                with self._proxies_lock:
+                    self._proxies.setdefault(service, []).append(proxy)
             return response
         raise AssertionError('unreachable')
 
-    def _take_proxy(self, service: str, srv_class, timeout: Optional[float]) -> rospy.ServiceProxy:
+    def _take_proxy(self, service: str, srv_class, deadline: float, seconds: float) -> rospy.ServiceProxy:
         with self._proxies_lock:
             idle = self._proxies.setdefault(service, [])
             if idle:
                 return idle.pop()
+        why = 'the master does not know it'
+        while True:                 # a manager that is starting has not registered its service yet
+            try:
+                proxy = connect(service, srv_class, deadline)
+            except (OSError, rospy.ServiceException, xmlrpc.client.Error) as err:
+                proxy, why = None, str(err)
+            if proxy is not None:
+                return proxy
+            if time.monotonic() + SERVICE_POLL > deadline:
+                raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s could not be reached within %.2f s '
+                                       '(%s): is its manager running?' % (service, seconds, why))
+            time.sleep(SERVICE_POLL)
+
+    def _service_exists(self, service: str, deadline: float) -> bool:
         try:
-            rospy.wait_for_service(service, timeout=timeout if timeout is not None else 3.0)
-        except rospy.ROSException:
-            raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s does not exist: is its manager '
-                                   'running?' % service)
-        return rospy.ServiceProxy(service, srv_class, persistent=True)
+            return bool(lookup_service(service, min(deadline, time.monotonic() + 0.5)))
+        except (OSError, xmlrpc.client.Error):
+            return False
 
     def close_proxies(self) -> None:
         with self._proxies_lock:
@@ -203,11 +253,12 @@ class ClientSide:
 
     def _send_unload(self, query: ClientQuery) -> None:
         core = self._core
-        ns, rr_name, server_name = query.target
-        request = UnloadResource._request_class(server_name=server_name, resource_id=query.external_id)
         try:
-            response = self.invoke('/%s/%s/unload' % (ns, rr_name), request, 1.0)
+            response = self._unload_remote(query.target, query.external_id, query.request)
         except TemotoError as err:
+            # not delivered: owed to the owner, and sent again once it answers (owners.py)
+            if self.owners is not None and query.response is not None:
+                self.owners.owe(query.response.trr.owner_node, query.target, query.external_id)
             raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'could not unload %s resource %d'
                                % (target_name(query.target), query.external_id), core.prefix)
         if response.code != 0:
@@ -215,14 +266,67 @@ class ClientSide:
                 ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'unloading %s resource %d failed'
                 % (target_name(query.target), query.external_id), core.prefix)
 
+    def _unload_remote(self, target: Target, external_id: int, load_request):
+        ns, rr_name, server_name = target
+        request = UnloadResource._request_class(server_name=server_name, resource_id=external_id)
+        seconds = unload_deadline(load_request, self.default_deadline) if load_request is not None \
+            else self.default_deadline
+        return self.invoke('/%s/%s/unload' % (ns, rr_name), request, seconds)
+
+    def resend_unload(self, target: Target, external_id: int) -> bool:
+        """An owed unload, sent again: True once the owner answered (it may no longer know the resource),
+        False if it still cannot be reached."""
+        try:
+            response = self._unload_remote(target, external_id, None)
+        except TemotoError:
+            return False
+        if response.code != 0:
+            rospy.loginfo('%s: owed unload of %s resource %d: %s', self._core.prefix, target_name(target),
+                          external_id, response.message)
+        return True
+
+    def reconcile_with(self, registrar: Tuple[str, str], quiet: Callable[[], bool]) -> bool:
+        """Release what ``registrar`` says this node incarnation holds there and this side does not know of:
+        a load answered after its caller gave up on it, or an unload lost in a partition. Only while
+        ``quiet()``: a call in flight may hold an id this side has not seen yet. True once done."""
+        core = self._core
+        ns, rr_name = registrar
+        try:
+            snapshot = json.loads(self.invoke('/%s/%s/registry' % registrar, GetRegistry._request_class(),
+                                              self.default_deadline, watched=False).json)
+        except (TemotoError, ValueError) as err:
+            rospy.logdebug('%s: reconciling with /%s/%s: %s', core.prefix, ns, rr_name, err)
+            return False
+        if any(query.get('state') == LOADING.value for query in snapshot.get('server_queries', [])):
+            return False              # a load the caller gave up on may still be running there: later
+        mine = self._header.client_uri
+        strays = [((ns, rr_name, query['server']), consumer['resource_id'])
+                  for query in snapshot.get('server_queries', []) for consumer in query.get('consumers', [])
+                  if consumer.get('client_uri') == mine and consumer.get('client_name') == self._header.client_name]
+        with core.lock:
+            strays = [s for s in strays if s not in self.by_external]
+        if not quiet():
+            return False
+        for target, external_id in strays:
+            rospy.logwarn('%s: %s holds resource %d for this node, which does not know of it: releasing it',
+                          core.prefix, target_name(target), external_id)
+            self.resend_unload(target, external_id)
+        return True
+
+    def holds_from(self, node: str) -> bool:
+        with self._core.lock:
+            return any(owned_by(q, node) for q in self.by_external.values())
+
+    def held_from(self, node: str) -> List[Tuple[Target, int]]:
+        with self._core.lock:
+            return [(q.target, q.external_id) for q in self.by_external.values() if owned_by(q, node)]
+
     def loading_from(self, target: Target) -> bool:
         """Whether a call to ``target`` is still waiting for its response (lock held)."""
         return any(q.target == target and q.state is LOADING for q in self.by_key.values())
 
 
-def _service_exists(service: str) -> bool:
-    try:
-        rospy.wait_for_service(service, timeout=0.5)
-        return True
-    except rospy.ROSException:
-        return False
+def registrar_of(service: str) -> Tuple[str, str]:
+    """``(namespace, registrar)`` of a registrar's service ``/<ns>/<rr>/<leaf>``."""
+    parts = service.strip('/').split('/')
+    return (parts[0], parts[1]) if len(parts) >= 3 else ('', '')

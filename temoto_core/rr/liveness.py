@@ -14,6 +14,7 @@ back and reclaim what it held (``recovery.py``): its references are kept for
 ``recovery_grace`` more seconds after it is found dead, and released only if no
 new incarnation has claimed them by then.
 """
+import errno
 import socket
 import threading
 import time
@@ -29,6 +30,9 @@ from temoto_core.rr.channels import CHANNEL_GRACE, StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.server_side import ServerSide
 from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
+
+
+UNREACHABLE = frozenset({errno.EHOSTUNREACH, errno.ENETUNREACH, errno.ENETDOWN, errno.EHOSTDOWN, errno.ETIMEDOUT})
 
 
 class ConsumerWatch:
@@ -127,13 +131,24 @@ class ConsumerWatch:
 
     def _alive(self, uri: str) -> Optional[bool]:
         """True: the incarnation at ``uri`` answers; False: it is gone; None: no verdict (timed out)."""
-        try:
-            code, _, pid = xmlrpc_proxy(uri, 1.0).getPid(self._core.prefix)
-        except socket.timeout:
-            return None
-        except (OSError, xmlrpc.client.Error, ValueError):
-            return False
-        if code != 1:
-            return False
+        verdict, pid = ping(uri, 1.0, self._core.prefix)
+        if not verdict:
+            return verdict
         first = self._pids.setdefault(uri, pid)
         return first == pid     # another process now listening on a reused port is another incarnation
+
+
+def ping(uri: str, timeout: float, caller: str) -> Tuple[Optional[bool], int]:
+    """Ask the node at XML-RPC ``uri`` for its pid, as ``rosnode ping`` does: (True, pid) if it answers,
+    (False, 0) if it is gone (refused, or not a node), (None, 0) if it did not answer within ``timeout``
+    (a partition, a dead host, a stopped or overloaded process: no verdict)."""
+    try:
+        code, _, pid = xmlrpc_proxy(uri, timeout).getPid(caller)
+    except socket.timeout:
+        return None, 0
+    except OSError as err:
+        # a refused or reset connection: the host answers, the process is gone; no route: no verdict
+        return (None, 0) if err.errno in UNREACHABLE else (False, 0)
+    except (xmlrpc.client.Error, ValueError):
+        return False, 0
+    return (True, int(pid)) if code == 1 else (False, 0)

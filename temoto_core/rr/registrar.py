@@ -12,6 +12,8 @@ One registrar is embedded per subsystem (a manager node, or one action instance)
 ``receiver.py``    a status that arrives: mapped to local ids, forwarded up, handed to callbacks
 ``channels.py``    the status topics this registrar publishes to
 ``liveness.py``    consumers that died without unloading
+``owners.py``      owners cut off, stopped or dead: what is held from them fails, owed unloads wait
+``deadlines.py``   every call's deadline, and the watch that cuts late calls
 ``keys.py``        request equality
 ``journal.py``     the crash-safe local record (SQLite); ``recorder.py`` writes every change to it
 ``recovery.py``    a restarted registrar: journal, reality, neighbours
@@ -31,15 +33,17 @@ import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.msg import RMPRequest, ResourceStatus
-from temoto_core.rr import backup
+from temoto_core.rr import backup, owners
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.client_side import ClientSide, StatusCallback
 from temoto_core.rr.core import DEFAULT_NAMESPACE, RegistrarCore
+from temoto_core.rr.deadlines import DEFAULT_DEADLINE
 from temoto_core.rr.keys import key_function, register_key
 from temoto_core.rr.links import Links
 from temoto_core.rr.journal import Journal, JournalContents
 from temoto_core.rr.liveness import ConsumerWatch
 from temoto_core.rr.messages import legal_name
+from temoto_core.rr.owners import OwnerWatch
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
 from temoto_core.rr.recorder import Recorder
@@ -69,11 +73,14 @@ class ResourceRegistrar:
 
     def __init__(self, name: str, namespace: Optional[str] = None, subsystem: int = Subsystem.CORE,
                  consumer_check_period: Optional[float] = None, status_connect_timeout: float = 2.0,
-                 journal: Optional[str] = None, recovery_grace: Optional[float] = None) -> None:
+                 journal: Optional[str] = None, recovery_grace: Optional[float] = None,
+                 call_deadline: Optional[float] = None) -> None:
         """``journal``: the path of this registrar's journal (default: the ``~journal`` parameter; '' for none).
         With one, a restart of the node recovers the registry (``recovery.py``); ``resume()`` completes it.
         ``recovery_grace``: how long the resources of a dead consumer that keeps a journal are kept for it
-        to come back (default: ``~recovery_grace``, 10 s)."""
+        to come back (default: ``~recovery_grace``, 10 s).
+        ``call_deadline``: the deadline of a call whose request type declares none (default:
+        ``~call_deadline``, 1 s)."""
         ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
         if journal is None:
             journal = journal_param()
@@ -96,10 +103,24 @@ class ResourceRegistrar:
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)
         recorder = self._recorder = Recorder(self._journal)
-        self._client = ClientSide(core, self._links, header, recorder)
+        if call_deadline is None:
+            call_deadline = float(rospy.get_param('~call_deadline', DEFAULT_DEADLINE))
+        if not call_deadline > 0:
+            raise core.error(ErrorCode.BAD_REQUEST, 'call_deadline %r: it must be a positive number of seconds'
+                             % (call_deadline,))
+        self._client = ClientSide(core, self._links, header, recorder, call_deadline)
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
         self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
+        try:
+            self._owners = OwnerWatch(core, self._client.holds_from, self._client.held_from, self._receiver.lost,
+                                      self._client.resend_unload, self._client.reconcile_with,
+                                      float(rospy.get_param('~owner_check_period', owners.DEFAULT_PERIOD)),
+                                      float(rospy.get_param('~owner_liveness_bound', owners.DEFAULT_BOUND)),
+                                      recovery_grace)
+        except ValueError as err:
+            raise core.error(ErrorCode.BAD_REQUEST, str(err))
+        self._client.owners = self._owners
         self._owner_state: Dict[str, str] = {}
         self._recovery = None
         if self._journal is not None:
@@ -220,7 +241,7 @@ class ResourceRegistrar:
 
     # ------------------------------------------------------------------------------------------ holding
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[StatusCallback] = None,
-             namespace: Optional[str] = None, timeout: Optional[float] = None, link: bool = True):
+             namespace: Optional[str] = None, deadline: Optional[float] = None, link: bool = True):
         """Ask registrar ``rr_name`` for a resource; return the response with your local id in ``trr.resource_id``.
 
         Equal calls share one query and one remote resource. With ``link`` (the
@@ -228,8 +249,13 @@ class ResourceRegistrar:
         resource being loaded: released with it, and its FAILED forwarded to that
         resource's consumers. ``link=False`` holds it on this registrar's own account
         (``link`` attaches it later).
+
+        ``deadline`` (seconds) bounds the whole call, from looking the service up to
+        its answer: past it the call raises ``ErrorCode.TIMEOUT`` (``deadlines.py``).
+        Default: the deadline the request type's contract declares, else the node's
+        ``~call_deadline`` (1 s).
         """
-        return self._client.call(rr_name, server_name, request, status_cb, namespace, timeout, link)
+        return self._client.call(rr_name, server_name, request, status_cb, namespace, deadline, link)
 
     def link(self, resource_id: int) -> None:
         """Make held ``resource_id`` (from ``call(..., link=False)``) a sub-resource of the load running on this
@@ -282,6 +308,7 @@ class ResourceRegistrar:
             local_ids = list(client.by_local)
             served = list(server.by_internal.values())
         self._watch.stop()
+        self._owners.stop()
         # consumers learn first that the resources are going away, so they can fail over
         why = '%s is shutting down' % core.prefix
         for query in served:
@@ -303,7 +330,7 @@ class ResourceRegistrar:
                 client.unload(local_id, send=query.target[:2] not in unreachable)
             except TemotoError as err:
                 rospy.logwarn('%s: shutdown: %s', core.prefix, err)
-                if any(f.code == ErrorCode.SERVICE_REQ_FAIL for f in err.stack):
+                if any(f.code in (ErrorCode.SERVICE_REQ_FAIL, ErrorCode.TIMEOUT) for f in err.stack):
                     unreachable.add(query.target[:2])
         for srv in [s.service for s in server.servers.values()] + [self._unload_srv, self._reclaim_srv,
                                                                     self._registry_srv]:

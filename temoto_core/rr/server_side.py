@@ -33,6 +33,7 @@ class ServerSide:
         self.servers: Dict[str, Server] = {}
         self.by_internal: Dict[int, ServerQuery] = {}
         self.by_external: Dict[Tuple[str, int], ServerQuery] = {}
+        self._node, self._node_uri = rospy.get_name(), rospy.get_node_uri() or ''   # who answers: see owners.py
 
     # ------------------------------------------------------------------------------------------ load
     def handle_load(self, server: Server, request):
@@ -137,6 +138,8 @@ class ServerSide:
         out.trr = shallow_copy(query.response.trr)
         out.trr.resource_id = external_id
         out.trr.backup = query.backup
+        out.trr.owner_node, out.trr.owner_uri = self._node, self._node_uri
+        out.trr.owner_incarnation = self._core.incarnation
         return out
 
     # ------------------------------------------------------------------------------------------ unload

@@ -1,0 +1,251 @@
+"""Owner liveness: the registrars this one holds resources from, or is calling, are watched, so that a
+partition, a dead host or a stopped process is found within a bound and reported, never waited out.
+
+An owner is a node incarnation: its name, its XML-RPC URI and its incarnation, as
+every response says (``RMPResponse.owner_*``; for a call still in flight, from the
+connection: rospy's TCPROS header names the node serving the service). One thread
+per owner asks it ``getPid`` every ``period`` (the consumer side's
+``liveness.ConsumerWatch`` does the same for consumers):
+
+- it answers: alive;
+- no answer for ``bound`` seconds (a partition, a dead host, a SIGSTOPped or
+  wedged process): **lost**;
+- its connection is refused (its host answers, the process is gone): an owner
+  that keeps a journal (incarnation > 0) is being respawned and takes its
+  registry back (``recovery.py``), so it is given ``grace`` seconds, and is
+  followed to its new URI when the master has one that answers. One that keeps
+  no journal lost everything it served: **lost** at once.
+
+**Lost** means: every call in flight to that owner is cut (``deadlines.py``), and
+every resource held from it is handled as a FAILED arriving from it, so that the
+holders' policies run (a failover, or the action ending FAILED). A resource that
+failed stays failed until it is requested again.
+
+An unload that could not reach its owner is *owed*: the owner stays watched, and
+the unload is sent again as soon as the owner answers (after a partition heals,
+or once a respawned owner is back), so that no reference leaks at the owner. An
+owner that says it no longer knows the resource has settled the debt too.
+
+An owner may also hold references this side never learnt of: a load it answered
+after the caller's deadline had cut the call, or anything from before a
+partition. Such an owner is *suspect*; once it answers and no call to it is in
+flight, its registry is read, and whatever it says this node incarnation holds
+that this side does not know of is released (``ClientSide.reconcile_with``).
+"""
+import threading
+import time
+import xmlrpc.client
+from typing import Callable, Dict, List, Optional, Set, Tuple
+
+import rosgraph
+import rospy
+
+from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.deadlines import WATCH
+from temoto_core.rr.liveness import ping
+from temoto_core.rr.query import ACTIVE, Target, target_name
+from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
+
+DEFAULT_PERIOD = 0.15
+DEFAULT_BOUND = 0.7
+RECONCILE_SPACING = 0.5    # seconds between two reads of a suspect owner's registry
+
+
+class Owner:
+    """What is known of one owner incarnation (guarded by the watch's lock)."""
+    __slots__ = ('node', 'uri', 'incarnation', 'last_ok', 'refused_since', 'lost', 'calls', 'owed', 'started',
+                 'registrars', 'suspect', 'next_reconcile')
+
+    def __init__(self, node: str, uri: str, incarnation: int) -> None:
+        self.node = node
+        self.uri = uri
+        self.incarnation = incarnation
+        self.last_ok = time.monotonic()
+        self.refused_since: Optional[float] = None
+        self.lost = ''                 # why it was found lost ('' while it answers)
+        self.calls = 0                 # calls in flight to it
+        self.owed: List[Tuple[Target, int]] = []    # unloads that did not reach it
+        self.started = 0               # calls ever started to it: a reconciliation runs only between calls
+        self.registrars: Set[Tuple[str, str]] = set()   # its registrars this one has called
+        self.suspect = False           # it may hold references this side does not know of: reconcile
+        self.next_reconcile = 0.0      # not before (a reconciliation reads the owner's whole registry)
+
+
+class OwnerWatch:
+    def __init__(self, core: RegistrarCore, holds_from: Callable[[str], bool],
+                 held_from: Callable[[str], List[Tuple[Target, int]]],
+                 on_lost: Callable[[Target, int, str], None], send_unload: Callable[[Target, int], bool],
+                 reconcile: Callable[[Tuple[str, str], Callable[[], bool]], bool],
+                 period: float = DEFAULT_PERIOD, bound: float = DEFAULT_BOUND, grace: float = 10.0) -> None:
+        """``holds_from(node)``: whether anything active is held from ``node``; ``held_from(node)``: the
+        (target, external id) of those resources;
+        ``on_lost``: handle one of them as failed; ``send_unload``: send one unload again, True once the
+        owner has answered (whatever it said), False if it could not be reached."""
+        if not 0 < period < bound:
+            raise ValueError('owner liveness: the check period (%r s) must be positive and shorter than the '
+                             'bound (%r s)' % (period, bound))
+        self._core = core
+        self._holds_from = holds_from
+        self._held_from = held_from
+        self._on_lost = on_lost
+        self._send_unload = send_unload
+        self._reconcile = reconcile
+        self.period, self.bound, self.grace = period, bound, grace
+        self._me = rospy.get_name()
+        self._owners: Dict[str, Owner] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+
+    # ------------------------------------------------------------------------------------------ what depends
+    def notice(self, node: str, uri: str, incarnation: int) -> None:
+        """An owner named by a response: watch it while anything is held from it."""
+        if node and node != self._me:
+            with self._lock:
+                owner = self._owner(node, uri, incarnation)
+                if incarnation < owner.incarnation:
+                    return               # an answer from an older incarnation: fenced
+                if uri and uri != owner.uri:
+                    owner.uri, owner.last_ok, owner.lost, owner.refused_since = uri, time.monotonic(), '', None
+                owner.incarnation = incarnation
+
+    def calling(self, node: str, registrar: Tuple[str, str]) -> Optional[Owner]:
+        """A call to ``registrar`` of ``node`` starts; ``done_calling`` must follow."""
+        if not node or node == self._me:
+            return None
+        with self._lock:
+            owner = self._owner(node, '', 0)
+            owner.calls += 1
+            owner.started += 1
+            owner.registrars.add(registrar)
+            return owner
+
+    def done_calling(self, owner: Optional[Owner], answered: bool) -> None:
+        """``answered``: false if the call was cut or expired, and the owner may have served it anyway."""
+        if owner is not None:
+            with self._lock:
+                owner.calls -= 1
+                if not answered:
+                    owner.suspect = True
+
+    def owe(self, node: str, target: Target, external_id: int) -> None:
+        """An unload of ``target``'s ``external_id`` did not reach ``node``: send it again when it answers."""
+        if node and node != self._me and not self._stop.is_set():
+            with self._lock:
+                self._owner(node, '', 0).owed.append((target, external_id))
+
+    def owed(self) -> List[Tuple[str, Target, int]]:
+        with self._lock:
+            return [(o.node, t, e) for o in self._owners.values() for t, e in o.owed]
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _owner(self, node: str, uri: str, incarnation: int) -> Owner:
+        """The record of ``node``, made (and its thread started) on first sight (lock held)."""
+        owner = self._owners.get(node)
+        if owner is None:
+            owner = self._owners[node] = Owner(node, uri, incarnation)
+            threading.Thread(target=self._watch, args=(owner,), daemon=True,
+                             name='rr-%s-owner' % self._core.name).start()
+        return owner
+
+    # ------------------------------------------------------------------------------------------ the watch
+    def _watch(self, owner: Owner) -> None:
+        while not self._stop.is_set():
+            held = self._holds_from(owner.node)       # before the watch's lock: it takes the registrar's
+            with self._lock:
+                if not (held or owner.calls or owner.owed or owner.suspect):
+                    del self._owners[owner.node]
+                    return
+            if not owner.uri:
+                owner.uri = self._lookup(owner.node)
+            verdict = None
+            if owner.uri:
+                budget = self.bound - (time.monotonic() - owner.last_ok)
+                verdict, _pid = ping(owner.uri, max(0.05, min(self.bound, budget)), self._core.prefix)
+            now = time.monotonic()
+            if verdict:
+                if owner.lost:             # back after a partition: what it holds for this side is checked
+                    owner.suspect = True
+                owner.last_ok, owner.refused_since, owner.lost = now, None, ''
+                self._settle(owner)
+            elif verdict is None:
+                if now - owner.last_ok >= self.bound:
+                    self._lose(owner, 'no answer from %s for %.1f s: its host is cut off or down, or the process '
+                                      'is stopped' % (owner.node, now - owner.last_ok))
+            else:
+                self._gone(owner, now)
+            self._stop.wait(self.period)
+
+    def _gone(self, owner: Owner, now: float) -> None:
+        """Nobody answers at the owner's URI any more: follow it to a new incarnation, or lose it."""
+        uri = self._lookup(owner.node)
+        if uri and uri != owner.uri and ping(uri, self.bound, self._core.prefix)[0]:
+            if owner.incarnation > 0:
+                rospy.loginfo('%s: owner %s is back at %s', self._core.prefix, owner.node, uri)
+                owner.uri, owner.last_ok, owner.refused_since, owner.lost = uri, now, None, ''
+                self._settle(owner)
+                return
+            self._lose(owner, '%s restarted without a journal: what it served is gone' % owner.node, dead=True)
+            owner.uri = uri
+            return
+        if owner.incarnation > 0:
+            if owner.refused_since is None:
+                owner.refused_since = now
+            if now - owner.refused_since < self.grace:
+                return
+            self._lose(owner, '%s died and did not come back within %.0f s' % (owner.node, self.grace), dead=True)
+        else:
+            self._lose(owner, '%s died (it keeps no journal: what it served is gone)' % owner.node, dead=True)
+
+    def _lose(self, owner: Owner, why: str, dead: bool = False) -> None:
+        """``dead``: the owner's process is gone for good, with what it served: nothing is owed to it."""
+        if dead:
+            with self._lock:
+                owner.owed, owner.suspect = [], False
+        cut = WATCH.abort(owner.node, why)
+        held = self._held_from(owner.node)
+        if owner.lost == why and not cut and not held:
+            return
+        owner.lost = why
+        if held or cut:
+            rospy.logwarn('%s: %s; %d held resource(s) failed, %d call(s) cut', self._core.prefix, why, len(held),
+                          cut)
+        for target, external_id in held:
+            self._on_lost(target, external_id, '%s: %s' % (target_name(target), why))
+
+    def _settle(self, owner: Owner) -> None:
+        with self._lock:
+            owed, owner.owed = owner.owed, []
+        unsent = [(target, external_id) for target, external_id in owed if not self._send_unload(target, external_id)]
+        if unsent:
+            with self._lock:
+                owner.owed.extend(unsent)
+            return
+        with self._lock:
+            if not owner.suspect or owner.calls or time.monotonic() < owner.next_reconcile:
+                return
+            started, registrars = owner.started, sorted(owner.registrars)
+            owner.suspect = False
+            owner.next_reconcile = time.monotonic() + RECONCILE_SPACING
+
+        def quiet() -> bool:
+            with self._lock:
+                return owner.calls == 0 and owner.started == started
+        for registrar in registrars:
+            if not self._reconcile(registrar, quiet):
+                with self._lock:
+                    owner.suspect = True       # not read, or a call started meanwhile: next time
+
+    def _lookup(self, node: str) -> str:
+        try:
+            code, _, uri = xmlrpc_proxy(rosgraph.get_master_uri(), min(self.bound, 0.5)).lookupNode(
+                self._core.prefix, node)
+        except (OSError, xmlrpc.client.Error):
+            return ''
+        return uri if code == 1 else ''
+
+
+def owned_by(query, node: str) -> bool:
+    """Whether held ``query`` is active and owned by ``node`` (its response names the owner)."""
+    return query.state is ACTIVE and query.response is not None and query.response.trr.owner_node == node

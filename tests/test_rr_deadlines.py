@@ -1,0 +1,121 @@
+"""No registrar call outlives its deadline, and an owner that stops answering is found out within the
+liveness bound (docs/failures.md, "Deadlines and owner liveness").
+
+A holds resources from C, or calls it. C is slowed down (``delay``), SIGSTOPped
+(the process is there and says nothing: what a partition looks like from A) or
+SIGKILLed (it keeps no journal, so what it served is gone).
+"""
+import contextlib
+import os
+import signal
+import time
+
+import pytest
+
+from temoto_core.errors import ErrorCode
+from temoto_core.msg import ResourceStatus
+from temoto_core.testing import wait_for
+from rr_helpers import RegistrarNode, registry_empty
+
+BOUND = 0.7          # owners.DEFAULT_BOUND: a stopped owner is lost after this much silence
+HANG = 5.0           # generous: catches a call that hangs, not a slow machine
+
+
+@pytest.fixture
+def pair(rospy_client, procs):
+    c = RegistrarNode(procs, 'rr_dc')
+    a = RegistrarNode(procs, 'rr_da')
+    return a, c
+
+
+@contextlib.contextmanager
+def stopped(node: RegistrarNode):
+    os.killpg(node.process.pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.killpg(node.process.pid, signal.SIGCONT)
+
+
+def timed(fn, *args, **kwargs):
+    t0 = time.monotonic()
+    out = fn(*args, **kwargs)
+    return out, time.monotonic() - t0
+
+
+def test_a_call_past_its_deadline_fails_with_timeout_and_the_late_resource_is_released(pair):
+    a, c = pair
+    out, took = timed(a.command, op='call', rr='rr_dc', name='slow', params=[['delay', '2.0']], deadline=0.5)
+    assert out.get('code') == ErrorCode.TIMEOUT and 'within its deadline of 0.50 s' in out['error'], out
+    assert 0.5 <= took < HANG
+    assert registry_empty(a)
+    # C finished the load after A gave up on it: A finds the stray reference and releases it
+    wait_for(lambda: c.counts()['unloads'] == {'slow': 1}, 15, 'the late resource released at C')
+    wait_for(lambda: registry_empty(c), 10, 'an empty registry at C')
+
+
+def test_a_bad_deadline_is_refused_and_changes_nothing(pair):
+    a, c = pair
+    out = a.command(op='call', rr='rr_dc', name='cam', deadline=-1)
+    assert out.get('code') == ErrorCode.BAD_REQUEST and 'deadline -1' in out['error'], out
+    assert c.counts()['loads'] == {} and registry_empty(a)
+
+
+def test_a_stopped_owner_fails_what_is_held_from_it_within_the_bound(pair):
+    a, c = pair
+    res = a.call('rr_dc', 'cam')
+    assert 'error' not in res, res
+    with stopped(c):
+        t0 = time.monotonic()
+        events = a.wait_events(1, timeout=HANG)
+        heard = time.monotonic() - t0
+        assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED
+        assert 'no answer from /rr_dc' in events[0]['message'], events[0]
+        assert heard < HANG
+    # the failed resource stays failed; releasing it reaches C once C answers again
+    assert a.unload(res['id']) == {}
+    wait_for(lambda: c.counts()['unloads'] == {'cam': 1}, 10, 'the unload at C')
+    for node in (a, c):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+
+
+def test_a_call_in_flight_to_an_owner_that_stops_answering_is_cut(pair):
+    a, c = pair
+    import threading
+    result = {}
+    caller = threading.Thread(target=lambda: result.update(out=timed(
+        a.command, op='call', rr='rr_dc', name='slow', params=[['delay', '2.0']])))
+    caller.start()
+    wait_for(lambda: c.counts()['loads'] == {'slow': 1}, 10, 'the load to start at C')
+    with stopped(c):
+        caller.join(HANG + 5)
+        assert not caller.is_alive(), 'the call hangs on a stopped owner'
+    out, took = result['out']
+    assert 'cut short' in out.get('error', '') and 'no answer from /rr_dc' in out['error'], out
+    assert took < HANG
+    # the load completed at C once it ran again: A releases what it never got
+    wait_for(lambda: c.counts()['unloads'] == {'slow': 1}, 15, 'the late resource released at C')
+
+
+def test_an_unload_that_cannot_reach_its_owner_is_sent_again_when_it_answers(pair):
+    a, c = pair
+    res = a.call('rr_dc', 'cam')
+    with stopped(c):
+        out, took = timed(a.unload, res['id'])
+        assert 'could not unload' in out.get('error', ''), out
+        assert took < HANG
+        assert registry_empty(a)
+    wait_for(lambda: c.counts()['unloads'] == {'cam': 1}, 10, 'the owed unload delivered')
+    wait_for(lambda: registry_empty(c), 10, 'an empty registry at C')
+
+
+def test_an_owner_without_journal_that_dies_fails_what_is_held_from_it_at_once(pair):
+    a, c = pair
+    res = a.call('rr_dc', 'cam')
+    os.killpg(c.process.pid, signal.SIGKILL)
+    c.process.proc.wait(10)
+    events = a.wait_events(1, timeout=HANG)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED
+    assert '/rr_dc died (it keeps no journal' in events[0]['message'], events[0]
+    out = a.unload(res['id'])         # its owner is gone: the release is local, and says so
+    assert registry_empty(a), out
