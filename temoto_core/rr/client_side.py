@@ -203,6 +203,9 @@ class ClientSide:
                 return idle.pop()
         why = 'the master does not know it'
         while True:                 # a manager that is starting has not registered its service yet
+            lost = self.owners.unreachable(registrar_of(service)) if self.owners is not None else ''
+            if lost:
+                raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s is not tried: %s' % (service, lost))
             try:
                 proxy = connect(service, srv_class, deadline)
             except (OSError, rospy.ServiceException, xmlrpc.client.Error) as err:

@@ -38,6 +38,10 @@ from rospy.impl.tcpros_service import TCPROSTransport
 
 from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
 
+# A live service answers the connection header within milliseconds. A stopped process's kernel still accepts
+# the TCP connection and then says nothing, so one attempt is bounded by this, and the caller retries while
+# its deadline allows (and while the owner is not known to be lost: owners.py).
+CONNECT_BOUND = 1.0
 # heap entries that finished are dropped lazily; past this many, and four times the live ones, the heap is rebuilt
 _COMPACT_AT = 1024
 
@@ -150,7 +154,7 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
     transport = TCPROSTransport(proxy.protocol, proxy.resolved_name)
     transport.buff_size = proxy.buff_size
     try:
-        transport.connect(host, port, uri, timeout=max(0.01, remaining(deadline)))
+        transport.connect(host, port, uri, timeout=max(0.01, min(CONNECT_BOUND, remaining(deadline))))
     except Exception as err:          # rospy raises TransportInitError, which callers do not know
         transport.close()
         raise rospy.ServiceException('unable to connect to %s at %s: %s' % (service, uri, err)) from err

@@ -133,6 +133,14 @@ class OwnerWatch:
             with self._lock:
                 self._owner(node, '', 0).owed.append((target, external_id))
 
+    def unreachable(self, registrar: Tuple[str, str]) -> str:
+        """Why ``registrar``'s node is lost, or '' if it is not known to be: a call need not try it."""
+        with self._lock:
+            for owner in self._owners.values():
+                if owner.lost and registrar in owner.registrars:
+                    return owner.lost
+        return ''
+
     def owed(self) -> List[Tuple[str, Target, int]]:
         with self._lock:
             return [(o.node, t, e) for o in self._owners.values() for t, e in o.owed]
