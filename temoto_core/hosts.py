@@ -1,0 +1,121 @@
+"""Two hosts on one machine: two Linux network namespaces joined by a veth pair.
+
+Teleoperation spans at least two machines, the robot and the operator's station.
+To run and test that here, each "host" is a network namespace with its own
+loopback and one end of a veth pair, addressed in 198.18.0.0/15 (the range set
+aside for benchmarking, RFC 2544), so nothing else can be reached from it. ROS 1's
+own transport joins them: one master on the robot host, ``ROS_IP`` set per host.
+
+Faults a partition test needs, without the kernel's netem: the link down and up,
+an address removed, and every process of a host killed (a host that dies).
+
+Needs root (``CAP_NET_ADMIN``); :func:`unavailable` says in one line why not.
+Every command is an argument list: nothing goes through a shell.
+"""
+import dataclasses
+import os
+import signal
+import subprocess
+import time
+from typing import Dict, List, Optional, Sequence
+
+SUBNET_PREFIX = 24
+ADDRESSES = ('198.18.0.1', '198.18.0.2')    # robot, operator
+
+
+@dataclasses.dataclass(frozen=True)
+class Host:
+    name: str          # the namespace
+    device: str        # its end of the veth pair
+    address: str
+
+
+def unavailable() -> str:
+    """'' if two hosts can be made here, else why not, in one line."""
+    if os.geteuid() != 0:
+        return 'two hosts need root (network namespaces and a veth pair need CAP_NET_ADMIN)'
+    try:
+        subprocess.run(['ip', '-V'], check=True, capture_output=True, timeout=5)
+    except (OSError, subprocess.SubprocessError) as err:
+        return 'two hosts need iproute2 (`ip`): %s' % err
+    return ''
+
+
+def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run(['ip'] + list(args), check=check, capture_output=True, text=True, timeout=10)
+
+
+class TwoHosts:
+    """``robot`` and ``operator``, made by :meth:`up` and removed, with every process in them, by :meth:`down`."""
+
+    def __init__(self, tag: str) -> None:
+        if not tag.isalnum() or len(tag) > 8:
+            raise ValueError('host tag %r: up to 8 letters or digits (it names namespaces and devices)' % tag)
+        self.robot = Host('tm-%s-robot' % tag, 'tm%sr' % tag, ADDRESSES[0])
+        self.operator = Host('tm-%s-op' % tag, 'tm%so' % tag, ADDRESSES[1])
+        self.hosts = (self.robot, self.operator)
+
+    def up(self) -> 'TwoHosts':
+        self.down()                              # what a killed run left behind
+        try:
+            for host in self.hosts:
+                _ip('netns', 'add', host.name)
+                _ip('-n', host.name, 'link', 'set', 'lo', 'up')
+            _ip('link', 'add', self.robot.device, 'netns', self.robot.name, 'type', 'veth',
+                'peer', 'name', self.operator.device, 'netns', self.operator.name)
+            for host in self.hosts:
+                _ip('-n', host.name, 'addr', 'add', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)
+                _ip('-n', host.name, 'link', 'set', host.device, 'up')
+        except subprocess.CalledProcessError as err:
+            self.down()
+            raise RuntimeError('making two hosts failed: %s: %s' % (' '.join(err.cmd), err.stderr.strip())) from err
+        return self
+
+    def down(self) -> None:
+        """Kill every process of both hosts, then remove them (the veth pair goes with them)."""
+        for host in self.hosts:
+            self.kill_all(host)
+            _ip('netns', 'delete', host.name, check=False)
+
+    # ------------------------------------------------------------------------------------------ running
+    def argv(self, host: Host, argv: Sequence[str]) -> List[str]:
+        """``argv`` run inside ``host``."""
+        return ['ip', 'netns', 'exec', host.name] + list(argv)
+
+    def env(self, host: Host, master: Optional[str] = None, base: Optional[Dict[str, str]] = None) -> Dict[str, str]:
+        """An environment for ROS on ``host``: its own address, and the master on the robot host."""
+        env = dict(os.environ if base is None else base)
+        env['ROS_IP'] = host.address
+        env.pop('ROS_HOSTNAME', None)            # ROS_HOSTNAME wins over ROS_IP; each host has only its address
+        env['ROS_MASTER_URI'] = master or 'http://%s:11311' % self.robot.address
+        return env
+
+    def pids(self, host: Host) -> List[int]:
+        out = _ip('netns', 'pids', host.name, check=False)
+        return [int(p) for p in out.stdout.split()] if out.returncode == 0 else []
+
+    # ------------------------------------------------------------------------------------------ faults
+    def link(self, up: bool) -> None:
+        """The cable between the hosts, pulled or plugged back (both ends, as a real cut looks)."""
+        for host in self.hosts:
+            _ip('-n', host.name, 'link', 'set', host.device, 'up' if up else 'down')
+
+    def remove_address(self, host: Host) -> None:
+        _ip('-n', host.name, 'addr', 'del', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)
+
+    def restore_address(self, host: Host) -> None:
+        _ip('-n', host.name, 'addr', 'add', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)
+
+    def kill_all(self, host: Host, timeout: float = 5.0) -> None:
+        """Every process of ``host`` SIGKILLed, as a host that loses power (then reaped, if ours)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            pids = self.pids(host)
+            if not pids:
+                return
+            for pid in pids:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            time.sleep(0.05)
