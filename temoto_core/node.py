@@ -19,6 +19,7 @@ safe. ``init_node`` hands the signal to the main thread, whose ``spin()`` or
 """
 from __future__ import annotations
 
+import faulthandler
 import http.client
 import os
 import signal
@@ -96,6 +97,9 @@ def init_node(name: str, **kwargs) -> None:
     # before init_node: the node is visible at the master before init_node returns, and a supervisor may
     # stop it from then on (Python's default SIGINT handler would raise KeyboardInterrupt mid-registration)
     on_signals(on_stop)
+    # `kill -USR1 <pid>` writes every thread's Python stack to stderr (the node's log): how a wedged node is
+    # diagnosed without a debugger; it runs in C, so it works even when the node is deadlocked
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     kwargs['disable_signals'] = True
     clear_stale_registration(name, kwargs.get('anonymous', False))
     rospy.init_node(name, **kwargs)

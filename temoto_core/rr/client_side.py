@@ -165,29 +165,36 @@ class ClientSide:
         core = self._core
         deadline = time.monotonic() + seconds
         srv_class = service_class(request)
+        registrar = registrar_of(service)
+        owners = self.owners if watched else None
         for attempt in (1, 2):
-            proxy = self._take_proxy(service, srv_class, deadline, seconds)
-            peer = getattr(proxy.transport, 'callerid_pub', '')      # the node serving it, from the TCPROS header
-            owner = self.owners.calling(peer, registrar_of(service)) if watched and self.owners is not None else None
-            answered = False
+            # counted from before the connection: a stopped owner is found lost (and the connection attempts
+            # end) within the liveness bound, not the call's whole deadline
+            owner = owners.calling(owners.serving(registrar), registrar) if owners is not None else None
+            guard = None
             try:
+                proxy = self._take_proxy(service, srv_class, deadline, seconds)
+                peer = getattr(proxy.transport, 'callerid_pub', '')   # the node serving it, from the TCPROS header
+                if owners is not None and (owner is None or owner.node != peer):
+                    owners.done_calling(owner, True)
+                    owner = owners.calling(peer, registrar)
                 with WATCH.guard(proxy.transport.socket, deadline, peer) as guard:
                     response = proxy.call(request)
-                answered = not (guard.expired or guard.aborted)
             except (rospy.ServiceException, rospy.ROSException, OSError) as err:
                 proxy.close()
-                if guard.expired:
+                if guard is not None and guard.expired:
                     raise core.error(ErrorCode.TIMEOUT, 'no answer from %s within its deadline of %.2f s'
                                      % (service, seconds))
-                if guard.aborted:
+                if guard is not None and guard.aborted:
                     raise core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s cut short: %s' % (service, guard.aborted))
                 if attempt == 2 or not self._service_exists(service, deadline):
                     raise core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s failed: %s (did the server '
                                      'die?)' % (service, err))
                 continue
             finally:
-                if owner is not None:
-                    self.owners.done_calling(owner, answered or not (guard.expired or guard.aborted))
+                if owners is not None:
+                    # a call that was cut may have been served anyway: the owner is then checked (owners.py)
+                    owners.done_calling(owner, guard is None or not (guard.expired or guard.aborted))
             if guard.expired or guard.aborted:      # answered as it was cut: the connection is not reusable
                 proxy.close()
             else:
@@ -260,10 +267,12 @@ class ClientSide:
             response = self._unload_remote(query.target, query.external_id, query.request)
         except TemotoError as err:
             # not delivered: owed to the owner, and sent again once it answers (owners.py)
+            owed = ''
             if self.owners is not None and query.response is not None:
                 self.owners.owe(query.response.trr.owner_node, query.target, query.external_id)
-            raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'could not unload %s resource %d'
-                               % (target_name(query.target), query.external_id), core.prefix)
+                owed = ' now (released here; the unload is sent again when its owner answers)'
+            raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'could not unload %s resource %d%s'
+                               % (target_name(query.target), query.external_id, owed), core.prefix)
         if response.code != 0:
             raise TemotoError.from_msgs(response.error_stack, response.message).extended(
                 ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'unloading %s resource %d failed'

@@ -34,6 +34,7 @@ from typing import Dict, Iterator, List, Optional, Tuple
 
 import rosgraph
 import rospy
+from rosgraph.network import read_ros_handshake_header
 from rospy.impl.tcpros_service import TCPROSTransport
 
 from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
@@ -139,6 +140,23 @@ def lookup_service(service: str, deadline: float) -> str:
     return uri if code == 1 else ''
 
 
+class _BoundedHandshake(TCPROSTransport):
+    """rospy's transport, whose connection handshake keeps the connect timeout.
+
+    rospy's ``write_header`` and ``read_header`` make the socket blocking, so
+    ``connect(timeout=...)`` bounds only the TCP connect: a stopped process
+    (whose kernel accepts the connection) then holds the caller in the header
+    read for ever. Here the read runs against ``handshake_deadline`` (a
+    ``time.monotonic()`` instant); the call that follows is guarded by the watch.
+    """
+    handshake_deadline = 0.0
+
+    def read_header(self) -> None:
+        if self.socket is not None:
+            self.socket.settimeout(max(0.01, remaining(self.handshake_deadline)))
+            self._validate_header(read_ros_handshake_header(self.socket, self.read_buff, self.protocol.buff_size))
+
+
 def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceProxy]:
     """A persistent proxy to ``service``, connected within ``deadline``; None if the master does not know the
     service. Raises ``OSError`` or ``rospy.ServiceException`` if it cannot be reached in time.
@@ -151,10 +169,12 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
         return None
     host, port = rospy.core.parse_rosrpc_uri(uri)
     proxy = rospy.ServiceProxy(service, srv_class, persistent=True)
-    transport = TCPROSTransport(proxy.protocol, proxy.resolved_name)
+    transport = _BoundedHandshake(proxy.protocol, proxy.resolved_name)
     transport.buff_size = proxy.buff_size
+    bound = max(0.01, min(CONNECT_BOUND, remaining(deadline)))
+    transport.handshake_deadline = time.monotonic() + bound
     try:
-        transport.connect(host, port, uri, timeout=max(0.01, min(CONNECT_BOUND, remaining(deadline))))
+        transport.connect(host, port, uri, timeout=bound)
     except Exception as err:          # rospy raises TransportInitError, which callers do not know
         transport.close()
         raise rospy.ServiceException('unable to connect to %s at %s: %s' % (service, uri, err)) from err

@@ -93,6 +93,7 @@ class OwnerWatch:
         self.period, self.bound, self.grace = period, bound, grace
         self._me = rospy.get_name()
         self._owners: Dict[str, Owner] = {}
+        self._node_of: Dict[Tuple[str, str], str] = {}     # registrar -> the node last found serving it
         self._lock = threading.Lock()
         self._stop = threading.Event()
 
@@ -117,7 +118,13 @@ class OwnerWatch:
             owner.calls += 1
             owner.started += 1
             owner.registrars.add(registrar)
+            self._node_of[registrar] = node
             return owner
+
+    def serving(self, registrar: Tuple[str, str]) -> str:
+        """The node last found serving ``registrar`` ('' if none yet): a call is counted before it connects."""
+        with self._lock:
+            return self._node_of.get(registrar, '')
 
     def done_calling(self, owner: Optional[Owner], answered: bool) -> None:
         """``answered``: false if the call was cut or expired, and the owner may have served it anyway."""
