@@ -12,12 +12,21 @@ an address removed, and every process of a host killed (a host that dies).
 Needs root (``CAP_NET_ADMIN``); :func:`unavailable` says in one line why not.
 Every command is an argument list: nothing goes through a shell.
 """
+import ctypes
 import dataclasses
 import os
 import signal
 import subprocess
+import threading
 import time
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence, TypeVar
+
+from temoto_core.master import RosMaster
+from temoto_core.processes import ProcessGroupLauncher
+
+T = TypeVar('T')
+MASTER_PORT = 11311          # each host has its own ports: the robot's master takes ROS's usual one
+_CLONE_NEWNET = 0x40000000      # <sched.h>; os.setns arrives only in Python 3.12
 
 SUBNET_PREFIX = 24
 ADDRESSES = ('198.18.0.1', '198.18.0.2')    # robot, operator
@@ -77,7 +86,24 @@ class TwoHosts:
             self.kill_all(host)
             _ip('netns', 'delete', host.name, check=False)
 
+    def exist(self) -> List[str]:
+        """The namespaces of these hosts that exist now (none after :meth:`down`)."""
+        listed = _ip('netns', 'list', check=False).stdout.split()
+        return [host.name for host in self.hosts if host.name in listed]
+
     # ------------------------------------------------------------------------------------------ running
+    def master(self, workdir: str, session_token: str = '') -> RosMaster:
+        """The master on the robot host (not started)."""
+        return RosMaster(workdir, session_token, address=self.robot.address, port=MASTER_PORT,
+                         wrap=lambda argv: self.argv(self.robot, argv),
+                         run_in=lambda fn: self.run_in(self.robot, fn, 30.0))
+
+    def launcher(self, host: Host, master: RosMaster, workdir: str) -> ProcessGroupLauncher:
+        """Starts nodes on ``host`` against ``master``, and stops them all."""
+        return ProcessGroupLauncher(self.env(host, master.uri, base=master.env), workdir,
+                                    wrap=lambda argv: self.argv(host, argv),
+                                    run_in=lambda fn: self.run_in(host, fn, 60.0))
+
     def argv(self, host: Host, argv: Sequence[str]) -> List[str]:
         """``argv`` run inside ``host``."""
         return ['ip', 'netns', 'exec', host.name] + list(argv)
@@ -89,6 +115,36 @@ class TwoHosts:
         env.pop('ROS_HOSTNAME', None)            # ROS_HOSTNAME wins over ROS_IP; each host has only its address
         env['ROS_MASTER_URI'] = master or 'http://%s:11311' % self.robot.address
         return env
+
+    def run_in(self, host: Host, fn: Callable[[], T], timeout: float = 10.0) -> T:
+        """``fn()`` in ``host``'s network, from this process: a thread joins the namespace and runs it.
+
+        A socket belongs to the namespace of the thread that makes it, so what
+        ``fn`` connects to is resolved on ``host`` (the master, a node's XML-RPC).
+        The thread ends with ``fn``, and the rest of the process stays where it is.
+        """
+        result: Dict[str, object] = {}
+
+        def run() -> None:
+            try:
+                fd = os.open('/var/run/netns/%s' % host.name, os.O_RDONLY | os.O_CLOEXEC)
+                try:
+                    if ctypes.CDLL(None, use_errno=True).setns(fd, _CLONE_NEWNET) != 0:
+                        err = ctypes.get_errno()
+                        raise OSError(err, 'setns into %s: %s' % (host.name, os.strerror(err)))
+                finally:
+                    os.close(fd)
+                result['value'] = fn()
+            except BaseException as err:        # handed to the caller, raised there
+                result['error'] = err
+        thread = threading.Thread(target=run, name='in-%s' % host.name, daemon=True)
+        thread.start()
+        thread.join(timeout)
+        if thread.is_alive():
+            raise TimeoutError('%s: no result within %.1f s' % (host.name, timeout))
+        if 'error' in result:
+            raise result['error']
+        return result['value']
 
     def pids(self, host: Host) -> List[int]:
         out = _ip('netns', 'pids', host.name, check=False)

@@ -5,11 +5,12 @@ import subprocess
 import tempfile
 import time
 import xmlrpc.client
-from typing import Dict, Optional
+from typing import Callable, Dict, List, Optional, TypeVar
 
 from temoto_core.processes import SESSION_ENV, stop_process_group
 
 ROSCORE_START_TIMEOUT = 10.0
+T = TypeVar('T')
 
 
 def free_port() -> int:
@@ -33,15 +34,24 @@ class RosMaster:
     fail, so startup has a timeout and :meth:`start` retries on another port.
     """
 
-    def __init__(self, workdir: Optional[str] = None, session_token: str = '') -> None:
+    def __init__(self, workdir: Optional[str] = None, session_token: str = '', address: str = '127.0.0.1',
+                 port: int = 0, wrap: Callable[[List[str]], List[str]] = list,
+                 run_in: Callable[[Callable[[], T]], T] = lambda fn: fn()) -> None:
+        """By default on a free loopback port. On another host (``temoto_core/hosts.py``): its ``address``, a
+        fixed ``port``, ``wrap`` turning roscore's command line into one run there, and ``run_in`` running a
+        check of the master from there."""
         self.workdir = workdir or tempfile.mkdtemp(prefix='temoto_roscore_')
         self.session_token = session_token
-        self.port = 0
+        self.address = address
+        self.fixed_port = port
+        self.port = port
+        self._wrap = wrap
+        self._run_in = run_in
         self.proc: Optional[subprocess.Popen] = None
 
     @property
     def uri(self) -> str:
-        return 'http://127.0.0.1:%d' % self.port
+        return 'http://%s:%d' % (self.address, self.port)
 
     @property
     def env(self) -> Dict[str, str]:
@@ -49,8 +59,8 @@ class RosMaster:
         env = dict(os.environ)
         env.update({
             'ROS_MASTER_URI': self.uri,
-            'ROS_HOSTNAME': '127.0.0.1',
-            'ROS_IP': '127.0.0.1',
+            'ROS_HOSTNAME': self.address,
+            'ROS_IP': self.address,
             'ROS_LOG_DIR': os.path.join(self.workdir, 'log'),
             'ROS_HOME': os.path.join(self.workdir, 'home'),
             'PYTHONUNBUFFERED': '1',
@@ -85,12 +95,13 @@ class RosMaster:
     def start(self, attempts: int = 3) -> 'RosMaster':
         errors = []
         for _ in range(attempts):
-            self.port = free_port()
+            self.port = self.fixed_port or free_port()
             log = open(os.path.join(self.workdir, 'roscore_%d.log' % self.port), 'wb')
-            self.proc = subprocess.Popen(['roscore', '-p', str(self.port)], env=self.env, stdin=subprocess.DEVNULL,
+            self.proc = subprocess.Popen(self._wrap(['roscore', '-p', str(self.port)]), env=self.env,
+                                         stdin=subprocess.DEVNULL,
                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
             log.close()
-            if self._wait_ready(ROSCORE_START_TIMEOUT):
+            if self._run_in(lambda: self._wait_ready(ROSCORE_START_TIMEOUT)):
                 return self
             errors.append('port %d: roscore not ready after %.0f s (rc=%s)'
                           % (self.port, ROSCORE_START_TIMEOUT, self.proc.poll()))

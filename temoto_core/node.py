@@ -32,6 +32,7 @@ from typing import Callable, Iterable
 import rosgraph
 import rosgraph.names
 import rospy
+import rospy.impl.paramserver
 
 from temoto_core import master_lookup
 
@@ -104,6 +105,24 @@ def init_node(name: str, **kwargs) -> None:
     clear_stale_registration(name, kwargs.get('anonymous', False))
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
+    prime_log_parameter()
+
+
+def prime_log_parameter() -> None:
+    """Read, once, the one parameter rospy's logging reads, and keep it in rospy's parameter cache.
+
+    Every rospy log call reads ``/rosout_disable_topics_generation`` through the
+    parameter cache, and rospy caches an *unset* parameter as missing: while it
+    is unset (as it is unless someone sets it), every log call asks the master
+    again, with no timeout. A warning logged while the master is out of reach
+    (its host cut off: a partition is exactly when a registrar warns) then
+    blocks the thread that logs it, the one that was to report the partition,
+    for as long as TCP retries, many minutes. Here the value (False when unset,
+    as rospy reads it) is cached once; rospy's parameter subscription keeps it
+    current if someone sets it later.
+    """
+    key = '/rosout_disable_topics_generation'
+    rospy.impl.paramserver.get_param_server_cache().set(key, rospy.get_param_cached(key, False))
 
 
 def clear_stale_registration(name: str, anonymous: bool = False) -> None:

@@ -7,10 +7,12 @@ import subprocess
 import sys
 import time
 import xmlrpc.client
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
 from temoto_core.master_lookup import cleanup_dead_node
 from temoto_core.process_group import exit_status, group_members
+
+T = TypeVar('T')
 
 SESSION_ENV = 'TEMOTO_TEST_SESSION'
 REGISTER_TIMEOUT = 20.0
@@ -108,9 +110,14 @@ class ProcessGroupLauncher:
     registered with the master, or raise with the tail of the log.
     """
 
-    def __init__(self, env: Dict[str, str], workdir: str) -> None:
+    def __init__(self, env: Dict[str, str], workdir: str, wrap: Callable[[List[str]], List[str]] = list,
+                 run_in: Callable[[Callable[[], T]], T] = lambda fn: fn()) -> None:
+        """On another host (``temoto_core/hosts.py``): ``wrap`` turns a command line into one run there, and
+        ``run_in`` runs a call to the master from there."""
         self.env = env
         self.workdir = workdir
+        self._wrap = wrap
+        self._run_in = run_in
         self.processes: List[ManagedProcess] = []
         self._private_params: List[str] = []     # set through a node's command line; removed by stop_all
         self._rospack = None
@@ -136,7 +143,7 @@ class ProcessGroupLauncher:
     def command(self, argv: Sequence[str], name: str, env: Optional[Dict[str, str]] = None) -> ManagedProcess:
         """Any command, tracked and stopped like a node (no registration wait)."""
         log = os.path.join(self.workdir, '%s.%d.log' % (name, len(self.processes)))
-        proc = ManagedProcess(argv, env or self.env, log, name)
+        proc = ManagedProcess(self._wrap(list(argv)), env or self.env, log, name)
         self.processes.append(proc)
         return proc
 
@@ -152,7 +159,7 @@ class ProcessGroupLauncher:
         full = '/' + '/'.join(p for p in (namespace.strip('/'), name) if p)
         # a dead node of this name would pass the registration wait at once, and the master would send its
         # shutdown to whoever has the dead node's port now
-        cleanup_dead_node(self.env['ROS_MASTER_URI'], full)
+        self._run_in(lambda: cleanup_dead_node(self.env['ROS_MASTER_URI'], full))
         self._private_params += ['%s/%s' % (full, key) for key in (params or {})]
         proc = self.command(argv, name)
         if wait:
@@ -172,6 +179,9 @@ class ProcessGroupLauncher:
         return proc
 
     def wait_registered(self, proc: ManagedProcess, node_names: Sequence[str], timeout: float) -> None:
+        self._run_in(lambda: self._wait_registered(proc, node_names, timeout))
+
+    def _wait_registered(self, proc: ManagedProcess, node_names: Sequence[str], timeout: float) -> None:
         master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
         pending = set(node_names)
         deadline = time.monotonic() + timeout
@@ -195,6 +205,9 @@ class ProcessGroupLauncher:
         for proc in reversed(self.processes):
             proc.stop()
         self.processes.clear()
+        self._run_in(self._delete_private_params)
+
+    def _delete_private_params(self) -> None:
         master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
         for name in self._private_params:
             try:

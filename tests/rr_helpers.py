@@ -1,7 +1,8 @@
 """Driving test registrar nodes (tests/temoto_test_nodes/nodes/rr_node) from pytest."""
 import json
-import sys
 import os
+import socket
+import sys
 
 import rospy
 
@@ -10,12 +11,19 @@ from temoto_test_nodes.srv import Control  # noqa: E402
 
 from temoto_core.testing import wait_for  # noqa: E402
 
+COMMAND_TIMEOUT = 30.0    # generous: a command that hangs fails the test rather than the session
+
 
 class RegistrarNode:
     """A test registrar process and its ``~control`` service."""
 
-    def __init__(self, procs, name: str, check_period: float = 2.0, **params) -> None:
+    def __init__(self, procs, name: str, check_period: float = 2.0, control_socket: str = '', **params) -> None:
+        """``control_socket``: drive the node through this Unix socket rather than ROS (a node on another
+        host: ``temoto_core/hosts.py``)."""
         self.name = name
+        self.control_socket = control_socket
+        if control_socket:
+            params['control_socket'] = control_socket
         self.process = procs.node('temoto_test_nodes', 'rr_node', name=name,
                                   params=dict(params, consumer_check_period=check_period))
         # the control service of this very process: after a restart under the same name the master may
@@ -23,6 +31,12 @@ class RegistrarNode:
         wait_for(self._answers, 20, 'the control service of %s' % name)
 
     def _answers(self) -> bool:
+        if self.control_socket:
+            try:
+                self.command(op='counts')
+                return True
+            except OSError:
+                return False
         try:
             rospy.wait_for_service('/%s/control' % self.name, timeout=1.0)
             self.command(op='counts')
@@ -31,6 +45,13 @@ class RegistrarNode:
             return False
 
     def command(self, **cmd) -> dict:
+        if self.control_socket:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+                sock.settimeout(COMMAND_TIMEOUT)
+                sock.connect(self.control_socket)
+                sock.sendall(json.dumps(cmd).encode() + b'\n')
+                with sock.makefile('rb') as answer:
+                    return json.loads(answer.readline())
         # a fresh connection per command: each runs in its own service thread, so commands can overlap
         proxy = rospy.ServiceProxy('/%s/control' % self.name, Control)
         return json.loads(proxy(json.dumps(cmd)).result)

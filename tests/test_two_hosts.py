@@ -1,0 +1,141 @@
+"""A registrar on the operator's host holds resources from one on the robot's host, and the link between the
+hosts fails (docs/two_hosts.md).
+
+The hosts are two network namespaces joined by a veth pair (``temoto_core/hosts.py``):
+the robot host runs the master and owner C; the operator host runs consumer A. ROS 1's
+own transport joins them. The test drives both nodes through Unix sockets, which
+reach into every namespace, so it still sees both sides while the link is cut.
+"""
+import os
+import threading
+import time
+
+import pytest
+
+from temoto_core import hosts as hosts_mod
+from temoto_core.errors import ErrorCode
+from temoto_core.msg import ResourceStatus
+from temoto_core.testing import wait_for
+from rr_helpers import RegistrarNode, registry_empty
+
+HANG = 5.0           # generous: catches a call or a detection that hangs, not a slow machine
+
+
+@pytest.fixture(scope='module')
+def two_hosts():
+    why = hosts_mod.unavailable()
+    assert not why, why
+    hosts = hosts_mod.TwoHosts('t%d' % (os.getpid() % 100000)).up()
+    yield hosts
+    hosts.down()
+    assert hosts.exist() == [], 'namespaces left behind'
+
+
+@pytest.fixture
+def pair(two_hosts, tmp_path, session_token):
+    """Owner C and the master on the robot, consumer A on the operator's station, the link up."""
+    hosts = two_hosts
+    hosts.link(True)
+    master = hosts.master(str(tmp_path / 'master'), session_token)
+    os.makedirs(master.workdir)
+    master.start()
+    robot = hosts.launcher(hosts.robot, master, str(tmp_path))
+    operator = hosts.launcher(hosts.operator, master, str(tmp_path))
+    try:
+        c = RegistrarNode(robot, 'rr_hc', control_socket=str(tmp_path / 'rr_hc.sock'))
+        a = RegistrarNode(operator, 'rr_ha', control_socket=str(tmp_path / 'rr_ha.sock'))
+        yield a, c, hosts
+    finally:
+        hosts.link(True)
+        operator.stop_all()
+        robot.stop_all()
+        master.stop()
+        for host in hosts.hosts:
+            assert hosts.pids(host) == [], 'processes left on %s' % host.name
+
+
+def timed(fn, *args, **kwargs):
+    t0 = time.monotonic()
+    out = fn(*args, **kwargs)
+    return out, time.monotonic() - t0
+
+
+def test_a_remote_load_crosses_the_hosts(pair):
+    a, c, _ = pair
+    res = a.call('rr_hc', 'cam')
+    assert res['payload'] == 'payload of cam from /rr_hc', res
+    assert a.unload(res['id']) == {}
+    wait_for(lambda: c.counts()['unloads'] == {'cam': 1}, 10, 'the unload at C')
+    wait_for(lambda: registry_empty(c), 10, 'an empty registry at C')
+
+
+def test_a_partition_while_idle_fails_what_crosses_it_and_the_heal_leaks_nothing(pair):
+    a, c, hosts = pair
+    res = a.call('rr_hc', 'cam')
+    hosts.link(False)
+    events, heard = timed(a.wait_events, 1, timeout=HANG)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED, events
+    assert 'no answer from /rr_hc' in events[0]['message'], events[0]
+    # C keeps its consumer's reference through the partition (no answer is no verdict)...
+    assert c.counts()['unloads'] == {}
+    # ...and a call across the cut fails within its deadline, naming why
+    out, took = timed(a.command, op='call', rr='rr_hc', name='lidar', deadline=1.0)
+    assert out.get('code') in (ErrorCode.SERVICE_REQ_FAIL, ErrorCode.TIMEOUT), out
+    assert took < HANG
+    hosts.link(True)
+    # the failed resource stays failed until requested again: no second load of it at C
+    assert c.counts()['loads'].get('cam') == 1
+    out = a.unload(res['id'])
+    assert out == {} or 'the unload is sent again when its owner answers' in out['error'], out
+    # the request written to the cut connection may reach C once the link is back: C loads it for a
+    # caller that gave up, and A releases it; either way every load at C is released, once
+    wait_for(lambda: c.counts()['unloads'] == c.counts()['loads'], 10, 'every load at C released after the heal')
+    assert c.counts()['unloads'].get('cam') == 1 and c.counts()['loads'].get('lidar', 0) <= 1
+    for node in (a, c):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+    assert len(a.events()) == 1
+
+
+def test_a_partition_during_a_load_cuts_the_call_and_the_late_resource_is_released(pair):
+    a, c, hosts = pair
+    result = {}
+    caller = threading.Thread(target=lambda: result.update(out=timed(
+        a.command, op='call', rr='rr_hc', name='slow', params=[['delay', '2.0']])))
+    caller.start()
+    wait_for(lambda: c.counts()['loads'] == {'slow': 1}, 10, 'the load to start at C')
+    hosts.link(False)
+    caller.join(HANG + 5)
+    assert not caller.is_alive(), 'the call hangs across a cut link'
+    out, took = result['out']
+    assert 'cut short' in out.get('error', '') and 'no answer from /rr_hc' in out['error'], out
+    assert took < HANG
+    assert registry_empty(a)
+    hosts.link(True)
+    # C finished the load for a caller that had given up: A finds the stray reference and releases it
+    wait_for(lambda: c.counts()['unloads'] == {'slow': 1}, 15, 'the late resource released at C')
+    wait_for(lambda: registry_empty(c), 10, 'an empty registry at C')
+    assert c.counts()['loads'] == {'slow': 1}
+
+
+def test_a_status_sent_during_a_partition_is_not_lost(pair):
+    a, c, hosts = pair
+    res = a.call('rr_hc', 'cam')
+    hosts.link(False)
+    c.fail('cam', 'the camera died during the partition')
+    events = a.wait_events(1, timeout=HANG)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED, events
+    hosts.link(True)
+    assert a.unload(res['id']).get('code', 0) in (0, ErrorCode.RESOURCE_UNLOAD_FAIL)
+    wait_for(lambda: registry_empty(c), 10, 'an empty registry at C')
+
+
+def test_a_robot_host_that_dies_fails_what_is_held_from_it(pair):
+    a, c, hosts = pair
+    res = a.call('rr_hc', 'cam')
+    hosts.kill_all(hosts.robot)            # the master goes with it, as on a real robot
+    events, heard = timed(a.wait_events, 1, timeout=HANG)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED, events
+    assert '/rr_hc' in events[0]['message'], events[0]
+    assert heard < HANG
+    out = a.unload(res['id'])              # the owner is gone: the release is local
+    assert registry_empty(a), out
