@@ -204,15 +204,17 @@ class ClientSide:
         raise AssertionError('unreachable')
 
     def _take_proxy(self, service: str, srv_class, deadline: float, seconds: float) -> rospy.ServiceProxy:
-        with self._proxies_lock:
-            idle = self._proxies.setdefault(service, [])
-            if idle:
-                return idle.pop()
+        registrar = registrar_of(service)
         why = 'the master does not know it'
         while True:                 # a manager that is starting has not registered its service yet
-            lost = self.owners.unreachable(registrar_of(service)) if self.owners is not None else ''
+            # an owner known lost is not tried, not even on a connection that is still open
+            lost = self.owners.unreachable(registrar) if self.owners is not None else ''
             if lost:
                 raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s is not tried: %s' % (service, lost))
+            with self._proxies_lock:
+                idle = self._proxies.setdefault(service, [])
+                if idle:
+                    return idle.pop()
             try:
                 proxy = connect(service, srv_class, deadline)
             except (OSError, rospy.ServiceException, xmlrpc.client.Error) as err:
