@@ -145,14 +145,14 @@ def run(args, hosts, workdir):
             detect.append(events[-1]['received'] - cut)
             t0 = time.monotonic()
             a.command(op='call', rr='rr_c', name='x%d' % i, deadline=1.0)
-            call_over.append(time.monotonic() - t0 - 1.0)
+            call_over.append(time.monotonic() - t0)
             hosts.link(True)
             a.unload(res['id'])
             wait_for(lambda: c.counts()['unloads'] == c.counts()['loads'], 15, 'every load at C released')
         rows.append(('partition detected (link down -> FAILED at A)', 'median %.0f ms, max %.0f ms'
                      % (median_ms(detect), max(detect) * 1e3), '<= 1 s'))
-        rows.append(('call during a partition, beyond its 1 s deadline', 'max %+.0f ms' % (max(call_over) * 1e3),
-                     '<= 0'))
+        rows.append(('longest call during a partition (deadline 1 s)', '%.0f ms' % (max(call_over) * 1e3),
+                     '<= 1000 ms'))
 
         # 5. seeded partition and heal cycles
         print('bench_hosts: %d partition and heal cycles...' % args.cycles, flush=True)
@@ -180,9 +180,10 @@ def run(args, hosts, workdir):
             try:
                 wait_for(lambda: registry_empty(a) and registry_empty(c), 15, 'empty registries')
                 counts = c.counts()
-                if any(counts['loads'][k] != 1 for k in counts['loads']):
+                name = 'k%d' % i
+                if counts['loads'].get(name, 0) > 1:          # loaded twice for one request
                     doubles += 1
-                if counts['unloads'] != counts['loads']:
+                if counts['unloads'].get(name, 0) != counts['loads'].get(name, 0):
                     leaks += 1
             except TimeoutError:
                 leaks += 1

@@ -30,6 +30,8 @@ StatusCallback = Callable[[StatusEvent], None]
 
 # how often a call polls the master for a service that is not registered yet (its manager is starting)
 SERVICE_POLL = 0.05
+# how long a call to an owner found lost asks it once more before it fails (it may be back since the last check)
+RECHECK_BOUND = 0.2
 
 
 class ClientSide:
@@ -209,6 +211,8 @@ class ClientSide:
         while True:                 # a manager that is starting has not registered its service yet
             # an owner known lost is not tried, not even on a connection that is still open
             lost = self.owners.unreachable(registrar) if self.owners is not None else ''
+            if lost:
+                lost = self.owners.recheck(registrar, max(0.01, min(RECHECK_BOUND, deadline - time.monotonic())))
             if lost:
                 raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s is not tried: %s' % (service, lost))
             with self._proxies_lock:

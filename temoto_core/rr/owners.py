@@ -148,6 +148,21 @@ class OwnerWatch:
                     return owner.lost
         return ''
 
+    def recheck(self, registrar: Tuple[str, str], timeout: float) -> str:
+        """Why ``registrar``'s node is lost, after asking it once more (within ``timeout``); '' if it is not
+        known lost, or answers now: a call right after a partition heals need not wait for the next check."""
+        with self._lock:
+            owner = next((o for o in self._owners.values() if o.lost and registrar in o.registrars), None)
+            if owner is None:
+                return ''
+            uri, why = owner.uri, owner.lost
+        if uri and ping(uri, timeout, self._core.prefix)[0]:
+            with self._lock:
+                if owner.uri == uri:
+                    owner.last_ok, owner.refused_since, owner.lost, owner.suspect = time.monotonic(), None, '', True
+            return ''
+        return why
+
     def owed(self) -> List[Tuple[str, Target, int]]:
         with self._lock:
             return [(o.node, t, e) for o in self._owners.values() for t, e in o.owed]
