@@ -8,6 +8,8 @@ SIGKILLed (it keeps no journal, so what it served is gone).
 import contextlib
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -122,3 +124,14 @@ def test_an_owner_without_journal_that_dies_fails_what_is_held_from_it_at_once(p
     assert '/rr_dc died (it keeps no journal' in events[0]['message'], events[0]
     out = a.unload(res['id'])         # its owner is gone: the release is local, and says so
     assert registry_empty(a), out
+
+
+def test_a_request_type_gets_its_managers_deadline_without_the_contract_imported():
+    # a client that imports only the message type (a process load would otherwise get the 1 s default)
+    code = ('import sys; from temoto_er_manager.srv import LoadProcess; '
+            'from temoto_core.rr.deadlines import load_deadline, unload_deadline; '
+            'assert "temoto_er_manager.contract" not in sys.modules; '
+            'print(load_deadline(LoadProcess._request_class(), 1.0), unload_deadline(LoadProcess._request_class(), 1.0))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ['15.0', '10.0']

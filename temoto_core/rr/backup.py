@@ -117,6 +117,8 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
                 continue                  # an owner before the backup existed: nothing to rebuild it from
             response.trr.resource_id = internal_id       # the owner keeps its own id, and no copy of the record
             response.trr.backup = ''
+            # who answered is stamped on each answer (owners.py), not kept with the resource
+            response.trr.owner_node, response.trr.owner_uri, response.trr.owner_incarnation = '', '', 0
             entry = served.get(internal_id)
             if entry is None:
                 entry = served[internal_id] = JournaledServed(

@@ -32,6 +32,7 @@ StatusCallback = Callable[[StatusEvent], None]
 SERVICE_POLL = 0.05
 # how long a call to an owner found lost asks it once more before it fails (it may be back since the last check)
 RECHECK_BOUND = 0.2
+UNKNOWN_SERVICE = 'the master does not know it'
 
 
 class ClientSide:
@@ -207,7 +208,7 @@ class ClientSide:
 
     def _take_proxy(self, service: str, srv_class, deadline: float, seconds: float) -> rospy.ServiceProxy:
         registrar = registrar_of(service)
-        why = 'the master does not know it'
+        why = UNKNOWN_SERVICE
         while True:                 # a manager that is starting has not registered its service yet
             # an owner known lost is not tried, not even on a connection that is still open
             lost = self.owners.unreachable(registrar) if self.owners is not None else ''
@@ -226,6 +227,9 @@ class ClientSide:
             if proxy is not None:
                 return proxy
             if time.monotonic() + SERVICE_POLL > deadline:
+                if why == UNKNOWN_SERVICE:
+                    raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s does not exist (the master did '
+                                           'not know it within %.2f s): is its manager running?' % (service, seconds))
                 raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s could not be reached within %.2f s '
                                        '(%s): is its manager running?' % (service, seconds, why))
             time.sleep(SERVICE_POLL)

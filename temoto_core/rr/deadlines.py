@@ -26,11 +26,12 @@ the earliest deadline and does nothing while no call is late.
 """
 import contextlib
 import heapq
+import importlib
 import itertools
 import socket
 import threading
 import time
-from typing import Dict, Iterator, List, Optional, Tuple
+from typing import Dict, Iterator, List, Optional, Set, Tuple
 
 import rosgraph
 import rospy
@@ -187,6 +188,7 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
 # takes longer by nature (a sensor's first data, RViz starting) is declared by its manager's contract.
 DEFAULT_DEADLINE = 1.0
 _BY_TYPE: Dict[type, Tuple[float, float]] = {}
+_LOOKED_UP: Set[type] = set()
 
 
 def register_deadlines(request_class: type, load: float, unload: Optional[float] = None) -> None:
@@ -197,9 +199,32 @@ def register_deadlines(request_class: type, load: float, unload: Optional[float]
     _BY_TYPE[request_class] = (float(load), float(unload if unload is not None else load))
 
 
+def _declared(request_class: type) -> Optional[Tuple[float, float]]:
+    """The deadlines declared for ``request_class``, looking once for its package's contract module.
+
+    A client may use a manager's request type without importing the manager's
+    contract (which declares its deadlines): a process load would then get the
+    1 s default and fail. So the first call of a type imports
+    ``<package of the message>.contract`` if there is one, as the contract's own
+    clients do.
+    """
+    found = _BY_TYPE.get(request_class)
+    if found is None and request_class not in _LOOKED_UP:
+        _LOOKED_UP.add(request_class)
+        package = getattr(request_class, '_type', '').split('/')[0]
+        if package:
+            try:
+                importlib.import_module(package + '.contract')
+            except ModuleNotFoundError as err:
+                if err.name not in (package, package + '.contract'):
+                    raise                    # the contract exists and is broken: say so
+            found = _BY_TYPE.get(request_class)
+    return found
+
+
 def load_deadline(request, default: float) -> float:
-    return _BY_TYPE.get(type(request), (default, default))[0]
+    return (_declared(type(request)) or (default, default))[0]
 
 
 def unload_deadline(request, default: float) -> float:
-    return _BY_TYPE.get(type(request), (default, default))[1]
+    return (_declared(type(request)) or (default, default))[1]
