@@ -209,7 +209,10 @@ def run(args, procs):
                 done.set()
 
     consumers = [ResourceRegistrar('fan%d' % i) for i in range(args.fanout)]
-    held = [rr.call('rr_c', 'load_test', Req(name='fanned'), status_cb=on_status) for rr in consumers]
+    # a thousand new consumers in one process: a first call waits for its status channel, under load for
+    # longer than the 1 s default deadline (a stress figure, not a latency one)
+    held = [rr.call('rr_c', 'load_test', Req(name='fanned'), status_cb=on_status, deadline=30.0)
+            for rr in consumers]
     sent = c.fail('fanned')['sent']
     done.wait(60)
     fan = (max(got) - sent) if got else float('nan')

@@ -18,6 +18,7 @@ import errno
 import socket
 import threading
 import time
+import urllib.parse
 import xmlrpc.client
 from typing import Dict, List, Optional, Tuple
 
@@ -152,3 +153,14 @@ def ping(uri: str, timeout: float, caller: str) -> Tuple[Optional[bool], int]:
     except (xmlrpc.client.Error, ValueError):
         return False, 0
     return (True, int(pid)) if code == 1 else (False, 0)
+
+
+def accepts(uri: str, timeout: float) -> bool:
+    """Whether the node at XML-RPC ``uri`` takes a TCP connection within ``timeout``: its host is reachable
+    and a process holds the port, though it may be too busy (or stopped) to answer."""
+    parsed = urllib.parse.urlsplit(uri)
+    try:
+        with socket.create_connection((parsed.hostname, parsed.port), timeout):
+            return True
+    except (OSError, ValueError, TypeError):
+        return False

@@ -8,8 +8,9 @@ per owner asks it ``getPid`` every ``period`` (the consumer side's
 ``liveness.ConsumerWatch`` does the same for consumers):
 
 - it answers: alive;
-- no answer for ``bound`` seconds (a partition, a dead host, a SIGSTOPped or
-  wedged process): **lost**;
+- no answer for ``bound`` seconds, and its host does not take a connection (a
+  partition, a dead host): **lost**; if its host does (the process holds its
+  port: busy, or SIGSTOPped), lost after ``busy_bound`` seconds;
 - its connection is refused (its host answers, the process is gone): an owner
   that keeps a journal (incarnation > 0) is being respawned and takes its
   registry back (``recovery.py``), so it is given ``grace`` seconds, and is
@@ -42,13 +43,69 @@ import rospy
 
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.deadlines import WATCH
-from temoto_core.rr.liveness import ping
+from temoto_core.rr.liveness import accepts, ping
 from temoto_core.rr.query import ACTIVE, Target, target_name
 from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
 
 DEFAULT_PERIOD = 0.15
 DEFAULT_BOUND = 0.7
+# an owner whose node still accepts connections (its host is up, its process holds its port) but does not
+# answer is busy (a node with ten thousand resources and a thousand new consumers was silent for 0.8 s) or
+# stopped: it is given this long before it is lost
+DEFAULT_BUSY_BOUND = 3.0
+# how long a connect to a silent owner may take; a cut link takes it all (detection must stay within 1 s)
+ACCEPT_TIMEOUT = 0.1
 RECONCILE_SPACING = 0.5    # seconds between two reads of a suspect owner's registry
+
+
+class _SharedVerdicts:
+    """The last verdict on each owner URI, shared by every registrar of this process.
+
+    Each registrar watches its own owners; a process with many registrars (an
+    action engine, a benchmark with a thousand consumers) would otherwise ask the
+    same owner once per registrar per period, and a thousand asks every 0.15 s
+    filled the owner's listen backlog (128), so that it looked cut off. A verdict
+    younger than ``max_age`` is reused, and while one ask of an owner is under
+    way, every other registrar waits for its answer instead of asking too.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._verdicts: Dict[Tuple[str, str], Tuple[float, object]] = {}
+        self._asking: Dict[Tuple[str, str], threading.Event] = {}
+
+    def get(self, kind: str, uri: str, max_age: float, ask: Callable[[], object], wait: float,
+            default: object) -> object:
+        """The verdict of ``kind`` on ``uri``: a fresh one, the one under way (waited for at most ``wait``
+        seconds, ``default`` if it takes longer), or ``ask()``."""
+        key = (kind, uri)
+        with self._lock:
+            known = self._verdicts.get(key)
+            if known is not None and time.monotonic() - known[0] < max_age:
+                return known[1]
+            under_way = self._asking.get(key)
+            if under_way is None:
+                self._asking[key] = threading.Event()
+        if under_way is not None:
+            if not under_way.wait(wait):
+                return default
+            with self._lock:
+                known = self._verdicts.get(key)
+            return known[1] if known is not None else default
+        verdict = default
+        try:
+            verdict = ask()
+        finally:
+            with self._lock:
+                self._verdicts[key] = (time.monotonic(), verdict)
+                self._asking.pop(key).set()
+                if len(self._verdicts) > 4096:                  # old URIs of nodes long gone
+                    cutoff = time.monotonic() - 60.0
+                    self._verdicts = {k: v for k, v in self._verdicts.items() if v[0] > cutoff}
+        return verdict
+
+
+_SHARED = _SharedVerdicts()
 
 
 class Owner:
@@ -76,7 +133,8 @@ class OwnerWatch:
                  held_from: Callable[[str], List[Tuple[Target, int]]],
                  on_lost: Callable[[Target, int, str], None], send_unload: Callable[[Target, int], bool],
                  reconcile: Callable[[Tuple[str, str], Callable[[], bool]], bool],
-                 period: float = DEFAULT_PERIOD, bound: float = DEFAULT_BOUND, grace: float = 10.0) -> None:
+                 period: float = DEFAULT_PERIOD, bound: float = DEFAULT_BOUND, grace: float = 10.0,
+                 busy_bound: float = DEFAULT_BUSY_BOUND) -> None:
         """``holds_from(node)``: whether anything active is held from ``node``; ``held_from(node)``: the
         (target, external id) of those resources;
         ``on_lost``: handle one of them as failed; ``send_unload``: send one unload again, True once the
@@ -90,7 +148,10 @@ class OwnerWatch:
         self._on_lost = on_lost
         self._send_unload = send_unload
         self._reconcile = reconcile
-        self.period, self.bound, self.grace = period, bound, grace
+        if busy_bound < bound:
+            raise ValueError('owner liveness: the bound for a busy owner (%r s) must not be shorter than the '
+                             'bound (%r s)' % (busy_bound, bound))
+        self.period, self.bound, self.grace, self.busy_bound = period, bound, grace, busy_bound
         self._me = rospy.get_name()
         self._owners: Dict[str, Owner] = {}
         self._node_of: Dict[Tuple[str, str], str] = {}     # registrar -> the node last found serving it
@@ -191,8 +252,12 @@ class OwnerWatch:
                 owner.uri = self._lookup(owner.node)
             verdict = None
             if owner.uri:
-                budget = self.bound - (time.monotonic() - owner.last_ok)
-                verdict, _pid = ping(owner.uri, max(0.05, min(self.bound, budget)), self._core.prefix)
+                silent = time.monotonic() - owner.last_ok
+                limit = self.bound if silent < self.bound else self.busy_bound
+                timeout = max(0.05, min(self.bound, limit - silent))
+                verdict, _pid = _SHARED.get('ping', owner.uri, self.period / 2,
+                                            lambda: ping(owner.uri, timeout, self._core.prefix), timeout + 0.1,
+                                            (None, 0))
             now = time.monotonic()
             if verdict:
                 if owner.lost:             # back after a partition: what it holds for this side is checked
@@ -200,9 +265,15 @@ class OwnerWatch:
                 owner.last_ok, owner.refused_since, owner.lost = now, None, ''
                 self._settle(owner)
             elif verdict is None:
-                if now - owner.last_ok >= self.bound:
-                    self._lose(owner, 'no answer from %s for %.1f s: its host is cut off or down, or the process '
-                                      'is stopped' % (owner.node, now - owner.last_ok))
+                silent = now - owner.last_ok
+                if silent >= self.bound:
+                    if not _SHARED.get('accepts', owner.uri, self.period / 2,
+                                       lambda: accepts(owner.uri, ACCEPT_TIMEOUT), ACCEPT_TIMEOUT + 0.1, True):
+                        self._lose(owner, 'no answer from %s for %.1f s: its host is cut off or down'
+                                   % (owner.node, silent))
+                    elif silent >= self.busy_bound:
+                        self._lose(owner, 'no answer from %s for %.1f s: it accepts connections, so the process '
+                                          'is stopped or wedged' % (owner.node, silent))
             else:
                 self._gone(owner, now)
             self._stop.wait(self.period)

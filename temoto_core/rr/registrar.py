@@ -117,7 +117,8 @@ class ResourceRegistrar:
                                       self._client.resend_unload, self._client.reconcile_with,
                                       float(rospy.get_param('~owner_check_period', owners.DEFAULT_PERIOD)),
                                       float(rospy.get_param('~owner_liveness_bound', owners.DEFAULT_BOUND)),
-                                      recovery_grace)
+                                      recovery_grace,
+                                      float(rospy.get_param('~owner_busy_bound', owners.DEFAULT_BUSY_BOUND)))
         except ValueError as err:
             raise core.error(ErrorCode.BAD_REQUEST, str(err))
         self._client.owners = self._owners
