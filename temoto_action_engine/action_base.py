@@ -31,6 +31,8 @@ from typing import Any, Callable
 
 import rospy
 
+from temoto_core.rr.messages import legal_name
+
 from .umrf import ActionDescriptor
 
 # attribute -> (module, class): the interfaces each action can use, written by the managers' owners.
@@ -219,13 +221,32 @@ class ActionBase:
                 except (ImportError, AttributeError) as e:
                     raise ActionError('%s needs %s.%s, which is not available: %s'
                                       % (self.name, module_name, cls_name, e)) from None
-            itf = cls(self.rr)
+            namespace = self.manager_namespace(attr)
+            itf = cls(self.rr, namespace=namespace) if namespace else cls(self.rr)
             if hasattr(itf, 'on_lost'):
                 # a resource that its interface's default policy could not replace fails the action
                 itf.on_lost = lambda resource_id, err, attr=attr: self.fail(
                     'lost a %s resource (%d) for good: %s' % (attr.replace('_', ' '), resource_id, err))
             self._interfaces[attr] = itf
             return itf
+
+    def manager_namespace(self, attr: str) -> str | None:
+        """The TeMoto namespace the manager ``attr`` runs in, if not the engine's own.
+
+        A robot's managers run on the robot, under the robot's namespace, while the
+        engine runs on the operator's station (docs/two_hosts.md): the action's
+        config says where, as ``manager_namespaces: {sensor_manager: vaultbot}``.
+        """
+        where = self.config.get('manager_namespaces') or {}
+        if not isinstance(where, dict):
+            raise ActionError('%s: manager_namespaces must map a manager to a TeMoto namespace, got %r'
+                              % (self.name, where))
+        namespace = where.get(attr)
+        if namespace is None or namespace == '':
+            return None
+        if not isinstance(namespace, str) or not legal_name(namespace.strip('/'), base=True):
+            raise ActionError('%s: manager_namespaces.%s is %r, not a TeMoto namespace' % (self.name, attr, namespace))
+        return namespace.strip('/')
 
     @property
     def sensor_manager(self):

@@ -39,15 +39,45 @@ class Host:
     address: str
 
 
+# capability bits (<linux/capability.h>): a veth pair needs the first, a named network namespace the second
+_NEEDED_CAPS = {'CAP_NET_ADMIN': 12, 'CAP_SYS_ADMIN': 21}
+
+
+def _effective_capabilities() -> int:
+    with open('/proc/self/status') as status:
+        for line in status:
+            if line.startswith('CapEff:'):
+                return int(line.split()[1], 16)
+    return 0
+
+
 def unavailable() -> str:
     """'' if two hosts can be made here, else why not, in one line."""
-    if os.geteuid() != 0:
-        return 'two hosts need root (network namespaces and a veth pair need CAP_NET_ADMIN)'
+    effective = _effective_capabilities()
+    missing = [name for name, bit in _NEEDED_CAPS.items() if not effective >> bit & 1]
+    if missing:
+        return 'two hosts need root (network namespaces and a veth pair need %s, which this process lacks)' \
+            % ' and '.join(missing)
     try:
         subprocess.run(['ip', '-V'], check=True, capture_output=True, timeout=5)
     except (OSError, subprocess.SubprocessError) as err:
         return 'two hosts need iproute2 (`ip`): %s' % err
     return ''
+
+
+def _setns_fd(fd: int, what: str) -> None:
+    if ctypes.CDLL(None, use_errno=True).setns(fd, _CLONE_NEWNET) != 0:
+        err = ctypes.get_errno()
+        raise OSError(err, 'setns into %s: %s' % (what, os.strerror(err)))
+
+
+def _setns(path: str) -> None:
+    """The calling thread joins the network namespace at ``path``."""
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        _setns_fd(fd, path)
+    finally:
+        os.close(fd)
 
 
 def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -127,13 +157,7 @@ class TwoHosts:
 
         def run() -> None:
             try:
-                fd = os.open('/var/run/netns/%s' % host.name, os.O_RDONLY | os.O_CLOEXEC)
-                try:
-                    if ctypes.CDLL(None, use_errno=True).setns(fd, _CLONE_NEWNET) != 0:
-                        err = ctypes.get_errno()
-                        raise OSError(err, 'setns into %s: %s' % (host.name, os.strerror(err)))
-                finally:
-                    os.close(fd)
+                _setns('/var/run/netns/%s' % host.name)
                 result['value'] = fn()
             except BaseException as err:        # handed to the caller, raised there
                 result['error'] = err
@@ -145,6 +169,28 @@ class TwoHosts:
         if 'error' in result:
             raise result['error']
         return result['value']
+
+    def enter(self, host: Host) -> Callable[[], None]:
+        """Move the calling thread into ``host``'s network; return the call that moves it back.
+
+        Threads started meanwhile stay on ``host``. A command that talks ROS from
+        the operator's station (``temoto demo --hosts 2``) enters it from its main
+        thread before anything else connects, and leaves it before :meth:`down`,
+        which kills every process whose main thread is on a host.
+        """
+        back = os.open('/proc/thread-self/ns/net', os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            _setns('/var/run/netns/%s' % host.name)
+        except OSError:
+            os.close(back)
+            raise
+
+        def leave() -> None:
+            try:
+                _setns_fd(back, 'the namespace the thread came from')
+            finally:
+                os.close(back)
+        return leave
 
     def pids(self, host: Host) -> List[int]:
         out = _ip('netns', 'pids', host.name, check=False)

@@ -190,3 +190,45 @@ def test_temoto_replay_shows_the_three_views_again_on_a_master_of_its_own(demo_r
     views = [p.read_bytes() for p in shots]
     # each view differs from the next: the failed view went, the substitute came
     assert diff_fraction(views[0], views[1]) > 0.005 and diff_fraction(views[1], views[2]) > 0.0005
+
+
+def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz_on_the_station(tmp_path_factory):
+    """``--hosts 2``: the master, the simulation and the robot's managers (and so the drivers) on the robot host,
+    the action engine and RViz on the operator's station, two network namespaces joined by a veth pair. The
+    view fails over as on one host, each FAILED reaches the action across the link, and nothing is left behind:
+    no process, no namespace."""
+    from temoto_core import hosts as hosts_mod
+    from temoto_action_engine.demo.report import analyse, load_run
+    assert not hosts_mod.unavailable(), hosts_mod.unavailable()
+    before = set(hosts_mod._ip('netns', 'list').stdout.split())
+    proc, out, left = run_demo(tmp_path_factory, '--hosts', '2')
+    assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
+    assert left == []
+    assert set(hosts_mod._ip('netns', 'list').stdout.split()) <= before, 'the demo left a network namespace'
+    lines = [line for line in proc.stdout.splitlines() if line.startswith('[')]
+    assert any('two hosts: robot 198.18.0.1' in line for line in lines), proc.stdout
+    assert any('base LIDAR scan on screen after unplugging hokuyo (stall)' in line for line in lines), proc.stdout
+    # the drivers were started by the robot's ER Manager, RViz by the station's
+    robot_er = (out / 'logs' / 'robot' / 'vaultbot.temoto_er_manager.log').read_text()
+    station_er = (out / 'logs' / 'operator' / 'temoto_er_manager.log').read_text()
+    assert 'started vaultbot_sim/d435_driver for /vaultbot/temoto_sensor_manager' in robot_er
+    assert 'rviz_host' in station_er and 'rviz_host' not in robot_er and 'd435_driver' not in station_er
+    an = analyse(load_run(str(out / 'failover.bag')))
+    assert [s.topic for s in an.stages] == ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan']
+    assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
+    for f in an.failures:
+        assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
+
+
+def test_demo_on_two_hosts_without_root_says_why_in_one_line(tmp_path):
+    """Two hosts need CAP_NET_ADMIN and CAP_SYS_ADMIN: a process without them (here: root with both dropped
+    from its bounding set) is told so in one line, and nothing is started."""
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_MASTER_URI', 'DISPLAY')}
+    proc = subprocess.run(['setpriv', '--bounding-set=-net_admin,-sys_admin', '--inh-caps=-net_admin,-sys_admin',
+                           sys.executable, '-m', 'temoto_core.cli', 'demo', '--hosts', '2', '--out',
+                           str(tmp_path / 'run')], env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert proc.stderr.strip().splitlines() == ['temoto demo --hosts 2: two hosts need root (network namespaces '
+                                                'and a veth pair need CAP_NET_ADMIN and CAP_SYS_ADMIN, which this '
+                                                'process lacks)'], proc.stderr
+    assert not (tmp_path / 'run').exists()

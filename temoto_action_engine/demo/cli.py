@@ -1,7 +1,8 @@
 """``temoto demo``, ``temoto record``, ``temoto report``.
 
     temoto demo [--live] [--stage-timeout S] [--d435-mode crash|stall] [--hokuyo-mode crash|stall]
-                [--priority rgbd,arm_cloud,base_scan] [--kill-managers [--seed N]] [--out runs/<timestamp>]
+                [--priority rgbd,arm_cloud,base_scan] [--kill-managers [--seed N]] [--hosts 2 [--robot NS]]
+                [--out runs/<timestamp>]
     temoto record [--out PATH] [--ns NS]      (against the running master, until Ctrl-C)
     temoto report BAG [--out DIR]
 """
@@ -112,7 +113,22 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--kill-managers', action='store_true',
                    help='run with recovery on, and SIGKILL each manager once while the first view is up')
     p.add_argument('--seed', type=int, default=0, help='--kill-managers: the order and moments (default 0)')
+    p.add_argument('--hosts', type=int, choices=(1, 2), default=1,
+                   help='2: the robot and the operator\'s station on two hosts (network namespaces; needs root)')
+    p.add_argument('--robot', default='vaultbot', help='--hosts 2: the robot\'s TeMoto namespace (default %(default)s)')
     args = p.parse_args(argv)
+    if args.hosts == 2:
+        from temoto_core.hosts import unavailable
+        from temoto_core.rr.messages import legal_name
+        why = unavailable()
+        if why:
+            print('temoto demo --hosts 2: %s' % why, file=sys.stderr)
+            return 2
+        if args.kill_managers:
+            p.error('--kill-managers runs on one host; --hosts 2 does not take it yet')
+        if not legal_name(args.robot, base=True) or args.robot == T.DEFAULT_NS:
+            p.error('--robot %r: a TeMoto namespace (letters, digits, _) other than the station\'s %r'
+                    % (args.robot, T.DEFAULT_NS))
     priority = [x.strip() for x in args.priority.split(',') if x.strip()]
     bad = [x for x in priority if x not in PRIORITY_ENTRIES]
     if bad or len(priority) < 2 or len(set(priority)) != len(priority):
@@ -126,5 +142,5 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     opts = DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
                        modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
                        priority=priority, report=not args.no_report, kill_managers=args.kill_managers,
-                       seed=args.seed)
+                       seed=args.seed, hosts=args.hosts, robot=args.robot)
     return run_demo(opts)

@@ -25,6 +25,7 @@ import sys
 import threading
 import time
 import uuid
+import xml.etree.ElementTree as ElementTree
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional
@@ -43,6 +44,13 @@ KILLABLE = OrderedDict([('/temoto_er_manager', ['temoto_er_manager']),
                         ('/temoto_context_manager', ['temoto_context_manager', 'temoto_context_manager_trackers'])])
 RECOVERY_TIMEOUT = 30.0
 SENSOR_MANAGER = '/temoto_sensor_manager'
+LAUNCH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch')
+
+
+def _declared_args(launch: str, args: List[str]) -> List[str]:
+    """The ``name:=value`` of ``args`` that ``launch`` declares (roslaunch refuses the others)."""
+    declared = {arg.get('name') for arg in ElementTree.parse(launch).getroot().findall('arg')}
+    return [a for a in args if a.split(':=', 1)[0] in declared]
 
 
 def _rel(path: str) -> str:
@@ -66,6 +74,8 @@ class DemoOptions:
     launch_args: List[str] = field(default_factory=list)
     kill_managers: bool = False
     seed: int = 0
+    hosts: int = 1               # 2: the robot and the operator's station on two hosts (network namespaces)
+    robot: str = 'vaultbot'      # --hosts 2: the robot's TeMoto namespace
 
 
 class Progress:
@@ -153,7 +163,9 @@ class Demo:
         self.opts = opts
         self.progress = Progress()
         self.master = None
-        self.stack = None
+        self.stacks: list = []             # one Stack per host, in start order
+        self.hosts = None                  # --hosts 2: temoto_core.hosts.TwoHosts
+        self._leave_operator_host = None
         self.recording = None
         self.rospy_up = False
         self.bag_path = os.path.join(opts.out_dir, 'failover.bag')
@@ -164,8 +176,8 @@ class Demo:
         self.unplugged_while_down: Dict[str, float] = {}     # device -> when (--kill-managers)
 
     # ------------------------------------------------------------------ setup
-    def _env(self) -> Dict[str, str]:
-        env = dict(self.master.env)
+    def _env(self, host=None) -> Dict[str, str]:
+        env = dict(self.master.env) if host is None else self.hosts.env(host, self.master.uri, base=self.master.env)
         if not self.opts.live:
             env.pop('DISPLAY', None)      # the RViz host then runs its own Xvfb
         env['TEMOTO_TEST_SESSION'] = self.token
@@ -177,30 +189,69 @@ class Demo:
     def start(self) -> None:
         from temoto_core.master import RosMaster
         from .recording import Recording
-        from .stack import Stack, load_launch
+        from .stack import load_launch
         os.makedirs(self.opts.out_dir, exist_ok=True)
         os.environ['TEMOTO_TEST_SESSION'] = self.token     # RosMaster's env (and so every child) carries it
-        os.makedirs(os.path.join(self.opts.out_dir, 'ros'), exist_ok=True)
-        self.master = RosMaster(os.path.join(self.opts.out_dir, 'ros'), session_token=self.token).start()
-        self.progress.line('roscore on 127.0.0.1:%d' % self.master.port)
-        env = self._env()
-        launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch', 'demo.launch')
+        workdir = os.path.join(self.opts.out_dir, 'ros')
+        os.makedirs(workdir, exist_ok=True)
         launch_args = list(self.opts.launch_args) + (['recovery:=true'] if self.opts.kill_managers else [])
-        _, params = load_launch(launch, launch_args)
-        overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
-        self.stack = Stack(launch, env, os.path.join(self.opts.out_dir, 'logs'), launch_args, overrides)
-        self.stack.start(STARTUP_TIMEOUT)
+        if self.opts.hosts == 2:
+            self._start_two_hosts(workdir, launch_args)
+        else:
+            self.master = RosMaster(workdir, session_token=self.token).start()
+            self.progress.line('roscore on 127.0.0.1:%d' % self.master.port)
+            env = self._env()
+            launch = os.path.join(LAUNCH_DIR, 'demo.launch')
+            _, params = load_launch(launch, launch_args)
+            overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
+            self.stacks = [self._stack(launch, env, 'logs', launch_args, overrides)]
+        for stack in self.stacks:
+            stack.start(STARTUP_TIMEOUT)
+        env = self.stacks[-1].env
         self._init_rospy(env)
         self._wait_services(env)
-        self.progress.line('simulation, managers and action engine up (%d nodes)' % len(self.stack.running))
+        self.progress.line('simulation, managers and action engine up (%d nodes)'
+                           % sum(len(stack.running) for stack in self.stacks))
         self.recording = Recording(self.bag_path, env, self.opts.namespace, os.path.join(self.opts.out_dir, 'logs'))
         self.recording.start()
         self._wait_connected(env)
         self.progress.line('recording %s' % _rel(self.bag_path))
 
+    def _stack(self, launch: str, env: Dict[str, str], logs: str, launch_args: List[str],
+               overrides: Optional[dict] = None, wrap=None):
+        from .stack import Stack
+        return Stack(launch, env, os.path.join(self.opts.out_dir, logs), launch_args, overrides, wrap)
+
+    def _start_two_hosts(self, workdir: str, launch_args: List[str]) -> None:
+        """The robot host (master, simulation, the robot's ER and Sensor Managers) and the operator host
+        (action engine, Output Manager with RViz, its own ER Manager); this process joins the operator's."""
+        from temoto_core.hosts import TwoHosts
+        from .stack import load_launch
+        self.hosts = TwoHosts('d' + self.token[-6:].replace('_', 'x'))
+        self.hosts.up()
+        robot, operator = self.hosts.robot, self.hosts.operator
+        self.master = self.hosts.master(workdir, self.token).start()
+        self._leave_operator_host = self.hosts.enter(operator)
+        self.progress.line('two hosts: robot %s (roscore, simulation, drivers), operator %s (engine, RViz)'
+                           % (robot.address, operator.address))
+        args = ['robot:=' + self.opts.robot] + launch_args
+        robot_launch = os.path.join(LAUNCH_DIR, 'robot.launch')
+        operator_launch = os.path.join(LAUNCH_DIR, 'operator.launch')
+        _, params = load_launch(operator_launch, _declared_args(operator_launch, args))
+        overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
+        self.stacks = [
+            self._stack(robot_launch, self._env(robot), os.path.join('logs', 'robot'),
+                        _declared_args(robot_launch, args), wrap=lambda argv: self.hosts.argv(robot, argv)),
+            self._stack(operator_launch, self._env(operator), os.path.join('logs', 'operator'),
+                        _declared_args(operator_launch, args), overrides,
+                        wrap=lambda argv: self.hosts.argv(operator, argv))]
+
     def _init_rospy(self, env: Dict[str, str]) -> None:
         for key in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
-            os.environ[key] = env[key]
+            if key in env:
+                os.environ[key] = env[key]
+            else:                          # two hosts: ROS_IP, and no ROS_HOSTNAME (it would win)
+                os.environ.pop(key, None)
         import rospy
         from sensor_msgs.msg import CompressedImage
         from std_msgs.msg import String
@@ -216,12 +267,13 @@ class Demo:
         import rosgraph
         from temoto_core.wait import wait_for
         master = rosgraph.Master('/temoto_demo')
-        wanted = T.manager_services(self.opts.namespace)
+        wanted = T.manager_services(self.opts.namespace, self.opts.robot if self.hosts is not None else '')
 
         def ready():
-            dead = self.stack.dead()
+            dead = [name for stack in self.stacks for name in stack.dead()]
             if dead:
-                raise RuntimeError('node(s) died during startup: %s (logs in %s)' % (', '.join(dead), self.stack.log_dir))
+                raise RuntimeError('node(s) died during startup: %s (logs in %s)'
+                                   % (', '.join(dead), os.path.join(self.opts.out_dir, 'logs')))
             services = {s for s, _ in master.getSystemState()[2]}
             return all(s in services for s in wanted)
 
@@ -313,7 +365,7 @@ class Demo:
     def _kill_managers(self) -> None:
         import random
         rng = random.Random(self.opts.seed)
-        order = [name for name in KILLABLE if any(spec.name == name for spec, _ in self.stack.running)]
+        order = [name for name in KILLABLE if any(spec.name == name for spec, _ in self.stacks[0].running)]
         rng.shuffle(order)
         since = time.monotonic()
         for name in order:
@@ -467,16 +519,26 @@ class Demo:
         if self.rospy_up:
             import rospy
             rospy.signal_shutdown('demo over')
-        stops = self.stack.stop() if self.stack is not None else []
+        stops = []
+        for stack in reversed(self.stacks):     # the operator's first: its actions release what they hold
+            stops += stack.stop()
         bad = [(n, rc) for n, rc in stops if rc is None]
         if self.master is not None:
             self.master.stop()
+        if self.hosts is not None:
+            if self._leave_operator_host is not None:
+                self._leave_operator_host()      # before down(), which kills every process on the hosts
+                self._leave_operator_host = None
+            self.hosts.down()
+            if self.hosts.exist():
+                self.results['errors'].append('network namespaces left behind: %s' % self.hosts.exist())
         leftovers = leftover_processes(self.token)
         if leftovers:
             kill_leftovers(self.token)
             self.results['errors'].append('processes left behind (killed now): %s' % leftovers)
-        self.progress.line('stopped %d nodes, roscore and the recorder; %s'
-                           % (len(stops), 'no process left' if not leftovers else '%d LEFT BEHIND' % len(leftovers)),
+        self.progress.line('stopped %d nodes, roscore and the recorder%s; %s'
+                           % (len(stops), ', removed both hosts' if self.hosts is not None else '',
+                              'no process left' if not leftovers else '%d LEFT BEHIND' % len(leftovers)),
                            ok=not leftovers and not bad)
         return leftovers
 

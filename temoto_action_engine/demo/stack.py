@@ -20,7 +20,7 @@ import threading
 import time
 import xmlrpc.client
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 from temoto_core.processes import ManagedProcess, stop_process_group
 from temoto_core.wait import wait_for
@@ -65,7 +65,7 @@ def node_specs(config, env: Dict[str, str]) -> List[NodeSpec]:
     for n in config.nodes:
         found = roslib.packages.find_node(n.package, n.type, rospack)
         if not found:
-            raise FileNotFoundError('demo.launch: no executable %r in package %r' % (n.type, n.package))
+            raise FileNotFoundError('%s: no executable %r in package %r' % (n.filename, n.type, n.package))
         ns = (n.namespace or '/').rstrip('/')
         full = '%s/%s' % (ns, n.name)
         argv = _argv_for(found[0]) + shlex.split(n.args or '') + ['%s:=%s' % r for r in n.remap_args]
@@ -81,8 +81,11 @@ class Stack:
     """Start with :meth:`start`, stop with :meth:`stop` (reverse order, by process group)."""
 
     def __init__(self, launch_path: str, env: Dict[str, str], log_dir: str, launch_args: Sequence[str] = (),
-                 param_overrides: Optional[Dict[str, object]] = None) -> None:
+                 param_overrides: Optional[Dict[str, object]] = None,
+                 wrap: Optional[Callable[[List[str]], List[str]]] = None) -> None:
+        """``wrap``: how a node's command line is run elsewhere (on another host: ``TwoHosts.argv``)."""
         self.launch_path = launch_path
+        self.wrap = wrap or (lambda argv: list(argv))
         self.env = env
         self.log_dir = log_dir
         self.launch_args = list(launch_args)
@@ -104,7 +107,7 @@ class Stack:
         config, self.params = load_launch(self.launch_path, self.launch_args)
         unknown = [k for k in self.param_overrides if k not in self.params]
         if unknown:
-            raise KeyError('demo.launch sets no parameter %s' % ', '.join(unknown))
+            raise KeyError('%s sets no parameter %s' % (os.path.basename(self.launch_path), ', '.join(unknown)))
         self.params.update(self.param_overrides)
         master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
         for key, value in self.params.items():
@@ -113,7 +116,7 @@ class Stack:
                 raise RuntimeError('could not set %s: %s' % (key, msg))
         os.makedirs(self.log_dir, exist_ok=True)
         for spec in node_specs(config, self.env):
-            self.running.append((spec, ManagedProcess(spec.argv, spec.env, self._log_of(spec), spec.name)))
+            self.running.append((spec, ManagedProcess(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)))
 
         def all_registered():
             for spec, proc in self.running:
@@ -165,7 +168,7 @@ class Stack:
         with self._lock:
             if self._stopping:
                 return
-            proc = ManagedProcess(spec.argv, spec.env, self._log_of(spec), spec.name)
+            proc = ManagedProcess(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)
             self.running[index] = (spec, proc)
             self.respawns.append({'name': spec.name, 'died': died, 'started': time.monotonic(), 'pid': proc.pid,
                                   'returncode': old.proc.returncode})

@@ -99,10 +99,13 @@ def live_name(topic: str) -> str:
 
 
 # Managers' services the demo waits for before it speaks (the wire contract's names).
-def manager_services(ns: str = DEFAULT_NS) -> List[str]:
+def manager_services(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
+    """``robot``: the TeMoto namespace of the robot's own ER and Sensor Managers, when they run apart from the
+    operator's (two hosts); the operator's station then has an ER Manager of its own, for RViz."""
     ns = ns.strip('/')
+    robot = robot.strip('/')
     return ['/%s/temoto_er_manager/load_process' % ns,
-            '/%s/temoto_sensor_manager/start_sensor' % ns,
+            '/%s/temoto_sensor_manager/start_sensor' % (robot or ns),
             '/%s/temoto_output_manager/load_rviz_plugin' % ns,
             '/%s/action_engine/list_actions' % ns,
-            SET_DEVICE_STATE]
+            SET_DEVICE_STATE] + (['/%s/temoto_er_manager/load_process' % robot] if robot else [])

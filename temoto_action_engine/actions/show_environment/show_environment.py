@@ -343,7 +343,8 @@ class ShowEnvironment(ActionBase):
         else:
             from temoto_sensor_manager.interface import fetch_catalogue
             from temoto_sensor_manager.selection import likely_topics
-            topics = likely_topics(fetch_catalogue(self.context.namespace, CATALOGUE_TIMEOUT_S),
+            namespace = self.manager_namespace('sensor_manager') or self.context.namespace
+            topics = likely_topics(fetch_catalogue(namespace, CATALOGUE_TIMEOUT_S),
                                    choice.sensor_type, keys)
         return (topics or {}).get(choice.display_key, '')
 
