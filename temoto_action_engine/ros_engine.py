@@ -24,7 +24,7 @@ import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core.node import clear_stale_registration, on_signals
+from temoto_core.node import clear_stale_registration, on_signals, prime_log_parameter
 from temoto_core.rr.journal import Journal
 from temoto_core.rr.registrar import journal_param
 
@@ -167,6 +167,7 @@ def run_node(name: str = 'temoto_action_engine') -> None:
     """Entry of the node script: signals stop the graphs first, then rospy."""
     clear_stale_registration(name)
     rospy.init_node(name, disable_signals=True)
+    prime_log_parameter()      # its logging must not wait for the master (node.py)
     node = ActionEngineNode()
     stop = threading.Event()
     on_signals(lambda signum: stop.set())     # from a thread: Event.set in a handler can deadlock

@@ -25,7 +25,7 @@ import traceback
 from typing import IO
 
 import rospy
-from temoto_core.node import on_signals
+from temoto_core.node import on_signals, prime_log_parameter
 
 from . import worker_protocol as wp
 from .action_base import ActionContext, ActionError, default_rr_factory
@@ -247,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     worker = GraphWorker(out, args.temoto_namespace, args.stop_timeout)
     on_signals(lambda signum: _abort(worker, signum), (signal.SIGTERM, signal.SIGINT))
     rospy.init_node(args.node_name, disable_signals=True)
+    prime_log_parameter()      # its logging must not wait for the master (node.py)
     out.send(kind=wp.READY, pid=os.getpid(), node=rospy.get_name())
     threading.Thread(target=_read_commands, args=(sys.stdin.buffer, worker), daemon=True,
                      name='engine-pipe').start()

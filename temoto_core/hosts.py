@@ -1,4 +1,4 @@
-"""Two hosts on one machine: two Linux network namespaces joined by a veth pair.
+"""Two hosts on one machine: two Linux network namespaces, cabled to a switch.
 
 Teleoperation spans at least two machines, the robot and the operator's station.
 To run and test that here, each "host" is a network namespace with its own
@@ -6,8 +6,16 @@ loopback and one end of a veth pair, addressed in 198.18.0.0/15 (the range set
 aside for benchmarking, RFC 2544), so nothing else can be reached from it. ROS 1's
 own transport joins them: one master on the robot host, ``ROS_IP`` set per host.
 
-Faults a partition test needs, without the kernel's netem: the link down and up,
-an address removed, and every process of a host killed (a host that dies).
+The switch is a third namespace holding a bridge; each host's cable is a veth
+pair, one end in the host, one on the bridge. Pulling the cable sets the switch's
+ends down, so each host keeps its own interface up with no carrier, as a real
+pulled cable leaves it: its own address still works for its own nodes (a host
+whose interface went down would lose the address its nodes talk to each other
+on), and what it sends the other way is lost.
+
+Faults a partition test needs, without the kernel's netem: the cable pulled and
+plugged back, an address removed, and every process of a host killed (a host
+that dies).
 
 Needs root (``CAP_NET_ADMIN``); :func:`unavailable` says in one line why not.
 Every command is an argument list: nothing goes through a shell.
@@ -29,6 +37,7 @@ MASTER_PORT = 11311          # each host has its own ports: the robot's master t
 _CLONE_NEWNET = 0x40000000      # <sched.h>; os.setns arrives only in Python 3.12
 
 SUBNET_PREFIX = 24
+CARRIER_WAIT = 5.0      # s: the most a plugged cable takes to carry (measured: about 0.5 s)
 ADDRESSES = ('198.18.0.1', '198.18.0.2')    # robot, operator
 
 
@@ -93,16 +102,23 @@ class TwoHosts:
         self.robot = Host('tm-%s-robot' % tag, 'tm%sr' % tag, ADDRESSES[0])
         self.operator = Host('tm-%s-op' % tag, 'tm%so' % tag, ADDRESSES[1])
         self.hosts = (self.robot, self.operator)
+        self.switch = 'tm-%s-sw' % tag
+        self._ports = {host.name: 'sw%s%s' % (tag, host.device[-1]) for host in self.hosts}
 
     def up(self) -> 'TwoHosts':
         self.down()                              # what a killed run left behind
         try:
+            _ip('netns', 'add', self.switch)
+            _ip('-n', self.switch, 'link', 'add', 'br0', 'type', 'bridge')
+            _ip('-n', self.switch, 'link', 'set', 'br0', 'up')
             for host in self.hosts:
                 _ip('netns', 'add', host.name)
                 _ip('-n', host.name, 'link', 'set', 'lo', 'up')
-            _ip('link', 'add', self.robot.device, 'netns', self.robot.name, 'type', 'veth',
-                'peer', 'name', self.operator.device, 'netns', self.operator.name)
-            for host in self.hosts:
+                port = self._ports[host.name]
+                _ip('-n', self.switch, 'link', 'add', port, 'type', 'veth', 'peer', 'name', host.device,
+                    'netns', host.name)
+                _ip('-n', self.switch, 'link', 'set', port, 'master', 'br0')
+                _ip('-n', self.switch, 'link', 'set', port, 'up')
                 _ip('-n', host.name, 'addr', 'add', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)
                 _ip('-n', host.name, 'link', 'set', host.device, 'up')
         except subprocess.CalledProcessError as err:
@@ -111,15 +127,16 @@ class TwoHosts:
         return self
 
     def down(self) -> None:
-        """Kill every process of both hosts, then remove them (the veth pair goes with them)."""
+        """Kill every process of both hosts, then remove them and the switch (the cables go with them)."""
         for host in self.hosts:
             self.kill_all(host)
             _ip('netns', 'delete', host.name, check=False)
+        _ip('netns', 'delete', self.switch, check=False)
 
     def exist(self) -> List[str]:
-        """The namespaces of these hosts that exist now (none after :meth:`down`)."""
+        """The namespaces of these hosts and their switch that exist now (none after :meth:`down`)."""
         listed = _ip('netns', 'list', check=False).stdout.split()
-        return [host.name for host in self.hosts if host.name in listed]
+        return [name for name in [host.name for host in self.hosts] + [self.switch] if name in listed]
 
     # ------------------------------------------------------------------------------------------ running
     def master(self, workdir: str, session_token: str = '') -> RosMaster:
@@ -198,9 +215,27 @@ class TwoHosts:
 
     # ------------------------------------------------------------------------------------------ faults
     def link(self, up: bool) -> None:
-        """The cable between the hosts, pulled or plugged back (both ends, as a real cut looks)."""
+        """The cables between the hosts, pulled or plugged back at the switch: each host's interface stays up,
+        with no carrier while pulled."""
         for host in self.hosts:
-            _ip('-n', host.name, 'link', 'set', host.device, 'up' if up else 'down')
+            _ip('-n', self.switch, 'link', 'set', self._ports[host.name], 'up' if up else 'down')
+        if up:
+            # the kernel brings a carrier up in the background (its link watch, up to a second later); until
+            # then the host drops what it sends, so the cable counts as plugged once both ends say so
+            deadline = time.monotonic() + CARRIER_WAIT
+            while not all(self._carrier(host) for host in self.hosts):
+                if time.monotonic() > deadline:
+                    raise RuntimeError('the cable was plugged back, but no carrier came within %.0f s'
+                                       % CARRIER_WAIT)
+                time.sleep(0.01)
+            for host in self.hosts:
+                # an address asked for during the cut waits for its next ARP probe (a second apart): asked afresh
+                _ip('-n', host.name, 'neigh', 'flush', 'dev', host.device, check=False)
+
+    def _carrier(self, host: Host) -> bool:
+        """Whether ``host``'s interface is up and has a carrier (operational state UP)."""
+        shown = _ip('-n', host.name, '-br', 'link', 'show', 'dev', host.device, check=False).stdout.split()
+        return len(shown) > 1 and shown[1] == 'UP'
 
     def remove_address(self, host: Host) -> None:
         _ip('-n', host.name, 'addr', 'del', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)

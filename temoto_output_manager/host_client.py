@@ -14,6 +14,7 @@ import rosgraph
 import rosgraph.network
 import rospy
 
+from temoto_core.service_uris import ServiceProxy
 from temoto_output_manager.srv import (AddDisplay, ConfigureDisplay, ListDisplays, RemoveDisplay, Screenshot,
                                        SetView)
 
@@ -36,7 +37,7 @@ class RvizHostClient:
     def _srv(self, name: str, srv_type):
         proxy = self._proxies.get(name)
         if proxy is None:
-            proxy = self._proxies[name] = rospy.ServiceProxy('%s/%s' % (self.node_name, name), srv_type)
+            proxy = self._proxies[name] = ServiceProxy('%s/%s' % (self.node_name, name), srv_type)
         return proxy
 
     def wait_ready(self, timeout: Optional[float] = None,

@@ -18,6 +18,7 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
+from temoto_core.node import prime_log_parameter
 
 from temoto_output_manager.msg import DisplayEvent, DisplayInfo
 from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, ConfigureDisplay, ConfigureDisplayResponse,
@@ -212,6 +213,7 @@ def main(argv=None) -> int:
         from python_qt_binding import QtCore, QtWidgets
         app = QtWidgets.QApplication([sys.argv[0]])
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
+        prime_log_parameter()      # its logging must not wait for the master (node.py)
         settings = HostSettings(
             fixed_frame=str(rospy.get_param('~fixed_frame', 'base_link')),
             frame_rate=int(rospy.get_param('~frame_rate', 15)),

@@ -5,6 +5,7 @@ point at the test session's master, and with a token of its own: every process i
 inherits the token, so the census finds anything it leaves behind, at any depth. (Not the
 session's token: the demo's own census would count this worker's roscore as its leftover.)
 """
+import json
 import os
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from temoto_core.testing import SESSION_ENV, leftover_processes
 
 DEMO_TIMEOUT = 150          # hang catcher; the goal (< 90 s) is the benchmark's business
 MAX_GAP_S = 5.0
+HANG_S = 5.0        # catches a FAILED that hangs, not a slow machine
 
 
 def run_demo(tmp_path_factory, *args):
@@ -39,7 +41,6 @@ def test_kill_managers_kills_each_manager_once_and_the_view_stays_up(tmp_path_fa
     """``--kill-managers``: each manager SIGKILLed while the first view is up, respawned, recovered from its
     journal; the view stays up (the bag and the report say so); the camera unplugged while the Sensor Manager
     is down fails the view over once it is back; and the failover still works after."""
-    import json
     proc, out, left = run_demo(tmp_path_factory, '--kill-managers', '--seed', '7')
     assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
     assert left == []
@@ -214,10 +215,19 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     assert 'started vaultbot_sim/d435_driver for /vaultbot/temoto_sensor_manager' in robot_er
     assert 'rviz_host' in station_er and 'rviz_host' not in robot_er and 'd435_driver' not in station_er
     an = analyse(load_run(str(out / 'failover.bag')))
-    assert [s.topic for s in an.stages] == ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan']
+    # the last view is shown again once the cable is plugged back
+    assert [s.topic for s in an.stages] == ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan',
+                                            '/sick/scan']
     assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
     for f in an.failures:
         assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
+    # the cable pulled while the last view was up: the action heard FAILED (the owner liveness bound, 0.7 s, plus
+    # a generous margin for a loaded machine), the frozen view went off screen, and came back after the heal
+    assert any('link cut: the action heard FAILED' in line for line in lines), proc.stdout
+    assert any('link plugged back: base LIDAR scan on screen again' in line for line in lines), proc.stdout
+    partition = json.loads((out / 'demo.json').read_text())['partition']
+    assert partition['failed_heard_s'] < HANG_S, partition
+    assert 'its host is cut off or down' in partition['message'], partition
 
 
 def test_demo_on_two_hosts_without_root_says_why_in_one_line(tmp_path):

@@ -142,6 +142,20 @@ class EventWatcher:
                                        % (timeout, what, self._recent(since)))
                 self._cond.wait(min(left, 1.0))
 
+    def wait_action(self, match, since: float, timeout: float, what: str) -> dict:
+        """The first action event since ``since`` that ``match`` accepts."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                found = next((e for e in self.actions if e['arrival'] >= since and match(e)), None)
+                if found is not None:
+                    return found
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise StageTimeout('timed out after %.0f s waiting for %s; action events since: %s'
+                                       % (timeout, what, self._recent(since)))
+                self._cond.wait(min(left, 1.0))
+
     def wait_removed(self, since: float, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         with self._cond:
@@ -255,7 +269,9 @@ class Demo:
         import rospy
         from sensor_msgs.msg import CompressedImage
         from std_msgs.msg import String
+        from temoto_core.node import prime_log_parameter
         rospy.init_node('temoto_demo', disable_signals=True)
+        prime_log_parameter()      # its logging must not wait for the master (node.py)
         self.rospy_up = True
         ns = self.opts.namespace
         self.watcher = EventWatcher(ns)
@@ -359,7 +375,32 @@ class Demo:
                 self._hold_host()
             if k == 0 and self.opts.kill_managers:
                 self._kill_managers()
+        if self.hosts is not None:
+            self._partition(len(self.opts.priority) - 1, labels[-1])
         self._empty_view()
+
+    # ------------------------------------------------------------------ --hosts 2
+    def _partition(self, index: int, label: str) -> None:
+        """Cut the cable between the hosts while the last view is up: the action must hear FAILED within the
+        owner liveness bound and take the frozen view off screen; plug it back: the view must come back
+        (the action retries from the top of its list, and the cut sensor was released, not kept)."""
+        since = time.monotonic()
+        self._mark('link_down')
+        self.hosts.link(False)
+        failed = self.watcher.wait_action(lambda e: e.get('event') == 'sensor_failed', since, self.opts.stage_timeout,
+                                          'the FAILED of the %s after the link was cut' % label)
+        self.watcher.wait_removed(since, self.opts.stage_timeout)
+        heard = failed['arrival'] - since
+        self.progress.line('link cut: the action heard FAILED in %.2f s, view taken off screen' % heard)
+        healed = time.monotonic()
+        self._mark('link_up')
+        self.hosts.link(True)
+        self.watcher.wait_stage(index, healed, self.opts.stage_timeout, label)
+        back = time.monotonic() - healed
+        self._mark('link_restored', priority_index=index)
+        self.results['partition'] = {'failed_heard_s': heard, 'message': failed.get('message', ''),
+                                     'view_back_s': back}
+        self.progress.line('link plugged back: %s on screen again' % label)
 
     # ------------------------------------------------------------------ --kill-managers
     def _kill_managers(self) -> None:

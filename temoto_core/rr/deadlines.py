@@ -38,7 +38,7 @@ import rospy
 from rosgraph.network import read_ros_handshake_header
 from rospy.impl.tcpros_service import TCPROSTransport
 
-from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
+from temoto_core import service_uris
 
 # A live service answers the connection header within milliseconds. A stopped process's kernel still accepts
 # the TCP connection and then says nothing, so one attempt is bounded by this, and the caller retries while
@@ -134,11 +134,9 @@ def remaining(deadline: float) -> float:
 
 
 def lookup_service(service: str, deadline: float) -> str:
-    """The rosrpc URI of ``service`` from the master, within ``deadline``; '' if the master does not know it.
-    Raises ``OSError`` if the master cannot be reached in time."""
-    master = xmlrpc_proxy(rosgraph.get_master_uri(), max(0.01, remaining(deadline)))
-    code, _msg, uri = master.lookupService(rospy.get_name(), service)
-    return uri if code == 1 else ''
+    """The rosrpc URI of ``service`` within ``deadline``; '' if the master does not know it. When the master
+    cannot be reached, the URI known from before (``service_uris.py``); else raises ``OSError``."""
+    return service_uris.lookup(service, deadline)
 
 
 class _BoundedHandshake(TCPROSTransport):

@@ -32,6 +32,7 @@ import rospkg
 import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
+from temoto_core.node import prime_log_parameter
 from temoto_core.msg import RMPRequest, ResourceStatus
 from temoto_core.rr import backup, owners
 from temoto_core.rr.channels import StatusChannels
@@ -82,6 +83,9 @@ class ResourceRegistrar:
         ``call_deadline``: the deadline of a call whose request type declares none (default:
         ``~call_deadline``, 1 s)."""
         ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
+        # a registrar warns when its owners' host is cut off, and then the master is often out of reach too:
+        # its log calls must not ask the master (whatever started rospy in this process: node.py)
+        prime_log_parameter()
         if journal is None:
             journal = journal_param()
         self.journal_path = journal
