@@ -129,41 +129,34 @@ class EventWatcher:
             return topic
         return None
 
-    def wait_stage(self, index: int, since: float, timeout: float, what: str) -> str:
+    def _wait(self, found, timeout: float, why) -> object:
+        """``found()``'s first truthy answer, asked again on every event, within ``timeout``; else
+        StageTimeout with ``why()``."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
-                topic = self._stage_topic(index, since)
-                if topic:
-                    return topic
+                result = found()
+                if result:
+                    return result
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise StageTimeout('timed out after %.0f s waiting for %s on screen; action events since: %s'
-                                       % (timeout, what, self._recent(since)))
+                    raise StageTimeout(why())
                 self._cond.wait(min(left, 1.0))
+
+    def wait_stage(self, index: int, since: float, timeout: float, what: str) -> str:
+        return self._wait(lambda: self._stage_topic(index, since), timeout,
+                          lambda: 'timed out after %.0f s waiting for %s on screen; action events since: %s'
+                          % (timeout, what, self._recent(since)))
 
     def wait_action(self, match, since: float, timeout: float, what: str) -> dict:
         """The first action event since ``since`` that ``match`` accepts."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                found = next((e for e in self.actions if e['arrival'] >= since and match(e)), None)
-                if found is not None:
-                    return found
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise StageTimeout('timed out after %.0f s waiting for %s; action events since: %s'
-                                       % (timeout, what, self._recent(since)))
-                self._cond.wait(min(left, 1.0))
+        return self._wait(lambda: next((e for e in self.actions if e['arrival'] >= since and match(e)), None),
+                          timeout, lambda: 'timed out after %.0f s waiting for %s; action events since: %s'
+                          % (timeout, what, self._recent(since)))
 
     def wait_removed(self, since: float, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while not any(a >= since and ev == 'removed' and t for a, ev, t in self.display):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise StageTimeout('no display was removed within %.0f s of stopping the action' % timeout)
-                self._cond.wait(min(left, 1.0))
+        self._wait(lambda: any(a >= since and ev == 'removed' and t for a, ev, t in self.display), timeout,
+                   lambda: 'no display was removed within %.0f s of stopping the action' % timeout)
 
     def _recent(self, since: float) -> str:
         evs = [e for e in self.actions if e['arrival'] >= since and e.get('event') != 'state'] or \
