@@ -15,8 +15,8 @@ import rospy
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import RMPRequest
 from temoto_core.rr.core import RegistrarCore
-from temoto_core.rr.deadlines import (DEFAULT_DEADLINE, WATCH, connect, load_deadline, lookup_service,
-                                      unload_deadline)
+from temoto_core import service_uris
+from temoto_core.rr.deadlines import DEFAULT_DEADLINE, WATCH, connect, load_deadline, unload_deadline
 from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.messages import clone, legal_name, service_class, shallow_copy
@@ -236,7 +236,7 @@ class ClientSide:
 
     def _service_exists(self, service: str, deadline: float) -> bool:
         try:
-            return bool(lookup_service(service, min(deadline, time.monotonic() + 0.5)))
+            return bool(service_uris.lookup(service, min(deadline, time.monotonic() + 0.5)))
         except (OSError, xmlrpc.client.Error):
             return False
 

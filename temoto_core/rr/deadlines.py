@@ -133,12 +133,6 @@ def remaining(deadline: float) -> float:
     return deadline - time.monotonic()
 
 
-def lookup_service(service: str, deadline: float) -> str:
-    """The rosrpc URI of ``service`` within ``deadline``; '' if the master does not know it. When the master
-    cannot be reached, the URI known from before (``service_uris.py``); else raises ``OSError``."""
-    return service_uris.lookup(service, deadline)
-
-
 class _BoundedHandshake(TCPROSTransport):
     """rospy's transport, whose connection handshake keeps the connect timeout.
 
@@ -163,7 +157,7 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
     rospy's own proxy looks the service up and connects inside its first call, with no timeout on either;
     here both are done first, against the deadline, and the proxy is handed the open connection.
     """
-    uri = lookup_service(service, deadline)
+    uri = service_uris.lookup(service, deadline)     # the master, or the URI known when it is out of reach
     if not uri:
         return None
     host, port = rospy.core.parse_rosrpc_uri(uri)
