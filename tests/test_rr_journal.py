@@ -143,3 +143,21 @@ def test_the_writer_commits_in_order_many_changes_per_transaction_and_close_writ
     kept = Journal(path, run_id='run').owner_state()
     assert kept['order'] == '100', 'in the order queued'
     assert len([k for k in kept if k.startswith('k')]) == 100
+
+
+def test_a_batch_writes_the_highest_id_once_and_a_rolled_back_batch_raises_nothing(tmp_path):
+    path = str(tmp_path / 'rr.sqlite3')
+    journal = Journal(path, run_id='r1')
+    with journal.batch():
+        for i in range(1, 6):
+            journal.serve(10 * i, 'cam', 'p/Req', b'', b'', 10 * i + 1, consumer(10 * i + 1))
+        journal.hold(70, ('temoto', 'er', 'load_process'), 3, 'p/Proc', b'q', b's', 10)
+    assert journal.id_floor == 70
+    with pytest.raises(RuntimeError):
+        with journal.batch():
+            journal.serve(500, 'cam', 'p/Req', b'', b'', 501, consumer(501))
+            raise RuntimeError('a change failed half-way')
+    assert journal.id_floor == 70                 # the batch is not in the file: its ids are not either
+    journal.close()
+    again = Journal(path, run_id='r1')
+    assert again.id_floor == 70 and [s.internal_id for s in again.contents().served] == [10, 20, 30, 40, 50]

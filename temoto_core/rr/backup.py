@@ -42,7 +42,8 @@ import rospy
 
 from temoto_core.rr.journal import JournalContents, JournaledConsumer, JournaledHold, JournaledServed
 from temoto_core.rr.query import ClientQuery, ServerQuery
-from temoto_core.rr.recorder import serialized
+from temoto_core.rr.owner_state import OwnerState
+from temoto_core.rr.recorder import serialized, wire_of
 from temoto_core.srv import GetRegistry
 
 BACKUP_VERSION = 1
@@ -53,20 +54,18 @@ def _b64(data: bytes) -> str:
     return base64.b64encode(data).decode('ascii')
 
 
-def record(query: ServerQuery, by_local: Dict[int, ClientQuery], owner_state: Dict[str, str]) -> str:
+def record(query: ServerQuery, by_local: Dict[int, ClientQuery], owner_state: OwnerState) -> str:
     """The owner's record of ``query``, as its consumers keep it (lock held)."""
     links = []
     for local_id in sorted(query.links):
         held = by_local.get(local_id)
         if held is None or held.response is None:
             continue
+        request, response = wire_of(held)
         links.append({'local_id': local_id, 'target': list(held.target), 'external_id': held.external_id,
-                      'request_type': held.request._type, 'request': _b64(serialized(held.request)),
-                      'response': _b64(serialized(held.response))})
-    suffix = '/%d' % query.internal_id
+                      'request_type': held.request._type, 'request': _b64(request), 'response': _b64(response)})
     return json.dumps({'v': BACKUP_VERSION, 'internal_id': query.internal_id, 'links': links,
-                       'owner_state': {k: v for k, v in owner_state.items() if k.endswith(suffix)}},
-                      separators=(',', ':'))
+                       'owner_state': owner_state.of_resource(query.internal_id)}, separators=(',', ':'))
 
 
 @dataclasses.dataclass

@@ -99,6 +99,7 @@ class Journal:
         self.path = path
         self._lock = threading.RLock()
         self._in_batch = False
+        self._floor_dirty = False      # the id floor was raised in the batch under way
         try:
             self._db = sqlite3.connect(path, timeout=5.0, isolation_level=None, check_same_thread=False)
             self._db.execute('PRAGMA journal_mode=WAL')
@@ -149,11 +150,15 @@ class Journal:
         """Many changes in one transaction (group commit): all of them are there after a crash, or none."""
         with self._lock:
             self._db.execute('BEGIN IMMEDIATE')
-            self._in_batch = True
+            self._in_batch, self._floor_dirty = True, False
+            floor = self._id_floor
             try:
                 yield
+                if self._floor_dirty:
+                    self._write_floor(self._db)
             except BaseException:
                 self._db.execute('ROLLBACK')
+                self._id_floor = floor
                 raise
             else:
                 self._db.execute('COMMIT')
@@ -172,10 +177,18 @@ class Journal:
         return row[0]
 
     def _raise_floor(self, db: sqlite3.Connection, *ids: int) -> None:
+        """Raise the id floor; within a batch, written once when the batch commits (ids only grow, so one
+        write of the highest does for all)."""
         top = max(ids)
         if top > self._id_floor:
             self._id_floor = top
-            db.execute('UPDATE meta SET value = ? WHERE key = ?', (str(top), 'id_floor'))
+            if self._in_batch:
+                self._floor_dirty = True
+            else:
+                self._write_floor(db)
+
+    def _write_floor(self, db: sqlite3.Connection) -> None:
+        db.execute('UPDATE meta SET value = ? WHERE key = ?', (str(self._id_floor), 'id_floor'))
 
     @property
     def id_floor(self) -> int:

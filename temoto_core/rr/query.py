@@ -111,7 +111,7 @@ def target_name(target: Target) -> str:
 
 
 class ClientQuery(_Query):
-    __slots__ = ('target', 'key', 'request', 'response', 'external_id', 'state', 'local_ids', 'error')
+    __slots__ = ('target', 'key', 'request', 'response', 'external_id', 'state', 'local_ids', 'error', 'wire')
 
     def __init__(self, target: Target, key: Hashable, request) -> None:
         self.target = target
@@ -122,6 +122,7 @@ class ClientQuery(_Query):
         self.state = LOADING
         self.local_ids: Dict[int, Optional[Callable[[StatusEvent], None]]] = {}
         self.error: Optional[TemotoError] = None
+        self.wire: Optional[Tuple[bytes, bytes]] = None     # request and response serialised (recorder.wire_of)
 
     def __repr__(self) -> str:
         return 'client query %s:%d' % (target_name(self.target), self.external_id)

@@ -44,6 +44,7 @@ from temoto_core.rr.links import Links
 from temoto_core.rr.journal import Journal, JournalContents
 from temoto_core.rr.liveness import ConsumerWatch
 from temoto_core.rr.messages import legal_name
+from temoto_core.rr.owner_state import OwnerState
 from temoto_core.rr.owners import OwnerWatch
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
@@ -126,10 +127,10 @@ class ResourceRegistrar:
         except ValueError as err:
             raise core.error(ErrorCode.BAD_REQUEST, str(err))
         self._client.owners = self._owners
-        self._owner_state: Dict[str, str] = {}
+        self._owner_state = OwnerState()
         self._recovery = None
         if self._journal is not None:
-            self._owner_state = self._journal.owner_state()
+            self._owner_state = OwnerState(self._journal.owner_state())
             reconciled = self._reconcile_with_neighbours(self._journal.contents())
             self._recovery = Recovery(core, reconciled.contents, self._server, self._client, self._links,
                                       self._channels, self._receiver, header, stale=reconciled.stale)
@@ -170,7 +171,7 @@ class ResourceRegistrar:
     # ------------------------------------------------------------------------------------------ owner state
     def owner_state(self) -> Dict[str, str]:
         """What the owner kept (:meth:`put_owner_state`), as the journal or the neighbours gave it back."""
-        return dict(self._owner_state)
+        return self._owner_state.as_dict()
 
     def put_owner_state(self, key: str, value: str) -> None:
         """Keep ``value`` across a crash of this node: in the journal, and, for a key ``<kind>/<internal id>``,
@@ -180,7 +181,7 @@ class ResourceRegistrar:
             self._journal.put_owner_state(key, value)
 
     def drop_owner_state(self, key: str) -> None:
-        self._owner_state.pop(key, None)
+        self._owner_state.pop(key)
         if self._journal is not None:
             self._journal.drop_owner_state(key)
 
