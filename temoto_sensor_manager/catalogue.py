@@ -13,13 +13,19 @@ Format (one file holds a list under ``sensors``)::
         stall_timeout: 1.0              # optional silence limit of every topic, s
         description: ...                # optional
         output_topics:                  # topic type -> topic, or a mapping:
-          camera_info: /d435/color/camera_info
+          camera_info: d435/color/camera_info
           camera_data:
-            topic: /d435/depth_registered/points
+            topic: d435/depth_registered/points
             arg: points_topic           # launch file: the <arg> that sets it (default: the type key)
             remap: ''                   # node: the name to remap (default: the topic)
             rate: 30                    # overrides the entry's rate
             stall_timeout: 1.0          # overrides the entry's limit
+
+A relative topic is resolved in the namespace of the manager that loads the
+catalogue, as ROS resolves a node's relative names: one catalogue serves every
+robot, and the Sensor Manager of robot ``vaultbot_2`` (in ROS namespace
+``/vaultbot_2``) starts its drivers on ``/vaultbot_2/d435/...``. An absolute
+topic stays as written.
 
 A malformed entry is reported with its file and line and skipped; the rest of
 the catalogue loads. The stall limit of a topic is its ``stall_timeout``, or
@@ -55,7 +61,7 @@ class CatalogueError(ValueError):
 @dataclasses.dataclass
 class TopicSpec:
     key: str                    # the topic type, e.g. camera_data
-    topic: str                  # absolute default topic
+    topic: str                  # default topic, absolute (resolved in the manager's namespace)
     arg: str = ''               # launch files: the arg that sets this topic
     remap: str = ''             # nodes: the name inside the node that is remapped
     rate: float = 0.0           # expected Hz; 0: unknown
@@ -124,13 +130,13 @@ def _text(entry: dict, key: str, required: bool = True) -> str:
     return value
 
 
-def _absolute(topic: str, what: str) -> str:
+def _absolute(topic: str, what: str, namespace: str) -> str:
     if not isinstance(topic, str) or not topic or not rosgraph.names.is_legal_name(topic) or topic.startswith('~'):
         raise ValueError('%s: %r is not a legal ROS topic name' % (what, topic))
-    return rosgraph.names.ns_join('/', topic) if not topic.startswith('/') else topic
+    return rosgraph.names.ns_join(namespace, topic) if not topic.startswith('/') else topic
 
 
-def parse_entry(raw, source: str = '') -> SensorEntry:
+def parse_entry(raw, source: str = '', namespace: str = '/') -> SensorEntry:
     """One catalogue entry from its YAML value; raises ValueError naming the bad field."""
     if not isinstance(raw, dict):
         raise ValueError('an entry must be a mapping, got %s' % type(raw).__name__)
@@ -164,7 +170,7 @@ def parse_entry(raw, source: str = '') -> SensorEntry:
         if bad:
             raise ValueError('output_topics.%s: unknown field(s) %s (known: %s)'
                              % (key, ', '.join(bad), ', '.join(sorted(_TOPIC_KEYS))))
-        spec = TopicSpec(key=key, topic=_absolute(value.get('topic'), 'output_topics.%s.topic' % key),
+        spec = TopicSpec(key=key, topic=_absolute(value.get('topic'), 'output_topics.%s.topic' % key, namespace),
                          arg=_text(value, 'arg', required=False), remap=_text(value, 'remap', required=False),
                          rate=_number(value['rate'], 'output_topics.%s.rate' % key) if 'rate' in value else rate,
                          stall_timeout=_number(value['stall_timeout'], 'output_topics.%s.stall_timeout' % key)
@@ -182,8 +188,9 @@ def parse_entry(raw, source: str = '') -> SensorEntry:
                        description=_text(raw, 'description', required=False), prior=prior, source=source)
 
 
-def load_file(path: str) -> Tuple[List[SensorEntry], List[CatalogueError]]:
-    """Entries of one file and the problems found (each with file and line)."""
+def load_file(path: str, namespace: str = '/') -> Tuple[List[SensorEntry], List[CatalogueError]]:
+    """Entries of one file and the problems found (each with file and line); relative topics are resolved in
+    ``namespace``."""
     try:
         with open(path) as f:
             text = f.read()
@@ -203,7 +210,7 @@ def load_file(path: str) -> Tuple[List[SensorEntry], List[CatalogueError]]:
     for raw, node in zip(data['sensors'], items_node.value):
         where = '%s:%d' % (path, node.start_mark.line + 1)
         try:
-            entries.append(parse_entry(raw, where))
+            entries.append(parse_entry(raw, where, namespace))
         except ValueError as err:
             label = raw.get('name') if isinstance(raw, dict) and isinstance(raw.get('name'), str) else None
             problems.append(CatalogueError(where, '%s%s; entry skipped' % (
@@ -229,10 +236,13 @@ class Catalogue:
         self.entries.append(entry)
 
     @classmethod
-    def from_files(cls, paths: List[str]) -> 'Catalogue':
+    def from_files(cls, paths: List[str], namespace: str = '/') -> 'Catalogue':
+        """``namespace``: the ROS namespace relative topics are resolved in (the manager's own)."""
+        if not rosgraph.names.is_global(namespace) or not rosgraph.names.is_legal_name(namespace):
+            raise ValueError('catalogue namespace %r: a global ROS namespace such as /vaultbot_2/' % (namespace,))
         cat = cls()
         for path in paths:
-            entries, problems = load_file(os.path.expanduser(path))
+            entries, problems = load_file(os.path.expanduser(path), namespace)
             cat.problems.extend(problems)
             for entry in entries:
                 cat.add(entry)

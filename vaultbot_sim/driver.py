@@ -39,7 +39,8 @@ class DriverBase:
     default_rate = 10.0
 
     def __init__(self):
-        self.sim_ns = rospy.get_param('~sim_ns', '/vaultbot_sim').rstrip('/')
+        # relative by default: a driver started in a robot's namespace finds that robot's simulation
+        self.sim_ns = rospy.resolve_name(rospy.get_param('~sim_ns', 'vaultbot_sim')).rstrip('/')
         self.rate = float(rospy.get_param('~rate', self.default_rate))
         if not 0 < self.rate <= 1000:
             self.fail(f'~rate {self.rate} out of range (0, 1000]')
@@ -59,15 +60,16 @@ class DriverBase:
             rospy.logwarn('%s: device not responding (unplugged, stall): publishing nothing', self.device)
         self.robot_urdf = self._param(self.sim_ns + '/robot_urdf')
         self.world_urdf = self._param(self.sim_ns + '/world_urdf')
+        self.frame_prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))    # its robot's TF frames
         self.renderer = rospy.get_param('~renderer', 'tiny')
         self.scene = self.make_scene()
         self.cfg: tuple[dict, dict] = ({}, {})
-        rospy.Subscriber('/joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
+        rospy.Subscriber('joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
                          tcp_nodelay=True)
         rospy.Subscriber(self.sim_ns + '/world_joint_states', JointState, self._on_js, self.world_hist,
                          queue_size=20, tcp_nodelay=True)
         if not self._js_seen.wait(self.startup_timeout):
-            self.fail(f'{self.device}: no /joint_states after {self.startup_timeout:.0f} s')
+            self.fail(f'{self.device}: no {rospy.resolve_name("joint_states")} after {self.startup_timeout:.0f} s')
 
     def make_scene(self) -> Scene | None:
         return Scene(self.robot_urdf, self.world_urdf, renderer=self.renderer)

@@ -27,7 +27,7 @@ class LaserDriver(DriverBase):
     def publish(self, stamp: rospy.Time) -> None:
         pose = self.scene.robot_link_pose(self.spec.frame)
         ranges = self.scene.laser(pose, self.angles, self.spec.range_min, self.spec.range_max, self.threads)
-        self.pub.publish(scan_message(self.spec, ranges, Header(stamp=stamp, frame_id=self.spec.frame)))
+        self.pub.publish(scan_message(self.spec, ranges, Header(stamp=stamp, frame_id=self.frame_prefix + self.spec.frame)))
 
 
 class HokuyoDriver(LaserDriver):
@@ -73,7 +73,7 @@ class D435Driver(DriverBase):
         self.worker.request(*self.cfg)
         if pending is None:
             return
-        header = Header(stamp=pending, frame_id=D435.frame)
+        header = Header(stamp=pending, frame_id=self.frame_prefix + D435.frame)
         # Build only what someone listens to; the cloud is the expensive part.
         if self.pub_points.get_num_connections():
             pts = self.projector.project(z, rgb)

@@ -4,12 +4,21 @@ No physics runs here: the robot is kinematic (held pose + Hokuyo wrist sweep)
 and the drivers render their sensors from what this node publishes.
 TF is published directly (tf2_msgs/TFMessage), computed from the URDF, so no
 robot_state_publisher or tf2_ros is needed.
+
+Names follow ROS's convention for several robots on one master: everything the
+robot has (``joint_states``, ``robot_description``, this node's own topics and
+services) is relative, so a robot started in namespace ``vaultbot_2`` has its
+own; TF is the one shared tree on ``/tf`` and ``/tf_static``, and ``~frame_prefix``
+(``vaultbot_2/``) keeps each robot's frames apart in it. A prefixed robot's
+world hangs off the shared ``world`` frame at ``~origin`` ([x, y, yaw]), so
+one RViz fixed in ``world`` shows every robot in its place.
 """
 from __future__ import annotations
 
 import math
 import threading
 
+import rosgraph
 import rospy
 from temoto_core.node import ok
 from sensor_msgs.msg import JointState
@@ -24,6 +33,28 @@ from vaultbot_sim.msg import DeviceState, DeviceStates
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.spec import HOLD_POSE, SWEEP_JOINT
 from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
+
+
+def frame_prefix(value: object) -> str:
+    """``~frame_prefix`` checked: '' or a legal name, ending in '/' (``vaultbot_2`` -> ``vaultbot_2/``)."""
+    prefix = str(value or '').strip('/')
+    if prefix and not rosgraph.names.is_legal_base_name(prefix.replace('/', '_')):
+        raise ValueError('~frame_prefix %r: letters, digits, _ and / only, starting with a letter' % (value,))
+    return prefix + '/' if prefix else ''
+
+
+def origin_matrix(value: object) -> np.ndarray:
+    """``~origin`` [x, y, yaw] (metres, radians) as a homogeneous transform."""
+    try:
+        x, y, yaw = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError('~origin %r: expected [x, y, yaw] in metres and radians' % (value,)) from None
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise ValueError('~origin %r: every value must be finite' % (value,))
+    m = np.eye(4)
+    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = math.cos(yaw), -math.sin(yaw), math.sin(yaw), math.cos(yaw)
+    m[0, 3], m[1, 3] = x, y
+    return m
 
 
 class SimNode:
@@ -43,16 +74,20 @@ class SimNode:
         self.world = TreeModel(self.world_urdf)
         self.devices = DeviceTable()
         self.lock = threading.Lock()
+        self.frame_prefix = frame_prefix(rospy.get_param('~frame_prefix', ''))
+        self.origin = origin_matrix(rospy.get_param('~origin', [0.0, 0.0, 0.0]))
 
+        # the drivers stamp their data with the prefix; set before the URDFs, which they wait for
+        rospy.set_param('~frame_prefix', self.frame_prefix)
         with open(self.robot_urdf) as f:
-            rospy.set_param('/robot_description', f.read())
+            rospy.set_param('robot_description', f.read())
         rospy.set_param('~robot_urdf', self.robot_urdf)
         rospy.set_param('~world_urdf', self.world_urdf)
 
         self.pub_js = rospy.Publisher('joint_states', JointState, queue_size=10)
         self.pub_world_js = rospy.Publisher('~world_joint_states', JointState, queue_size=10)
-        self.pub_tf = rospy.Publisher('tf', TFMessage, queue_size=10)
-        self.pub_tf_static = rospy.Publisher('tf_static', TFMessage, queue_size=1, latch=True)
+        self.pub_tf = rospy.Publisher('/tf', TFMessage, queue_size=10)
+        self.pub_tf_static = rospy.Publisher('/tf_static', TFMessage, queue_size=1, latch=True)
         self.pub_devices = rospy.Publisher('~device_states', DeviceStates, queue_size=1, latch=True)
         self._publish_static()
         self._publish_devices()
@@ -60,9 +95,15 @@ class SimNode:
         rospy.Service('~set_sweep', SetSweep, self._on_set_sweep)
         rospy.loginfo('vaultbot_sim: world %s, joint states at %.0f Hz', self.world_urdf, self.rate)
 
+    def _frames(self, transforms: list) -> list:
+        prefix = self.frame_prefix
+        return [(prefix + parent, prefix + child, m) for parent, child, m in transforms] if prefix else transforms
+
     def _publish_static(self) -> None:
         fixed = [('world', self.robot.root, np.eye(4))]
-        fixed += self.robot.fixed_transforms() + self.world.fixed_transforms()
+        fixed = self._frames(fixed + self.robot.fixed_transforms() + self.world.fixed_transforms())
+        if self.frame_prefix:
+            fixed.append(('world', self.frame_prefix + 'world', self.origin))
         self.pub_tf_static.publish(tf_message(fixed, rospy.Time.now()))
 
     def _device_msgs(self) -> list[DeviceState]:
@@ -107,7 +148,7 @@ class SimNode:
         self.pub_world_js.publish(wjs)
         moving = self.robot.moving_transforms(dict(zip(names, pos)))
         moving += self.world.moving_transforms(dict(zip(wnames, wpos)))
-        self.pub_tf.publish(tf_message(moving, now))
+        self.pub_tf.publish(tf_message(self._frames(moving), now))
 
     def spin(self) -> None:
         rate = rospy.Rate(self.rate)

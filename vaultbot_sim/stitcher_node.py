@@ -35,9 +35,11 @@ class StitcherNode:
         # to connect to a new publisher on a busy machine) connect meanwhile and get the first cloud.
         self.pub = rospy.Publisher('laser_stitcher/cloud', PointCloud2, queue_size=2, tcp_nodelay=True)
         self.published = False
-        sim_ns = rospy.get_param('~sim_ns', '/vaultbot_sim').rstrip('/')
+        sim_ns = rospy.resolve_name(rospy.get_param('~sim_ns', 'vaultbot_sim')).rstrip('/')
         urdf = rospy.get_param('~robot_urdf', rospy.get_param(sim_ns + '/robot_urdf', ROBOT_URDF))
+        # the cloud is computed in the robot's own (unprefixed) model, and stamped with its robot's frame
         self.base_frame = rospy.get_param('~base_frame', 'base_link')
+        self.frame_prefix = str(rospy.get_param(sim_ns + '/frame_prefix', ''))
         self.mode = rospy.get_param('~mode', 'rolling')
         if self.mode not in MODES:
             raise ValueError('~mode %r: use one of %s' % (self.mode, ', '.join(MODES)))
@@ -61,7 +63,7 @@ class StitcherNode:
         self.last_published: float | None = None    # stamp of the last cloud (rolling mode)
         self.hist = JointHistory()
         self.lock = threading.Lock()
-        rospy.Subscriber('/joint_states', JointState, self._on_js, queue_size=50, tcp_nodelay=True)
+        rospy.Subscriber('joint_states', JointState, self._on_js, queue_size=50, tcp_nodelay=True)
         rospy.Subscriber('hokuyo/scan', LaserScan, self._on_scan, queue_size=50, tcp_nodelay=True)
 
     def _on_js(self, msg: JointState) -> None:
@@ -80,7 +82,7 @@ class StitcherNode:
                 self.stitcher.add(t, scan.ranges, scan.angle_min, scan.angle_increment, cfg)
                 pts = self._due(t)
         if pts is not None and len(pts):
-            self.pub.publish(cloud_message(pts, Header(stamp=scan.header.stamp, frame_id=self.base_frame),
+            self.pub.publish(cloud_message(pts, Header(stamp=scan.header.stamp, frame_id=self.frame_prefix + self.base_frame),
                                            dense=True))
             if not self.published:
                 self.published = True

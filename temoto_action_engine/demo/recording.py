@@ -37,10 +37,12 @@ class Recording:
     """Start with :meth:`start`; :meth:`stop` returns the closed bag's path."""
 
     def __init__(self, bag_path: str, env: Dict[str, str], namespace: str = T.DEFAULT_NS,
-                 log_dir: Optional[str] = None, streams: Optional[List[str]] = None) -> None:
+                 log_dir: Optional[str] = None, streams: Optional[List[str]] = None, robot: str = '') -> None:
+        """``robot``: the ROS namespace the robot (its simulation) runs in; '' for the root."""
         self.bag_path = os.path.abspath(bag_path)
         self.env = env
         self.namespace = namespace
+        self.robot = robot
         self.log_dir = log_dir or os.path.dirname(self.bag_path)
         self.streams = list(streams if streams is not None else T.DEFAULT_STREAMS)
         self.relay: Optional[ManagedProcess] = None
@@ -55,10 +57,11 @@ class Recording:
         master = self.env['ROS_MASTER_URI']
         self.relay = ManagedProcess([sys.executable, '-m', 'temoto_action_engine.demo.relay',
                                      '__name:=' + RELAY_NODE.lstrip('/'), '_temoto_namespace:=' + self.namespace,
+                                     '_robot:=' + (self.robot or '/'),
                                      '_streams:=' + ','.join(self.streams)],
                                     self.env, os.path.join(self.log_dir, 'relay.log'), 'relay')
         # what the relay announces (the sim's /tf topics are recorded whenever they exist)
-        wanted = {t for t in T.fixed_topics(self.namespace) if t not in ('/tf', '/tf_static')}
+        wanted = {t for t in T.fixed_topics(self.namespace, self.robot) if t not in ('/tf', '/tf_static')}
         wanted |= {T.STREAMS_PREFIX + t for t in T.STREAM_TYPES}
 
         def relay_ready():
@@ -67,7 +70,7 @@ class Recording:
             return _registered(master, RELAY_NODE)
 
         wait_for(relay_ready, timeout, 'the stream relay to register')
-        argv = [RECORDER, '-O', self.bag_path, '--lz4', '-e'] + T.record_regexes(self.namespace) + \
+        argv = [RECORDER, '-O', self.bag_path, '--lz4', '-e'] + T.record_regexes(self.namespace, self.robot) + \
                ['__name:=' + RECORDER_NODE.lstrip('/')]
         self.recorder = ManagedProcess(argv, self.env, os.path.join(self.log_dir, 'record.log'), 'record')
 

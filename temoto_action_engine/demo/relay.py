@@ -46,7 +46,7 @@ def decimate_cloud(cloud, step: int) -> None:
 
 class StreamRelay:
     def __init__(self, namespace: str = T.DEFAULT_NS, streams: Iterable[str] = T.DEFAULT_STREAMS,
-                 follow_displays: bool = True, announce: bool = True) -> None:
+                 follow_displays: bool = True, announce: bool = True, robot: str = '') -> None:
         import rospy
         from roslib.message import get_message_class
         from std_msgs.msg import Header
@@ -59,12 +59,13 @@ class StreamRelay:
         self._ticks = rospy.Publisher(T.TICKS, Header, queue_size=500, tcp_nodelay=True)
         self._announced = []
         if announce:
-            for topic, type_name in T.fixed_topics(namespace).items():
+            for topic, type_name in T.fixed_topics(namespace, robot).items():
                 cls = get_message_class(type_name)
                 if cls is not None and topic not in NOT_ANNOUNCED:
                     self._announced.append(rospy.Publisher(topic, cls, queue_size=1))
             for topic, type_name in T.STREAM_TYPES.items():
                 self._recorder_for(topic, get_message_class(type_name))
+        self._robot_description = T.robot_description(robot)
         threading.Thread(target=self._publish_robot_description, daemon=True,
                          name='relay-robot-description').start()
         for s in streams:
@@ -125,7 +126,7 @@ class StreamRelay:
         pub = self._rospy.Publisher(T.ROBOT_DESCRIPTION, String, queue_size=1, latch=True)
         deadline = time.monotonic() + ROBOT_DESCRIPTION_WAIT_S
         while not self._rospy.is_shutdown() and time.monotonic() < deadline:
-            urdf = self._rospy.get_param('/robot_description', '')
+            urdf = self._rospy.get_param(self._robot_description, '')
             if urdf:
                 pub.publish(String(data=urdf))
                 return
@@ -149,7 +150,8 @@ def main() -> None:
     streams = rospy.get_param('~streams', T.DEFAULT_STREAMS)
     if isinstance(streams, str):
         streams = [s for s in streams.split(',') if s.strip()]
-    StreamRelay(ns, streams)
+    robot = str(rospy.get_param('~robot', '')).strip('/')      # where the robot's simulation runs
+    StreamRelay(ns, streams, robot=robot)
     spin()
 
 

@@ -121,7 +121,7 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
                 if isinstance(ev, dict):
                     ev['t'] = float(ev.get('stamp') or bag_t)
                     run.actions.append(ev)
-            elif topic == T.DEVICE_STATES:
+            elif T.is_device_states(topic):
                 t = _stamp(msg, bag_t)
                 for d in msg.devices:
                     was = plugged.get(d.name)

@@ -183,6 +183,11 @@ class Demo:
         self.unplugged_while_down: Dict[str, float] = {}     # device -> when (--kill-managers)
 
     # ------------------------------------------------------------------ setup
+    @property
+    def _robot_ns(self) -> str:
+        """The ROS namespace the robot's simulation runs in: its own on two hosts (robot.launch), else the root."""
+        return self.opts.robot if self.opts.hosts == 2 else ''
+
     def _env(self, host=None) -> Dict[str, str]:
         env = dict(self.master.env) if host is None else self.hosts.env(host, self.master.uri, base=self.master.env)
         if not self.opts.live:
@@ -219,7 +224,8 @@ class Demo:
         self._wait_services(env)
         self.progress.line('simulation, managers and action engine up (%d nodes)'
                            % sum(len(stack.running) for stack in self.stacks))
-        self.recording = Recording(self.bag_path, env, self.opts.namespace, os.path.join(self.opts.out_dir, 'logs'))
+        self.recording = Recording(self.bag_path, env, self.opts.namespace, os.path.join(self.opts.out_dir, 'logs'),
+                                   robot=self._robot_ns)
         self.recording.start()
         self._wait_connected(env)
         self.progress.line('recording %s' % _rel(self.bag_path))
@@ -328,7 +334,7 @@ class Demo:
     def _unplug(self, device: str, mode: str) -> None:
         import rospy
         from vaultbot_sim.srv import SetDeviceState
-        resp = rospy.ServiceProxy(T.SET_DEVICE_STATE, SetDeviceState)(device=device, state='unplugged', mode=mode)
+        resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(device=device, state='unplugged', mode=mode)
         if not resp.success:
             raise RuntimeError('the simulation refused to unplug %s: %s' % (device, resp.message))
 

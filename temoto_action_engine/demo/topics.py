@@ -10,9 +10,35 @@ import re
 from typing import Dict, List
 
 DEFAULT_NS = 'temoto'
-SIM_NS = '/vaultbot_sim'
-DEVICE_STATES = SIM_NS + '/device_states'
-SET_DEVICE_STATE = SIM_NS + '/set_device_state'
+SIM_NODE = 'vaultbot_sim'
+
+
+def sim_ns(robot: str = '') -> str:
+    """The simulation node of ``robot`` (its ROS namespace; '' for a robot at the root, as on one host)."""
+    robot = robot.strip('/')
+    return '/%s/%s' % (robot, SIM_NODE) if robot else '/' + SIM_NODE
+
+
+def device_states(robot: str = '') -> str:
+    return sim_ns(robot) + '/device_states'
+
+
+def set_device_state(robot: str = '') -> str:
+    return sim_ns(robot) + '/set_device_state'
+
+
+def is_device_states(topic: str) -> bool:
+    """Whether ``topic`` is some robot's device states (a bag names the robot it was recorded with)."""
+    return re.match(r'^(/[A-Za-z][A-Za-z0-9_]*)?/%s/device_states$' % SIM_NODE, topic) is not None
+
+
+def robot_description(robot: str = '') -> str:
+    robot = robot.strip('/')
+    return '/%s/robot_description' % robot if robot else '/robot_description'
+
+
+DEVICE_STATES = device_states()
+SET_DEVICE_STATE = set_device_state()
 
 # Published by the demo's own relay / orchestrator (not by any TeMoto subsystem).
 DEMO_NS = '/temoto_demo'
@@ -61,11 +87,12 @@ def status_regex(ns: str = DEFAULT_NS) -> str:
     return '/%s/[^/]+/status' % ns.strip('/')
 
 
-def fixed_topics(ns: str = DEFAULT_NS) -> Dict[str, str]:
-    """Topics recorded by name, with their types (the relay announces them so the recorder subscribes early)."""
+def fixed_topics(ns: str = DEFAULT_NS, robot: str = '') -> Dict[str, str]:
+    """Topics recorded by name, with their types (the relay announces them so the recorder subscribes early).
+    ``robot``: the ROS namespace of the robot whose devices are recorded ('' for the root)."""
     return {
         chatter(ns): 'std_msgs/String',
-        DEVICE_STATES: 'vaultbot_sim/DeviceStates',
+        device_states(robot): 'vaultbot_sim/DeviceStates',
         display_events(ns): 'temoto_output_manager/DisplayEvent',
         action_events(ns): 'std_msgs/String',
         action_feedback(ns): 'std_msgs/String',
@@ -78,15 +105,15 @@ def fixed_topics(ns: str = DEFAULT_NS) -> Dict[str, str]:
     }
 
 
-def record_regexes(ns: str = DEFAULT_NS) -> List[str]:
+def record_regexes(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
     """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``)."""
-    exact = ['^%s$' % t.replace('.', r'\.') for t in fixed_topics(ns)]
+    exact = ['^%s$' % t.replace('.', r'\.') for t in fixed_topics(ns, robot)]
     return exact + ['^%s$' % status_regex(ns), '^%s/.*' % STREAMS_PREFIX]
 
 
 def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
     """Whether a recorded topic, played back under its own name, would drive a live stack."""
-    return topic in (chatter(ns), DEVICE_STATES) or re.match('^%s$' % status_regex(ns), topic) is not None
+    return topic == chatter(ns) or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
 
 
 def inert_name(topic: str) -> str:
@@ -108,4 +135,4 @@ def manager_services(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
             '/%s/temoto_sensor_manager/start_sensor' % (robot or ns),
             '/%s/temoto_output_manager/load_rviz_plugin' % ns,
             '/%s/action_engine/list_actions' % ns,
-            SET_DEVICE_STATE] + (['/%s/temoto_er_manager/load_process' % robot] if robot else [])
+            set_device_state(robot)] + (['/%s/temoto_er_manager/load_process' % robot] if robot else [])

@@ -7,11 +7,11 @@ T = TypeVar('T')
 
 @contextlib.contextmanager
 def made_interfaces(factory: Callable[[], T]) -> Iterator[Callable[[], T]]:
-    """Yield a ``make()`` that builds interfaces with ``factory``; every one is shut down on exit."""
+    """Yield a ``make(...)`` that builds interfaces with ``factory(...)``; every one is shut down on exit."""
     made = []
 
-    def make() -> T:
-        iface = factory()
+    def make(*args, **kwargs) -> T:
+        iface = factory(*args, **kwargs)
         made.append(iface)
         return iface
     try:
