@@ -42,6 +42,8 @@ MANAGER_INTERFACES = {
     'context_manager': ('temoto_context_manager.interface', 'ContextManagerInterface'),
     'er_manager': ('temoto_er_manager.interface', 'ERManagerInterface'),
 }
+# the managers that run on a robot (robot.launch): an action's ``robot`` input names their namespace
+ROBOT_MANAGERS = ('sensor_manager', 'er_manager')
 
 
 class ActionError(RuntimeError):
@@ -236,7 +238,15 @@ class ActionBase:
         A robot's managers run on the robot, under the robot's namespace, while the
         engine runs on the operator's station (docs/two_hosts.md): the action's
         config says where, as ``manager_namespaces: {sensor_manager: vaultbot}``.
+        An action that takes a ``robot`` input ("show the environment of vaultbot_2")
+        asks that robot's own managers (ROBOT_MANAGERS) instead, so that one station
+        serves several robots.
         """
+        robot = self.context.inputs.get('robot') if 'robot' in self.context.descriptor.inputs else None
+        if attr in ROBOT_MANAGERS and robot not in (None, ''):
+            if not isinstance(robot, str) or not legal_name(robot.strip('/'), base=True):
+                raise ActionError('%s: robot %r is not a TeMoto namespace' % (self.name, robot))
+            return robot.strip('/')
         where = self.config.get('manager_namespaces') or {}
         if not isinstance(where, dict):
             raise ActionError('%s: manager_namespaces must map a manager to a TeMoto namespace, got %r'

@@ -133,3 +133,9 @@ def test_wake_word(index):
 
 def test_graph_name_comes_from_the_actions(grounder, index):
     assert ok(grounder, index, 'track the hand and show it').graph['graph_name'] == 'track_object_show'
+
+
+def test_a_robots_name_picks_whose_environment_is_shown(grounder, index):
+    r = ok(grounder, index, 'show the environment of vaultbot_2 and show the surroundings of vaultbot_1')
+    assert shape(r.graph) == [('show_environment', 0, {'robot': 'vaultbot_2'}, []),
+                              ('show_environment', 1, {'robot': 'vaultbot_1'}, [])]

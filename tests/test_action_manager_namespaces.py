@@ -3,7 +3,7 @@ config's ``manager_namespaces``; a bad entry is refused by name. The run across 
 import pytest
 
 from temoto_action_engine.action_base import ActionBase, ActionContext, ActionError
-from temoto_action_engine.umrf import ActionDescriptor, Grounding
+from temoto_action_engine.umrf import ActionDescriptor, Grounding, ParamSpec
 
 
 class RecordingInterface:
@@ -44,4 +44,29 @@ def test_a_bad_manager_namespace_is_refused_by_name_and_binds_nothing(config, na
     with pytest.raises(ActionError) as err:
         act.sensor_manager
     assert named in str(err.value)
+    assert act._interfaces == {}
+
+
+def robot_action(robot, config=None):
+    descriptor = ActionDescriptor('show_environment', 'test', 'asynchronous', 'm', 'C',
+                                  {'robot': ParamSpec('robot', 'string', required=False)}, {}, Grounding())
+    context = ActionContext(descriptor=descriptor, instance_id=0, graph_name='g', inputs={'robot': robot}, uid='1',
+                            config=config or {}, rr_factory=lambda name: 'rr:' + name,
+                            interface_factories={'sensor_manager': RecordingInterface,
+                                                 'output_manager': RecordingInterface})
+    return ActionBase(context)
+
+
+def test_a_robot_named_in_the_instruction_is_asked_over_the_config():
+    act = robot_action('vaultbot_2', {'manager_namespaces': {'sensor_manager': 'vaultbot_1'}})
+    assert act.sensor_manager.namespace == 'vaultbot_2'
+    assert act.output_manager.namespace is None           # the station's own: the robot has none
+    assert robot_action('').sensor_manager.namespace is None
+
+
+def test_a_robot_that_is_not_a_namespace_is_refused_by_name():
+    act = robot_action('vault bot')
+    with pytest.raises(ActionError) as err:
+        act.sensor_manager
+    assert "robot 'vault bot' is not a TeMoto namespace" in str(err.value)
     assert act._interfaces == {}
