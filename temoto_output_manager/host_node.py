@@ -220,6 +220,7 @@ def main(argv=None) -> int:
             width=int(rospy.get_param('~width', 960)),
             height=int(rospy.get_param('~height', 600)),
             robot_description=str(rospy.get_param('~robot_description', 'robot_description')),
+            robot_tf_prefix=str(rospy.get_param('~robot_tf_prefix', '')),
             show_robot=bool(rospy.get_param('~show_robot', True)),
             show_grid=bool(rospy.get_param('~show_grid', True)),
             initial_view=_initial_view(rospy.get_param('~initial_view', 'operator')))

@@ -96,10 +96,21 @@ class HostSettings:
     width: int = 960
     height: int = 600
     robot_description: str = 'robot_description'
+    robot_tf_prefix: str = ''         # the robot's frame prefix, when robots share the TF tree (vaultbot_2/)
     show_robot: bool = True
     show_grid: bool = True
     initial_view: Dict[str, Any] = field(default_factory=lambda: dict(OPERATOR_VIEW))   # {}: frame the robot
     watch_period_ms: int = 5          # sampling period while a display waits for its first frame
+
+
+def robot_model_config(settings: HostSettings) -> Dict[str, Any]:
+    """The robot model's RViz properties: where its URDF is, and the prefix of its frames in a TF tree shared
+    by several robots (RViz adds the '/' itself)."""
+    config: Dict[str, Any] = {'Robot Description': settings.robot_description}
+    prefix = settings.robot_tf_prefix.strip('/')
+    if prefix:
+        config['TF Prefix'] = prefix
+    return config
 
 
 EventSink = Callable[[str, str, str, str, int, float], None]   # event, name, class, topic, frame_count, seconds
@@ -152,7 +163,7 @@ class RvizHost:
         if self.settings.show_grid:
             self._add_builtin('rviz/Grid', BUILTIN_GRID, {})
         if self.settings.show_robot:
-            self._add_builtin('rviz/RobotModel', BUILTIN_ROBOT, {'Robot Description': self.settings.robot_description})
+            self._add_builtin('rviz/RobotModel', BUILTIN_ROBOT, robot_model_config(self.settings))
         if self.settings.initial_view:
             self.apply_view(self.settings.initial_view)     # looking at the data, not at the robot
         else:

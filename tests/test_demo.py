@@ -215,9 +215,9 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     assert 'started vaultbot_sim/d435_driver for /vaultbot/temoto_sensor_manager' in robot_er
     assert 'rviz_host' in station_er and 'rviz_host' not in robot_er and 'd435_driver' not in station_er
     an = analyse(load_run(str(out / 'failover.bag')))
-    # the last view is shown again once the cable is plugged back
-    assert [s.topic for s in an.stages] == ['/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan',
-                                            '/sick/scan']
+    # every topic of the robot is in its namespace; the last view is shown again once the cable is plugged back
+    assert [s.topic for s in an.stages] == ['/vaultbot/d435/depth_registered/points', '/vaultbot/laser_stitcher/cloud',
+                                            '/vaultbot/sick/scan', '/vaultbot/sick/scan']
     assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
     for f in an.failures:
         assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device

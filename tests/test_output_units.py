@@ -152,3 +152,11 @@ def test_the_host_starts_looking_at_the_data_unless_told_otherwise():
     assert _initial_view({'Distance': 3.0}) == {'Distance': 3.0}
     with pytest.raises(SystemExit, match="'operator', 'robot'"):
         _initial_view('sideways')
+
+
+def test_the_robot_model_takes_its_robots_frame_prefix_when_robots_share_the_tf_tree():
+    from temoto_output_manager.rviz_host import HostSettings, robot_model_config
+    assert robot_model_config(HostSettings()) == {'Robot Description': 'robot_description'}
+    assert robot_model_config(HostSettings(robot_description='/vaultbot_2/robot_description',
+                                           robot_tf_prefix='vaultbot_2/')) == \
+        {'Robot Description': '/vaultbot_2/robot_description', 'TF Prefix': 'vaultbot_2'}
