@@ -204,3 +204,16 @@ def test_cli_reports_sim_not_running():
                        text=True, timeout=30)
     assert r.returncode == 1
     assert 'not running' in r.stderr
+
+
+def test_a_robots_frame_prefix_and_origin_are_checked_and_named_when_wrong():
+    from vaultbot_sim.sim_node import frame_prefix, origin_matrix
+    assert frame_prefix('') == '' and frame_prefix(None) == ''
+    assert frame_prefix('vaultbot_2') == 'vaultbot_2/' == frame_prefix('/vaultbot_2/')
+    with pytest.raises(ValueError, match="~frame_prefix '2 bots'"):
+        frame_prefix('2 bots')
+    m = origin_matrix([1.0, 8.0, math.pi / 2])
+    assert np.allclose(m @ [1.0, 0.0, 0.0, 1.0], [1.0, 9.0, 0.0, 1.0])    # x of the robot's world -> +y here
+    for bad in ([1.0, 2.0], 'north', [0.0, float('nan'), 0.0]):
+        with pytest.raises(ValueError, match='~origin'):
+            origin_matrix(bad)
