@@ -282,7 +282,7 @@ class Demo:
         import rosgraph
         from temoto_core.wait import wait_for
         master = rosgraph.Master('/temoto_demo')
-        wanted = T.manager_services(self.opts.namespace, self.opts.robot if self.hosts is not None else '')
+        wanted = T.manager_services(self.opts.namespace, self._robot_ns)
 
         def ready():
             dead = [name for stack in self.stacks for name in stack.dead()]

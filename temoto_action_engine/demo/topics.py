@@ -13,10 +13,16 @@ DEFAULT_NS = 'temoto'
 SIM_NODE = 'vaultbot_sim'
 
 
-def sim_ns(robot: str = '') -> str:
-    """The simulation node of ``robot`` (its ROS namespace; '' for a robot at the root, as on one host)."""
+def of_robot(robot: str, name: str) -> str:
+    """The global name of a robot's relative ``name``: ``robot`` is its ROS namespace ('' for a robot at the
+    root, as on one host; ``robot.launch robot:=vaultbot`` puts every name of the robot under /vaultbot)."""
     robot = robot.strip('/')
-    return '/%s/%s' % (robot, SIM_NODE) if robot else '/' + SIM_NODE
+    return '/%s/%s' % (robot, name) if robot else '/' + name
+
+
+def sim_ns(robot: str = '') -> str:
+    """The simulation node of ``robot``."""
+    return of_robot(robot, SIM_NODE)
 
 
 def device_states(robot: str = '') -> str:
@@ -33,12 +39,10 @@ def is_device_states(topic: str) -> bool:
 
 
 def robot_description(robot: str = '') -> str:
-    robot = robot.strip('/')
-    return '/%s/robot_description' % robot if robot else '/robot_description'
+    return of_robot(robot, 'robot_description')
 
 
-DEVICE_STATES = device_states()
-SET_DEVICE_STATE = set_device_state()
+DEVICE_STATES = device_states()          # a robot at the root (one host)
 
 # Published by the demo's own relay / orchestrator (not by any TeMoto subsystem).
 DEMO_NS = '/temoto_demo'
