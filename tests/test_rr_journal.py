@@ -5,11 +5,14 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
 
 from temoto_core.rr.journal import Journal, JournalError, JournaledConsumer
+from temoto_core.rr.recorder import JournalWriter
+from temoto_core.testing import wait_for
 
 WRITER = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'journal_writer.py')
 
@@ -113,8 +116,6 @@ def test_the_journal_survives_a_sigkill_at_any_point_of_a_write_loop(tmp_path):
 
 def test_the_writer_commits_in_order_many_changes_per_transaction_and_close_writes_the_rest(tmp_path):
     """The registrar's writes leave its hot path: queued, then committed by one thread in batches."""
-    import threading
-    from temoto_core.rr.recorder import JournalWriter
     path = str(tmp_path / 'w.sqlite3')
     journal = Journal(path, run_id='run')
     batches = []
@@ -143,6 +144,32 @@ def test_the_writer_commits_in_order_many_changes_per_transaction_and_close_writ
     kept = Journal(path, run_id='run').owner_state()
     assert kept['order'] == '100', 'in the order queued'
     assert len([k for k in kept if k.startswith('k')]) == 100
+
+
+def test_a_lone_change_is_committed_at_once_and_a_burst_at_most_once_per_pause(tmp_path):
+    """Each commit costs the same whatever it holds: under a burst the writer commits, and wakes, once per pause;
+    a change on its own does not wait for the pause."""
+    journal = Journal(str(tmp_path / 'p.sqlite3'), run_id='run')
+    batches = []
+    real_batch = journal.batch
+
+    def counting_batch():
+        batches.append(time.monotonic())
+        return real_batch()
+    journal.batch = counting_batch
+    writer = JournalWriter(journal, pause=3600.0)        # a pause no test outlives: only the first commit is free
+    try:
+        writer.put(lambda: journal.put_owner_state('alone', '1'))
+        wait_for(lambda: 'alone' in journal.owner_state(), 10, 'the lone change committed')
+        for i in range(50):
+            writer.put(lambda i=i: journal.put_owner_state('burst%d' % i, str(i)))
+        assert len(batches) == 1 and not any(k.startswith('burst') for k in journal.owner_state()), \
+            'the burst waits for the pause'
+    finally:
+        writer.close()
+    assert len(batches) == 2 and len([k for k in journal.owner_state() if k.startswith('burst')]) == 50, \
+        'close writes what waited, in one transaction'
+    journal.close()
 
 
 def test_a_batch_writes_the_highest_id_once_and_a_rolled_back_batch_raises_nothing(tmp_path):

@@ -1,6 +1,6 @@
 """The journal checked against the neighbours' copies at a restart (backup.reconcile): pure logic; the
 cross-process cases are in test_rr_recovery.py."""
-from temoto_core.rr.backup import NO_PARENT, Kept, reconcile
+from temoto_core.rr.backup import NO_PARENT, Kept, parse_record, reconcile
 from temoto_core.rr.journal import JournalContents, JournaledConsumer, JournaledHold, JournaledServed
 
 A, B, C = '/temoto/rr_a/status', '/temoto/rr_b/status', '/temoto/rr_c/status'
@@ -46,3 +46,27 @@ def test_a_recovering_neighbour_is_not_asked_to_judge():
     journal = JournalContents([served(1, consumer(11, A))], [])
     out = reconcile(journal, Kept(JournalContents([], []), {}, set()))
     assert out.stale == [] and out.contents.served[0].consumers[0].external_id == 11
+
+
+Z = ('temoto', 'rr_z', 'load_test')
+
+
+def test_a_link_nobody_gives_back_fails_its_resource_unless_the_journal_has_it():
+    journal = JournalContents([], [hold(5, 50, 1)])
+    kept = Kept(JournalContents([served(1, consumer(11, A)), served(2, consumer(21, A))], []), {}, {A},
+                unfound=[(1, Z, 50), (2, Z, 60)])
+    out = reconcile(journal, kept)
+    assert list(out.lost) == [2]                                 # 50 is in the journal: resource 1 is whole
+    assert '/temoto/rr_z/load_test 60' in out.lost[2] and 'could not be recovered' in out.lost[2]
+
+
+def test_a_record_from_the_wire_is_checked_before_it_is_used():
+    good = '{"v":2,"internal_id":7,"links":[{"local_id":3,"target":["temoto","rr_z","load_test"],"external_id":9}],' \
+           '"owner_state":{"pid/7":"100"}}'
+    assert parse_record(good, A) == (7, [(3, Z, 9)], {'pid/7': '100'})
+    assert parse_record('', A) == (None, [], {})
+    for bad in ('not json', '[1]', '{"internal_id": true}', '{"internal_id": -4}',
+                '{"internal_id": 7, "links": [{"local_id": "3", "target": ["a", "b", "c"], "external_id": 9}]}',
+                '{"internal_id": 7, "links": [{"local_id": 3, "target": ["a", "b"], "external_id": 9}]}',
+                '{"internal_id": 7, "links": [{"target": ["a", "b", "c"], "external_id": 9}]}'):
+        assert parse_record(bad, A) == (None, [], {}), bad

@@ -179,3 +179,26 @@ def test_a_resource_released_while_its_owner_was_down_is_unloaded_when_the_owner
     assert b.counts()['unloads'] == {'cam': 1}
     for node in (b, c):
         wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+
+
+def test_a_sub_resource_neither_the_journal_nor_its_owner_gives_back_fails_what_links_it(chain, tmp_path):
+    """B's journal is lost and C, which served B's driver, died with B: A's copy of B's record names the driver,
+    but nobody can give it back, so nobody can vouch for the camera that uses it."""
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'cam', [('nested', 'rr_rc/load_test/driver')])
+    assert 'error' not in res, res
+    _kill(b)
+    _kill(c)
+    for suffix in ('', '-wal', '-shm'):
+        path = str(tmp_path / 'rr_rb.sqlite3') + suffix
+        if os.path.exists(path):
+            os.remove(path)
+    b = restart()
+    events = a.wait_events(1)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED
+    text = ' '.join([events[0]['message']] + events[0]['stack'])
+    assert '/temoto/rr_rc/load_test' in text and 'could not be recovered' in text, text
+    assert [q['summary']['name'] for q in b.registry()['server_queries']] == ['cam']
+    assert a.unload(res['id']) == {}
+    for node in (a, b):
+        wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)

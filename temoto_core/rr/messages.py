@@ -53,6 +53,17 @@ def shallow_copy(msg):
     return out
 
 
+def as_sent(response, external_id: int, record: str, owner_node: str, owner_uri: str, owner_incarnation: int):
+    """The owner's stored ``response`` as one consumer gets it: under the consumer's id, with the owner's record
+    (P2P backup) and who answered. A shallow copy: rospy only serialises what a handler returns."""
+    out = shallow_copy(response)
+    out.trr = shallow_copy(response.trr)
+    out.trr.resource_id = external_id
+    out.trr.backup = record
+    out.trr.owner_node, out.trr.owner_uri, out.trr.owner_incarnation = owner_node, owner_uri, owner_incarnation
+    return out
+
+
 _LEGAL_NAMES: set = set()
 _LEGAL_BASE_NAMES: set = set()
 

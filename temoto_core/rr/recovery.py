@@ -56,7 +56,7 @@ def service_of(request_type: str):
 class Recovery:
     def __init__(self, core: RegistrarCore, contents: JournalContents, server: ServerSide, client: ClientSide,
                  links: Links, channels: StatusChannels, receiver: StatusReceiver, header,
-                 stale: Sequence[Tuple[str, int]] = ()) -> None:
+                 stale: Sequence[Tuple[str, int]] = (), lost: Optional[Dict[int, str]] = None) -> None:
         self._core = core
         self._server = server
         self._client = client
@@ -70,6 +70,7 @@ class Recovery:
         self._stale: Dict[str, List[int]] = {}   # server -> external ids whose consumers hold them no more
         for server_name, external_id in stale:
             self._stale.setdefault(server_name, []).append(external_id)
+        self._lost = dict(lost or {})             # internal id -> why it cannot be vouched for (backup.reconcile)
         self._parents: Dict[int, int] = {}       # held local id -> internal id of the served resource it belongs to
         self.restored_holds = self._restore_holds(contents.holds)
 
@@ -143,17 +144,7 @@ class Recovery:
         for query in restored:
             if query.state is not ACTIVE:
                 continue
-            why = None
-            if recover is None:
-                why = '%s cannot check its %s resources after a restart' % (core.prefix, server.name)
-            else:
-                try:
-                    recover(query.request, query.response)
-                except TemotoError as err:
-                    why = str(err)
-                except Exception as err:   # an owner bug: the resource cannot be vouched for
-                    rospy.logerr('%s: recover callback of %s raised %r', core.prefix, server.name, err)
-                    why = 'recover callback of %s raised %r' % (server.name, err)
+            why = self._why_lost(query, server, recover)
             if why is not None and query.internal_id not in unheld_ids:
                 message = 'lost while %s was down: %s' % (core.prefix, why)
                 rospy.logwarn('%s: %s resource %d %s', core.prefix, server.name, query.internal_id, message)
@@ -164,6 +155,23 @@ class Recovery:
                 self._release_stale(server.name, external_id)
         if restored:
             rospy.loginfo('%s: recovered %d %s resource(s)', core.prefix, len(restored), server.name)
+
+    def _why_lost(self, query: ServerQuery, server: Server, recover: Optional[RecoverCallback]) -> Optional[str]:
+        """Why restored ``query`` cannot be vouched for, or None if it still runs. The callback runs in any case:
+        it adopts what still runs, so that an unload stops it."""
+        why = None
+        if recover is None:
+            why = '%s cannot check its %s resources after a restart' % (self._core.prefix, server.name)
+        else:
+            try:
+                recover(query.request, query.response)
+            except TemotoError as err:
+                why = str(err)
+            except Exception as err:   # an owner bug: the resource cannot be vouched for
+                rospy.logerr('%s: recover callback of %s raised %r', self._core.prefix, server.name, err)
+                why = 'recover callback of %s raised %r' % (server.name, err)
+        # a sub-resource that is unaccounted for fails the resource, whatever its own process says
+        return self._lost.pop(query.internal_id, why)
 
     def _release_stale(self, server_name: str, external_id: int) -> None:
         core, side = self._core, self._server

@@ -133,7 +133,8 @@ class ResourceRegistrar:
             self._owner_state = OwnerState(self._journal.owner_state())
             reconciled = self._reconcile_with_neighbours(self._journal.contents())
             self._recovery = Recovery(core, reconciled.contents, self._server, self._client, self._links,
-                                      self._channels, self._receiver, header, stale=reconciled.stale)
+                                      self._channels, self._receiver, header, stale=reconciled.stale,
+                                      lost=reconciled.lost)
         if self._journal is not None:
             # only a registrar that can come back needs its neighbours to keep its records
             self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
@@ -289,7 +290,8 @@ class ResourceRegistrar:
                 summary={k: v for k, v in readable(q.request).items() if k != 'trr'},
                 details={k: v for k, v in readable(q.response).items() if k != 'trr'} if q.response is not None
                 else {},
-                failure=str(q.failure) if q.failure else '') for q in list(server.by_internal.values())]
+                failure=str(q.failure) if q.failure else '', record=q.backup)
+                for q in list(server.by_internal.values())]
             clients = []
             for q in {id(q): q for q in client.by_local.values()}.values():
                 parents = (self._links.parent_of(i) for i in q.local_ids)

@@ -65,6 +65,7 @@ class ServerEntry:
     summary: dict             # readable() of request fields other than trr
     details: dict             # readable() of response fields other than trr (pid, topics, ...)
     failure: str = ''
+    record: str = ''          # the owner's record its consumers keep (P2P backup, ``rr/backup.py``)
 
 
 @dataclasses.dataclass

@@ -15,7 +15,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.links import Links
-from temoto_core.rr.messages import STATUS_CODES, legal_name, node_uri, shallow_copy
+from temoto_core.rr.messages import STATUS_CODES, as_sent, legal_name, node_uri
 from temoto_core.rr.query import (ACTIVE, FAILED, GONE, LOADING, UNLOADING, Consumer, Server, ServerQuery)
 from temoto_core.rr.recorder import Recorder
 from temoto_core.srv import Reclaim
@@ -133,14 +133,7 @@ class ServerSide:
         query.consumers[external_id] = consumer
         self.by_external[(query.server.name, external_id)] = query
         self.recorder.attached(query, external_id, consumer)
-        # rospy only serialises what a handler returns, so a shallow copy with its own header is enough
-        out = shallow_copy(query.response)
-        out.trr = shallow_copy(query.response.trr)
-        out.trr.resource_id = external_id
-        out.trr.backup = query.backup
-        out.trr.owner_node, out.trr.owner_uri = self._node, self._node_uri
-        out.trr.owner_incarnation = self._core.incarnation
-        return out
+        return as_sent(query.response, external_id, query.backup, self._node, self._node_uri, self._core.incarnation)
 
     # ------------------------------------------------------------------------------------------ unload
     def release_consumer(self, server_name: str, external_id: int) -> None:
