@@ -95,9 +95,10 @@ class ERManager:
         self._closing = False
         self.rr.add_server(LOAD_PROCESS, LOAD_PROCESS_TYPE, self._load, self._unload, recover=self._recover)
         self._stop_unclaimed(leashed)
-        self.rr.resume()
+        # before resume(): a registry that says it is done recovering speaks for a manager that answers in full
         self._processes_srv = rospy.Service('/%s/%s/processes' % (self.rr.namespace, NAME), GetRegistry,
                                             lambda _req: GetRegistryResponse(json=self.processes_json()))
+        self.rr.resume()
         rospy.loginfo('%s: ready (sys_execute allowlist: %s; package allowlist: %s; logs in %s; Python nodes %s)',
                       NAME, config.sys_allowlist or 'none', config.package_allowlist or 'all', self.resolver.log_dir,
                       'forked from a zygote preloading ' + ', '.join(config.preload_modules)
