@@ -8,6 +8,7 @@ Sensor Manager interface in this test process.
 import json
 import os
 import signal
+import sqlite3
 
 import pytest
 import rosgraph
@@ -46,6 +47,21 @@ class Managers:
         # serving is not recovered: the registry says when it has taken everything back
         for rr in REGISTRARS.get(name, [name]):
             wait_for(lambda rr=rr: not registry(rr)['recovering'], 30, '%s to finish recovering' % rr)
+
+    def journal_caught_up(self, name):
+        """The journal of ``name`` has committed every resource its registry shows: it is written behind, a
+        burst's changes up to 50 ms late (temoto_core/rr/recorder.py)."""
+        reg = registry(name)
+        db = sqlite3.connect('file:%s?mode=ro' % self.params[name]['journal'], uri=True)
+        try:
+            served = {row[0] for row in db.execute('SELECT internal_id FROM served')}
+            consumers = {row[0] for row in db.execute('SELECT external_id FROM consumers')}
+            holds = {row[0] for row in db.execute('SELECT local_id FROM holds')}
+        finally:
+            db.close()
+        return (served == {q['internal_id'] for q in reg['server_queries']}
+                and consumers == {c['resource_id'] for q in reg['server_queries'] for c in q['consumers']}
+                and holds == {i for q in reg['client_queries'] for i in q['local_ids']})
 
     def kill(self, *names):
         for name in names:
@@ -153,6 +169,9 @@ def test_two_neighbours_killed_at_once_recover_from_their_journals(managers, sen
     sm, result = sensor
     before = {rr: registry_state(rr) for rr in (SM, ER)}
     pid = driver_pid()
+    # with both neighbours gone, only the journals can give back what they had: let them catch up first
+    for rr in (SM, ER):
+        wait_for(lambda rr=rr: managers.journal_caught_up(rr), 10, 'the journal of %s to catch up' % rr)
     managers.kill(SM, ER)
     assert start_ticks(pid) is not None, 'the driver outlives both managers'
     managers.start(ER)
