@@ -28,7 +28,7 @@ from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, Configure
 from . import display_config
 from .display_types import MESSAGE_TYPE, UnknownDisplayType, check_rviz_class, check_topic_name, needs_topic
 from .framing import OPERATOR_VIEW
-from .rviz_host import HostError, HostSettings, MainThreadCaller, RvizHost
+from .rviz_host import HostError, HostSettings, MainThreadCaller, RvizHost, robots_from_names
 
 SERVICE_NAMES = ('add_display', 'remove_display', 'configure_display', 'set_view', 'screenshot', 'list_displays')
 
@@ -204,6 +204,13 @@ def _initial_view(value) -> dict:
     raise SystemExit("~initial_view must be 'operator', 'robot' or a mapping of view properties, got %r" % (value,))
 
 
+def _robots(value) -> list:
+    try:
+        return robots_from_names(str(value or ''))
+    except ValueError as err:
+        raise SystemExit('~robots: %s' % err)
+
+
 def main(argv=None) -> int:
     """Entry point of nodes/rviz_host: headless by default, RViz on the Qt main thread."""
     from .xvfb import ensure_display
@@ -221,6 +228,7 @@ def main(argv=None) -> int:
             height=int(rospy.get_param('~height', 600)),
             robot_description=str(rospy.get_param('~robot_description', 'robot_description')),
             robot_tf_prefix=str(rospy.get_param('~robot_tf_prefix', '')),
+            robots=_robots(rospy.get_param('~robots', '')),
             show_robot=bool(rospy.get_param('~show_robot', True)),
             show_grid=bool(rospy.get_param('~show_grid', True)),
             initial_view=_initial_view(rospy.get_param('~initial_view', 'operator')))
@@ -233,7 +241,7 @@ def main(argv=None) -> int:
         def on_event(*args):
             if node is not None:
                 node.publish_event(*args)
-        host = RvizHost(app, settings, on_event, get_urdf=_get_urdf(settings.robot_description),
+        host = RvizHost(app, settings, on_event, get_urdf=_get_urdf(settings.drawn_robots()[0].description),
                         probe_factory=_probe)
         stop = []       # set by SIGINT/SIGTERM/rospy shutdown, also while the host is still starting
 

@@ -25,6 +25,7 @@ in the host, and ``rr.resume()`` asks the ER Manager whether the host still runs
 from __future__ import annotations
 
 import json
+import shlex
 import threading
 from typing import Callable, Dict, Optional, Tuple
 
@@ -82,7 +83,8 @@ class OutputManager:
     # ------------------------------------------------------------------ the host process
     def _host_request(self):
         args = ['__name:=%s' % HOST_NODE, '_temoto_namespace:=%s' % self.namespace]
-        args += ['_%s:=%s' % (k, v) for k, v in sorted(self.host_params.items())]
+        # the ER Manager splits args with shlex: a value with a space stays one argument
+        args += [shlex.quote('_%s:=%s' % (k, v)) for k, v in sorted(self.host_params.items())]
         return LOAD_PROCESS_TYPE._request_class(action='ros_execute', ros_namespace='/' + self.namespace,
                                                 package_name=HOST_PACKAGE, executable=HOST_EXECUTABLE,
                                                 args=' '.join(args))

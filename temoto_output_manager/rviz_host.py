@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import re
 import threading
 import time
 from concurrent.futures import Future
@@ -23,6 +24,8 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from python_qt_binding import QtCore, QtWidgets
 from rviz import bindings as rviz
+
+from temoto_core.rr.messages import legal_name
 
 from . import display_config
 from .display_types import PROBED_CLASSES, check_rviz_class, installed_rviz_classes, topic_property
@@ -89,6 +92,31 @@ class HostedDisplay:
     probe_seen: threading.Event = field(default_factory=threading.Event)
 
 
+@dataclass(frozen=True)
+class RobotDrawn:
+    """A robot model RViz draws: the parameter holding its URDF, and the prefix of its frames in a TF tree
+    shared by several robots ('' for none)."""
+    description: str = 'robot_description'
+    tf_prefix: str = ''
+
+
+def robots_from_names(text: str) -> List[RobotDrawn]:
+    """The robots named in ``text`` (separated by commas or spaces), each drawn as ``robot.launch robot:=<name>
+    frame_prefix:=<name>/`` publishes it: its URDF in ``/<name>/robot_description``, its frames prefixed
+    ``<name>/``. ValueError names a name that is not one."""
+    robots = []
+    for name in re.split(r'[,\s]+', text.strip()):
+        if not name:
+            continue
+        if not legal_name(name, base=True):
+            raise ValueError('robot name %r: it must be a ROS base name (a letter, then letters, digits or _)'
+                             % name)
+        robots.append(RobotDrawn('/%s/robot_description' % name, name + '/'))
+    if len({r.description for r in robots}) != len(robots):
+        raise ValueError('robot names %r: a robot is named twice' % text)
+    return robots
+
+
 @dataclass
 class HostSettings:
     fixed_frame: str = 'base_link'
@@ -97,20 +125,30 @@ class HostSettings:
     height: int = 600
     robot_description: str = 'robot_description'
     robot_tf_prefix: str = ''         # the robot's frame prefix, when robots share the TF tree (vaultbot_2/)
+    robots: List[RobotDrawn] = field(default_factory=list)   # several robots: these, not the two above
     show_robot: bool = True
     show_grid: bool = True
     initial_view: Dict[str, Any] = field(default_factory=lambda: dict(OPERATOR_VIEW))   # {}: frame the robot
     watch_period_ms: int = 5          # sampling period while a display waits for its first frame
 
+    def drawn_robots(self) -> List[RobotDrawn]:
+        """The robot models shown: ``robots`` if set, else the one robot of ``robot_description``."""
+        return list(self.robots) or [RobotDrawn(self.robot_description, self.robot_tf_prefix)]
 
-def robot_model_config(settings: HostSettings) -> Dict[str, Any]:
-    """The robot model's RViz properties: where its URDF is, and the prefix of its frames in a TF tree shared
+
+def robot_model_config(robot: RobotDrawn) -> Dict[str, Any]:
+    """A robot model's RViz properties: where its URDF is, and the prefix of its frames in a TF tree shared
     by several robots (RViz adds the '/' itself)."""
-    config: Dict[str, Any] = {'Robot Description': settings.robot_description}
-    prefix = settings.robot_tf_prefix.strip('/')
+    config: Dict[str, Any] = {'Robot Description': robot.description}
+    prefix = robot.tf_prefix.strip('/')
     if prefix:
         config['TF Prefix'] = prefix
     return config
+
+
+def robot_model_name(robot: RobotDrawn, several: bool) -> str:
+    """The display's name: RobotModel, or with the robot's prefix when several robots are drawn."""
+    return '%s %s' % (BUILTIN_ROBOT, robot.tf_prefix.strip('/') or robot.description) if several else BUILTIN_ROBOT
 
 
 EventSink = Callable[[str, str, str, str, int, float], None]   # event, name, class, topic, frame_count, seconds
@@ -163,7 +201,10 @@ class RvizHost:
         if self.settings.show_grid:
             self._add_builtin('rviz/Grid', BUILTIN_GRID, {})
         if self.settings.show_robot:
-            self._add_builtin('rviz/RobotModel', BUILTIN_ROBOT, robot_model_config(self.settings))
+            robots = self.settings.drawn_robots()
+            for robot in robots:
+                self._add_builtin('rviz/RobotModel', robot_model_name(robot, len(robots) > 1),
+                                  robot_model_config(robot))
         if self.settings.initial_view:
             self.apply_view(self.settings.initial_view)     # looking at the data, not at the robot
         else:

@@ -221,3 +221,41 @@ def test_cli_screenshot_and_displays(host, tmp_path, capsys):
     assert 'shot.png' in text and 'Grid' in text and 'rviz/Grid' in text and 'fixed frame base_link' in text
     assert displays_main(['--namespace', 'nowhere', '--timeout', '0.5']) == 1
     assert 'did not come up' in capsys.readouterr().err
+
+
+def test_several_robots_are_drawn_each_with_its_own_model_and_frame_prefix(procs, rospy_client):
+    """One station, two robots sharing the TF tree: one robot model per robot, from its own description,
+    under its own frame prefix (robot.launch robot:=NAME frame_prefix:=NAME/)."""
+    with open(os.path.join(os.environ['TEMOTO_ROOT'], 'urdf', 'vaultbot.urdf')) as f:
+        urdf = f.read()
+    for robot in ('om_r1', 'om_r2'):
+        rospy_client.set_param('/%s/robot_description' % robot, urdf)
+    try:
+        _check_two_robot_models(procs, rospy_client)
+    finally:
+        for robot in ('om_r1', 'om_r2'):
+            rospy_client.delete_param('/%s/robot_description' % robot)
+
+
+def _check_two_robot_models(procs, rospy_client):
+    proc = procs.node('temoto_output_manager', 'rviz_host', name='rviz_host_robots', namespace=NS,
+                      params={'robots': 'om_r1,om_r2', 'show_grid': 'false', 'fixed_frame': 'world'})
+    client = RvizHostClient('/%s/rviz_host_robots' % NS)
+    client.wait_ready(20, failed=exit_reason(proc))
+
+    def models():
+        return {d.name: d.status for d in client.list_displays().displays if d.display_class == 'rviz/RobotModel'}
+    assert sorted(models()) == ['RobotModel om_r1', 'RobotModel om_r2']
+    for robot, other in (('om_r1', 'om_r2'), ('om_r2', 'om_r1')):
+        # each parsed its own URDF (its links are listed), and looks them up under its own prefix (no TF here)
+        wait_for(lambda robot=robot: '[%s/sick_link]' % robot in models()['RobotModel %s' % robot], 15,
+                 "%s's model looking up its prefixed links" % robot)
+        status = models()['RobotModel %s' % robot]
+        assert '[%s/base_link]' % robot in status and other + '/' not in status, status
+
+
+def test_a_bad_robot_name_stops_the_host_naming_it(procs, rospy_client):
+    proc = procs.node('temoto_output_manager', 'rviz_host', name='rviz_host_bad_robot', namespace=NS,
+                      params={'robots': 'om_r1,2bot', 'show_grid': 'false'})
+    wait_for(lambda: not proc.alive(), 20, 'the host to refuse its robots')
+    assert proc.returncode != 0 and "~robots: robot name '2bot'" in proc.log(40), proc.log(40)

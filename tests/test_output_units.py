@@ -156,7 +156,29 @@ def test_the_host_starts_looking_at_the_data_unless_told_otherwise():
 
 def test_the_robot_model_takes_its_robots_frame_prefix_when_robots_share_the_tf_tree():
     from temoto_output_manager.rviz_host import HostSettings, robot_model_config
-    assert robot_model_config(HostSettings()) == {'Robot Description': 'robot_description'}
-    assert robot_model_config(HostSettings(robot_description='/vaultbot_2/robot_description',
-                                           robot_tf_prefix='vaultbot_2/')) == \
+    one, = HostSettings().drawn_robots()
+    assert robot_model_config(one) == {'Robot Description': 'robot_description'}
+    prefixed, = HostSettings(robot_description='/vaultbot_2/robot_description',
+                             robot_tf_prefix='vaultbot_2/').drawn_robots()
+    assert robot_model_config(prefixed) == \
         {'Robot Description': '/vaultbot_2/robot_description', 'TF Prefix': 'vaultbot_2'}
+
+
+def test_several_robots_are_drawn_each_from_its_own_description_and_prefix():
+    from temoto_output_manager.host_node import _robots
+    from temoto_output_manager.rviz_host import (HostSettings, RobotDrawn, robot_model_config, robot_model_name,
+                                                 robots_from_names)
+    robots = robots_from_names('vaultbot_1, vaultbot_2')
+    assert robots == [RobotDrawn('/vaultbot_1/robot_description', 'vaultbot_1/'),
+                      RobotDrawn('/vaultbot_2/robot_description', 'vaultbot_2/')]
+    assert robots_from_names('vaultbot_1 vaultbot_2') == robots and robots_from_names('') == []
+    settings = HostSettings(robot_description='/ignored', robots=robots)
+    assert settings.drawn_robots() == robots
+    assert [robot_model_config(r)['TF Prefix'] for r in robots] == ['vaultbot_1', 'vaultbot_2']
+    assert [robot_model_name(r, True) for r in robots] == ['RobotModel vaultbot_1', 'RobotModel vaultbot_2']
+    for bad, named in (('vaultbot_1,2bot', "'2bot'"), ('a/b', "'a/b'"), ('vb,vb', 'named twice')):
+        with pytest.raises(ValueError, match=named):
+            robots_from_names(bad)
+    with pytest.raises(SystemExit, match="~robots: robot name '2bot'"):
+        _robots('vaultbot_1,2bot')
+    assert _robots(None) == []
