@@ -52,6 +52,13 @@ def _error(code: ErrorCode, message: str) -> TemotoError:
     return TemotoError(code, Subsystem.OUTPUT_MANAGER, message)
 
 
+def host_args(namespace: str, params: Dict[str, object]) -> str:
+    """The RViz host's command line: its node name and private params. The ER Manager splits it with shlex,
+    so each argument is quoted: a value with a space (a list of robots) stays one argument."""
+    args = ['__name:=%s' % HOST_NODE, '_temoto_namespace:=%s' % namespace]
+    args += ['_%s:=%s' % (k, v) for k, v in sorted(params.items())]
+    return ' '.join(shlex.quote(arg) for arg in args)
+
 class OutputManager:
     """Serves ``/<ns>/temoto_output_manager/load_rviz_plugin``."""
 
@@ -82,12 +89,9 @@ class OutputManager:
 
     # ------------------------------------------------------------------ the host process
     def _host_request(self):
-        args = ['__name:=%s' % HOST_NODE, '_temoto_namespace:=%s' % self.namespace]
-        # the ER Manager splits args with shlex: a value with a space stays one argument
-        args += [shlex.quote('_%s:=%s' % (k, v)) for k, v in sorted(self.host_params.items())]
         return LOAD_PROCESS_TYPE._request_class(action='ros_execute', ros_namespace='/' + self.namespace,
                                                 package_name=HOST_PACKAGE, executable=HOST_EXECUTABLE,
-                                                args=' '.join(args))
+                                                args=host_args(self.namespace, self.host_params))
 
     def _on_host_status(self, ev: StatusEvent) -> None:
         # The RR forwards a FAILED to the display resources by itself; here only remember the host is gone

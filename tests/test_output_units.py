@@ -182,3 +182,11 @@ def test_several_robots_are_drawn_each_from_its_own_description_and_prefix():
     with pytest.raises(SystemExit, match="~robots: robot name '2bot'"):
         _robots('vaultbot_1,2bot')
     assert _robots(None) == []
+
+
+def test_the_hosts_params_reach_it_whole_through_the_er_managers_split():
+    import shlex
+    from temoto_output_manager.manager import host_args
+    args = shlex.split(host_args('temoto', {'robots': 'vaultbot_1 vaultbot_2', 'fixed_frame': 'world'}))
+    assert args == ['__name:=rviz_host', '_temoto_namespace:=temoto', '_fixed_frame:=world',
+                    '_robots:=vaultbot_1 vaultbot_2']
