@@ -54,10 +54,6 @@ BACKUP_VERSION = 2    # 2: links are named; their request and response are at th
 NO_PARENT = -1      # a held resource that no served one links: released by the recovery
 
 
-def _b64(data: bytes) -> str:
-    return base64.b64encode(data).decode('ascii')
-
-
 def record(query: ServerQuery, by_local: Dict[int, ClientQuery], owner_state: OwnerState) -> str:
     """The owner's record of ``query``, as its consumers keep it (lock held).
 
