@@ -4,6 +4,7 @@ and hears of what died while it was down (docs/recovery.md).
 A (the action) -> B (a manager, with a journal) -> C (the process manager). B is
 killed with SIGKILL and started again under the same name.
 """
+import concurrent.futures
 import os
 import signal
 import sqlite3
@@ -202,3 +203,20 @@ def test_a_sub_resource_neither_the_journal_nor_its_owner_gives_back_fails_what_
     assert a.unload(res['id']) == {}
     for node in (a, b):
         wait_for(lambda: registry_empty(node), 10, 'an empty registry at %s' % node.name)
+
+
+def test_a_call_after_the_owner_restarted_connects_afresh_whatever_the_pool_holds(chain):
+    """A's pool holds two idle connections to B's server (two loads overlapped). B is killed and restarted:
+    both connections are dead. The next call finds the first one stale, and its one retry must not take the
+    second: it connects to the new incarnation."""
+    a, b, c, restart = chain
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        first, second = pool.map(lambda name: a.call('rr_rb', name, [('delay', '0.3')]), ('slow1', 'slow2'))
+    assert 'error' not in first and 'error' not in second, (first, second)
+    _kill(b)
+    b = restart()
+    wait_for(lambda: not b.registry()['recovering'], 20, 'rr_rb to finish recovering')
+    third = a.call('rr_rb', 'after_restart')
+    assert 'error' not in third, third
+    for res in (first, second, third):
+        assert a.unload(res['id']) == {}

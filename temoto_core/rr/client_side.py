@@ -193,6 +193,9 @@ class ClientSide:
                 if attempt == 2 or not self._service_exists(service, deadline):
                     raise core.error(ErrorCode.SERVICE_REQ_FAIL, 'call to %s failed: %s (did the server '
                                      'die?)' % (service, err))
+                # the other idle connections lead to the same server, so they are as stale as this one (a
+                # restarted owner): the retry, and the calls after it, connect afresh
+                self._drop_idle(service)
                 continue
             finally:
                 if owners is not None:
@@ -233,6 +236,12 @@ class ClientSide:
                 raise self._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s could not be reached within %.2f s '
                                        '(%s): is its manager running?' % (service, seconds, why))
             time.sleep(SERVICE_POLL)
+
+    def _drop_idle(self, service: str) -> None:
+        with self._proxies_lock:
+            stale = self._proxies.pop(service, [])
+        for proxy in stale:
+            proxy.close()
 
     def _service_exists(self, service: str, deadline: float) -> bool:
         try:
