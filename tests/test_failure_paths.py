@@ -140,10 +140,11 @@ def test_a_camera_crash_under_track_object_ends_the_graph_failed_with_the_reason
     assert 'hand' in finished['reason'] and 'd435' in finished['reason'], finished['reason']
     node = finished['nodes'][0]
     assert node['state'] == 'FAILED' and node['message'] in finished['reason']
-    assert op.of('tracker_failed', graph), 'the failure reached the action'
+    wait_for(lambda: op.of('tracker_failed', graph), 10, 'the failure to reach the action')
     wait_for(lambda: any('track_object failed' in f and 'hand' in f for f in op.feedback), 10,
              'the failure said on the feedback topic')
-    done = op.of('graph_finished', graph)
+    # the event is published as the graph ends; the state read above may come before it arrives
+    done = wait_for(lambda: op.of('graph_finished', graph), 10, 'the graph_finished event')
     assert done and done[-1]['state'] == 'FAILED' and done[-1]['reason'] == finished['reason']
 
 
