@@ -40,8 +40,10 @@ from temoto_core.rr.query import ClientQuery, Consumer, ServerQuery
 
 # changes committed together at most: bounds a transaction's time under a burst
 MAX_BATCH = 500
-# seconds between two commits under a burst (JournalWriter)
-COMMIT_PAUSE = 0.05
+# seconds between two commits under a burst (JournalWriter). Off (0) by default: with 50 ms, a
+# make test run once lost a FAILED that happened while a just-loaded sensor's manager was down
+# (test_manager_recovery), a path not yet understood; 50 ms halves the journal's chain cost (BENCHMARKS.md)
+COMMIT_PAUSE = 0.0
 
 
 def serialized(msg) -> bytes:
