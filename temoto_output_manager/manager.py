@@ -59,6 +59,7 @@ def host_args(namespace: str, params: Dict[str, object]) -> str:
     args += ['_%s:=%s' % (k, v) for k, v in sorted(params.items())]
     return ' '.join(shlex.quote(arg) for arg in args)
 
+
 class OutputManager:
     """Serves ``/<ns>/temoto_output_manager/load_rviz_plugin``."""
 
