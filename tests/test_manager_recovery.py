@@ -71,8 +71,10 @@ class Managers:
 
 
 @pytest.fixture
-def managers(ros_master, rospy_client, tmp_path):
+def managers(ros_master, rospy_client, tmp_path, request):
+    """The managers; an indirect parameter sets the Sensor Manager's ``journal_pause``."""
     m = Managers(ros_master.env, tmp_path)
+    m.params[SM]['journal_pause'] = getattr(request, 'param', 0.0)
     m.start(ER)
     m.start(SM)
     yield m
@@ -139,10 +141,26 @@ def test_killed_sensor_manager_comes_back_with_its_registry_and_keeps_watching(m
     assert 'stalled' in failed(sm.events)[0].message, failed(sm.events)[0].message
 
 
+def journal_rows(path, sql):
+    db = sqlite3.connect('file:%s?mode=ro' % path, uri=True)
+    try:
+        return db.execute(sql).fetchall()
+    finally:
+        db.close()
+
+
+# with a 5 s pause the journal has the driver's hold, committed at once, and lacks what followed within the
+# pause (its link to the sensor, the sensor itself): the neighbours must give those back
+@pytest.mark.parametrize('managers', [0.0, 5.0], indirect=True, ids=['journal_current', 'journal_behind'])
 def test_a_driver_crash_while_the_sensor_manager_is_down_reaches_the_client_after_the_restart(managers, sensor):
     sm, result = sensor
     pid = driver_pid()
+    behind = managers.params[SM]['journal_pause'] > 0
     managers.kill(SM)
+    if behind:
+        journal = managers.params[SM]['journal']
+        assert journal_rows(journal, 'SELECT parent FROM holds') == [(None,)], 'the hold, not yet its link'
+        assert journal_rows(journal, 'SELECT internal_id FROM served') == [], 'the sensor is not journaled yet'
     pull_cable(result, 'crash')
     wait_for(lambda: start_ticks(pid) is None, 10, 'the driver to crash')
     assert not failed(sm.events), 'nobody could tell the client while its manager was down'

@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from temoto_core.errors import TemotoError
+from temoto_core.rr import ResourceRegistrar
 from temoto_core.rr.journal import Journal, JournalError, JournaledConsumer
 from temoto_core.rr.recorder import JournalWriter
 from temoto_core.testing import wait_for
@@ -188,3 +190,11 @@ def test_a_batch_writes_the_highest_id_once_and_a_rolled_back_batch_raises_nothi
     journal.close()
     again = Journal(path, run_id='r1')
     assert again.id_floor == 70 and [s.internal_id for s in again.contents().served] == [10, 20, 30, 40, 50]
+
+
+@pytest.mark.parametrize('pause', [-0.1, 60.0, 'soon', True])
+def test_a_bad_journal_pause_is_refused_by_name_before_the_journal_opens(rospy_client, tmp_path, pause):
+    path = tmp_path / 'bad_pause.sqlite3'
+    with pytest.raises(TemotoError, match=r'journal_pause .*from 0 to 5'):
+        ResourceRegistrar('rr_bad_pause', journal=str(path), journal_pause=pause)
+    assert not path.exists(), 'a refused registrar starts no incarnation'

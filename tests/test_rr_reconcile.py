@@ -48,6 +48,15 @@ def test_a_recovering_neighbour_is_not_asked_to_judge():
     assert out.stale == [] and out.contents.served[0].consumers[0].external_id == 11
 
 
+def test_a_hold_whose_link_the_journal_lacks_takes_the_parent_the_record_names():
+    # held with link=False, then linked: the SIGKILL came between the two commits
+    journal = JournalContents([], [hold(5, 50, None), hold(7, 70, None)])
+    kept = Kept(JournalContents([served(1, consumer(11, A))], [hold(5, 50, 1)]), {}, {A})
+    out = reconcile(journal, kept)
+    assert {h.local_id: h.parent for h in out.contents.holds} == {5: 1, 7: None}   # 7 is on its own account
+    assert out.added_holds == 0
+
+
 Z = ('temoto', 'rr_z', 'load_test')
 
 

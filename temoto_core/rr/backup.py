@@ -25,6 +25,8 @@ neighbour that answers knows better than the journal about what it holds:
   releases it, and the last one out unloads the resource (its process is stopped);
 - a consumer record the neighbour gives is fresher than the journal's (a reclaim moved it);
 - a neighbour that does not answer, or is recovering itself, leaves the journal's word standing;
+- a hold the journal has without its parent (the link was not yet committed) takes the parent the
+  record names, so that its FAILED still goes up;
 - a linked sub-resource that neither the journal nor its owner gives back fails the resource linking it:
   nobody can vouch for it.
 
@@ -210,6 +212,13 @@ def reconcile(journal: JournalContents, kept: Kept) -> Reconciled:
         consumers.extend(fresher.values())   # attached, but the journal lost it
         served.append(dataclasses.replace(entry, consumers=consumers))
     added_served = list(given.values())
+    # a hold made unlinked and linked before the load returned (``rr.link``) is journaled in two changes;
+    # a SIGKILL between their commits leaves the journal's hold without its parent, and the record names it
+    linked_by = {(hold.target, hold.external_id): hold.parent for hold in kept.contents.holds
+                 if hold.parent not in (None, NO_PARENT)}
+    holds = [dataclasses.replace(hold, parent=linked_by[(hold.target, hold.external_id)])
+             if hold.parent is None and (hold.target, hold.external_id) in linked_by else hold
+             for hold in journal.holds]
     known = {(hold.target, hold.external_id) for hold in journal.holds}
     added_holds = [hold for hold in kept.contents.holds if (hold.target, hold.external_id) not in known]
     lost: Dict[int, str] = {}
@@ -218,7 +227,7 @@ def reconcile(journal: JournalContents, kept: Kept) -> Reconciled:
             lost.setdefault(internal_id, 'its sub-resource %s %d could not be recovered: the journal lacks it and '
                                          'its owner did not give it back' % (target_name(target), external_id))
     contents = JournalContents(sorted(served + added_served, key=lambda e: e.internal_id),
-                               journal.holds + added_holds)
+                               holds + added_holds)
     return Reconciled(contents, stale, len(added_served), len(added_holds), lost)
 
 

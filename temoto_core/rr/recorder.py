@@ -45,6 +45,8 @@ MAX_BATCH = 500
 # make test run once lost a FAILED that happened while a just-loaded sensor's manager was down
 # (test_manager_recovery), a path not yet understood; 50 ms halves the journal's chain cost (BENCHMARKS.md)
 COMMIT_PAUSE = 0.0
+# the longest pause a registrar accepts (~journal_pause): beyond it the journal lags more than it saves
+MAX_COMMIT_PAUSE = 5.0
 
 
 def serialized(msg) -> bytes:

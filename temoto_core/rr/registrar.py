@@ -48,7 +48,7 @@ from temoto_core.rr.owner_state import OwnerState
 from temoto_core.rr.owners import OwnerWatch
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
-from temoto_core.rr.recorder import Recorder
+from temoto_core.rr.recorder import COMMIT_PAUSE, MAX_COMMIT_PAUSE, Recorder
 from temoto_core.rr.recovery import RecoverCallback, Recovery, service_of
 from temoto_core.rr.registry import ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message, readable
 from temoto_core.rr.server_side import ServerSide
@@ -76,13 +76,15 @@ class ResourceRegistrar:
     def __init__(self, name: str, namespace: Optional[str] = None, subsystem: int = Subsystem.CORE,
                  consumer_check_period: Optional[float] = None, status_connect_timeout: float = 2.0,
                  journal: Optional[str] = None, recovery_grace: Optional[float] = None,
-                 call_deadline: Optional[float] = None) -> None:
+                 call_deadline: Optional[float] = None, journal_pause: Optional[float] = None) -> None:
         """``journal``: the path of this registrar's journal (default: the ``~journal`` parameter; '' for none).
         With one, a restart of the node recovers the registry (``recovery.py``); ``resume()`` completes it.
         ``recovery_grace``: how long the resources of a dead consumer that keeps a journal are kept for it
         to come back (default: ``~recovery_grace``, 10 s).
         ``call_deadline``: the deadline of a call whose request type declares none (default:
-        ``~call_deadline``, 1 s)."""
+        ``~call_deadline``, 1 s).
+        ``journal_pause``: how long the journal's writer waits between two commits under a burst (default:
+        ``~journal_pause``, ``recorder.COMMIT_PAUSE``); a longer pause costs less CPU and lags further."""
         ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
         # a registrar warns when its owners' host is cut off, and then the master is often out of reach too:
         # its log calls must not ask the master (whatever started rospy in this process: node.py)
@@ -92,6 +94,19 @@ class ResourceRegistrar:
         self.journal_path = journal
         if recovery_grace is None:
             recovery_grace = float(rospy.get_param('~recovery_grace', DEFAULT_RECOVERY_GRACE))
+        # bad settings are refused before the journal is opened: opening it starts a new incarnation
+        prefix = '%s/%s' % (rospy.get_name(), name)
+        if call_deadline is None:
+            call_deadline = float(rospy.get_param('~call_deadline', DEFAULT_DEADLINE))
+        if not call_deadline > 0:
+            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'call_deadline %r: it must be a positive number '
+                              'of seconds' % (call_deadline,), prefix=prefix)
+        if journal_pause is None:
+            journal_pause = rospy.get_param('~journal_pause', COMMIT_PAUSE)
+        if (not isinstance(journal_pause, (int, float)) or isinstance(journal_pause, bool)
+                or not 0 <= journal_pause <= MAX_COMMIT_PAUSE):
+            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'journal_pause %r: it must be a number of seconds '
+                              'from 0 to %g' % (journal_pause, MAX_COMMIT_PAUSE), prefix=prefix)
         self._journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         core = self._core = RegistrarCore(
             name, ns, subsystem, incarnation=self._journal.incarnation if self._journal else 0,
@@ -107,12 +122,7 @@ class ResourceRegistrar:
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)
-        recorder = self._recorder = Recorder(self._journal)
-        if call_deadline is None:
-            call_deadline = float(rospy.get_param('~call_deadline', DEFAULT_DEADLINE))
-        if not call_deadline > 0:
-            raise core.error(ErrorCode.BAD_REQUEST, 'call_deadline %r: it must be a positive number of seconds'
-                             % (call_deadline,))
+        recorder = self._recorder = Recorder(self._journal, float(journal_pause))
         self._client = ClientSide(core, self._links, header, recorder, call_deadline)
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
