@@ -34,7 +34,7 @@ import rosgraph.names
 import rospy
 import rospy.impl.paramserver
 
-from temoto_core import master_lookup
+from temoto_core import master_lookup, master_rejoin
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -106,6 +106,7 @@ def init_node(name: str, **kwargs) -> None:
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
     prime_log_parameter()
+    master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back
 
 
 def prime_log_parameter() -> None:

@@ -31,27 +31,48 @@ def two_hosts():
     assert hosts.exist() == [], 'namespaces left behind'
 
 
+class Pair:
+    """Owner C and the master on the robot, consumer A on the operator's station."""
+
+    def __init__(self, hosts, tmp_path, session_token, journal: bool = False) -> None:
+        self.hosts, self.tmp_path = hosts, tmp_path
+        self.params = {'journal': str(tmp_path / 'rr_hc.sqlite')} if journal else {}
+        self.master = hosts.master(str(tmp_path / 'master'), session_token)
+        os.makedirs(self.master.workdir)
+        self.robot = hosts.launcher(hosts.robot, self.master, str(tmp_path))
+        self.operator = hosts.launcher(hosts.operator, self.master, str(tmp_path))
+
+    def start_robot(self) -> RegistrarNode:
+        """C on the robot, against the master (started by the caller)."""
+        self.c = RegistrarNode(self.robot, 'rr_hc', control_socket=str(self.tmp_path / 'rr_hc.sock'), **self.params)
+        return self.c
+
+    def stop(self) -> None:
+        self.hosts.link(True)
+        self.operator.stop_all()
+        self.robot.stop_all()
+        self.master.stop()
+        for host in self.hosts.hosts:
+            assert self.hosts.pids(host) == [], 'processes left on %s' % host.name
+
+
 @pytest.fixture
-def pair(two_hosts, tmp_path, session_token):
-    """Owner C and the master on the robot, consumer A on the operator's station, the link up."""
-    hosts = two_hosts
-    hosts.link(True)
-    master = hosts.master(str(tmp_path / 'master'), session_token)
-    os.makedirs(master.workdir)
-    master.start()
-    robot = hosts.launcher(hosts.robot, master, str(tmp_path))
-    operator = hosts.launcher(hosts.operator, master, str(tmp_path))
+def robot_and_operator(two_hosts, tmp_path, session_token, request):
+    """A :class:`Pair` with the link up; an indirect parameter True gives C a journal."""
+    two_hosts.link(True)
+    pair = Pair(two_hosts, tmp_path, session_token, journal=getattr(request, 'param', False))
     try:
-        c = RegistrarNode(robot, 'rr_hc', control_socket=str(tmp_path / 'rr_hc.sock'))
-        a = RegistrarNode(operator, 'rr_ha', control_socket=str(tmp_path / 'rr_ha.sock'))
-        yield a, c, hosts
+        pair.master.start()
+        pair.start_robot()
+        pair.a = RegistrarNode(pair.operator, 'rr_ha', control_socket=str(tmp_path / 'rr_ha.sock'))
+        yield pair
     finally:
-        hosts.link(True)
-        operator.stop_all()
-        robot.stop_all()
-        master.stop()
-        for host in hosts.hosts:
-            assert hosts.pids(host) == [], 'processes left on %s' % host.name
+        pair.stop()
+
+
+@pytest.fixture
+def pair(robot_and_operator):
+    return robot_and_operator.a, robot_and_operator.c, robot_and_operator.hosts
 
 
 def timed(fn, *args, **kwargs):
@@ -144,3 +165,43 @@ def test_a_robot_host_that_dies_fails_what_is_held_from_it(pair):
     assert heard < HANG
     out = a.unload(res['id'])              # the owner is gone: the release is local
     assert registry_empty(a), out
+
+
+def master_knows(pair, node: str) -> bool:
+    return pair.hosts.run_in(pair.hosts.robot, lambda: pair.master.is_registered(node))
+
+
+@pytest.mark.parametrize('robot_and_operator', [True], indirect=True)
+def test_a_robot_host_that_returns_is_joined_again_and_rebuilds_its_registry_from_the_operator(robot_and_operator):
+    """The master runs on the robot: a new master knows nothing of the operator's nodes, which rospy registers
+    once. They register again (temoto_core/master_rejoin.py), so the returned robot's registrar finds the
+    operator's copy of its registry, and its statuses reach the operator."""
+    pair = robot_and_operator
+    a, hosts = pair.a, pair.hosts
+    res = a.call('rr_hc', 'cam')
+    [held] = a.registry()['client_queries']
+    # the robot host dies: its processes, and its answers on the network (a host whose kernel still refuses
+    # connections looks like a respawning owner, given its grace)
+    hosts.kill_all(hosts.robot)
+    hosts.link(False)
+    a.wait_events(1, timeout=HANG)
+    pair.master.stop()
+    hosts.link(True)
+    pair.master.start()                    # the robot boots: a new master at the same address
+    wait_for(lambda: master_knows(pair, '/rr_ha'), HANG, 'the operator registered again with the new master')
+    c = pair.start_robot()
+    # the journal is of the old master's run: the operator's copy alone gives the resource back, failed (its
+    # process died with the host), with A as its consumer
+    served = c.registry()['server_queries']
+    assert [(q['state'], [x['resource_id'] for x in q['consumers']]) for q in served] == \
+        [('failed', [held['external_id']])], served
+    assert len(a.events()) == 1, 'the failed resource is not announced twice'
+    assert a.unload(res['id']) == {}
+    for node in (a, c):
+        wait_for(lambda node=node: registry_empty(node), HANG, 'an empty registry at %s' % node.name)
+    # a new load, and its FAILED reaches the operator from the new robot
+    again = a.call('rr_hc', 'cam')
+    c.fail('cam', 'the camera died after the reboot')
+    events = a.wait_events(2, timeout=HANG)
+    assert events[1]['id'] == again['id'] and events[1]['code'] == ResourceStatus.FAILED, events
+    assert a.unload(again['id']).get('code', 0) in (0, ErrorCode.RESOURCE_UNLOAD_FAIL)

@@ -31,6 +31,7 @@ from typing import Callable, Dict, Optional
 import rospkg
 import rospy
 
+from temoto_core import master_rejoin
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.node import prime_log_parameter
 from temoto_core.msg import RMPRequest, ResourceStatus
@@ -107,6 +108,10 @@ class ResourceRegistrar:
                 or not 0 <= journal_pause <= MAX_COMMIT_PAUSE):
             raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'journal_pause %r: it must be a number of seconds '
                               'from 0 to %g' % (journal_pause, MAX_COMMIT_PAUSE), prefix=prefix)
+        try:
+            master_rejoin.ensure_started()
+        except ValueError as err:
+            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, str(err), prefix=prefix)
         self._journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         core = self._core = RegistrarCore(
             name, ns, subsystem, incarnation=self._journal.incarnation if self._journal else 0,

@@ -1,0 +1,130 @@
+"""A master that came back: register this node with it again.
+
+rospy registers a node's publishers, subscribers and services with the master once, at start (roscpp
+too). When the master's host dies and a new master starts at the same address (the robot rebooted: the
+master runs on the robot), the new master knows nothing of the nodes that outlived the old one on other
+hosts. Their services cannot be looked up, and a publisher that registers now is never connected to their
+subscribers. Nothing raises: a status the returned robot's registrar publishes to the operator's registrar
+simply reaches nobody, and the robot's restart finds nobody to rebuild its registry from.
+
+:class:`MasterRejoin` asks the master, once per period, whether it knows this node (one XML-RPC call with
+a timeout). When it does not, it registers everything this process has, as rospy does at start, and
+connects each subscriber to the publishers the master names. A master that does not answer is left alone:
+what a cut-off host means for the resources held there is the owner watch's to report.
+"""
+import http.client
+import threading
+import xmlrpc.client
+from typing import Optional
+
+import rosgraph
+import rospy
+import rospy.impl.registration
+
+from temoto_core import master_lookup
+from temoto_core.xmlrpc_util import proxy
+
+DEFAULT_PERIOD = 1.0      # s between two checks: a returned master has everything again within about this
+CALL_TIMEOUT = 1.0        # s for one XML-RPC call to the master or to this node
+MASTER_CALLER_ID = '/master'   # how the master signs the publisherUpdate it sends to a subscriber
+
+XMLRPC_ERRORS = (OSError, xmlrpc.client.Error, http.client.HTTPException)
+
+
+class MasterRejoin:
+    """Registers this process's node again with a master that does not know it (see the module docstring)."""
+
+    def __init__(self, period: float = DEFAULT_PERIOD, timeout: float = CALL_TIMEOUT) -> None:
+        if not period > 0:
+            raise ValueError('master_check_period %r: it must be a positive number of seconds' % (period,))
+        self.period = period
+        self.timeout = timeout
+        self.rejoins = 0                       # how many times this node registered again
+        self._master_uri = rosgraph.get_master_uri()
+        self._caller_id = rospy.get_name()
+        self._stop = threading.Event()
+        self._warned_other: Optional[str] = None
+        self._thread = threading.Thread(target=self._run, name='temoto-master-rejoin', daemon=True)
+
+    def start(self) -> 'MasterRejoin':
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period) and not rospy.is_shutdown():
+            try:
+                self.check()
+            except XMLRPC_ERRORS as err:      # the master went away mid-way: the next period tries again
+                rospy.logdebug('%s: registering again with %s failed: %s', self._caller_id, self._master_uri, err)
+
+    def check(self) -> bool:
+        """Register again if the master does not know this node; True when it did. Raises an XML-RPC or
+        socket error when the master stops answering half-way."""
+        own_uri = rospy.get_node_uri()
+        if not own_uri or not rospy.core.is_initialized():
+            return False                      # rospy is still registering for the first time
+        try:
+            known = master_lookup.lookup_node(self._master_uri, self._caller_id, self.timeout)
+        except XMLRPC_ERRORS:
+            return False                      # no master (yet): nothing to register with
+        if known == own_uri:
+            return False
+        if known is not None:
+            # another process took this node's name at the new master: registering would shut it down
+            if self._warned_other != known:
+                self._warned_other = known
+                rospy.logwarn('%s: the master names another node %s at %s; not registering again',
+                              self._caller_id, self._caller_id, known)
+            return False
+        self._register_all(own_uri)
+        self.rejoins += 1
+        return True
+
+    def _register_all(self, own_uri: str) -> None:
+        topics = rospy.impl.registration.get_topic_manager()
+        services = rospy.impl.registration.get_service_manager()
+        master = proxy(self._master_uri, self.timeout)
+        node = proxy(own_uri, self.timeout)
+        publications, subscriptions = topics.get_publications(), topics.get_subscriptions()
+        offered = services.get_services()
+        for topic, msg_type in publications:
+            self._ok(master.registerPublisher(self._caller_id, topic, msg_type, own_uri), 'publisher', topic)
+        for topic, msg_type in subscriptions:
+            publishers = self._ok(master.registerSubscriber(self._caller_id, topic, msg_type, own_uri),
+                                  'subscriber', topic)
+            if publishers:
+                node.publisherUpdate(MASTER_CALLER_ID, topic, publishers)
+        for service, service_uri in offered:
+            self._ok(master.registerService(self._caller_id, service, service_uri, own_uri), 'service', service)
+        rospy.logwarn('%s: the master at %s did not know this node (it restarted): registered %d publisher(s), '
+                      '%d subscriber(s) and %d service(s) again', self._caller_id, self._master_uri,
+                      len(publications), len(subscriptions), len(offered))
+
+    def _ok(self, answer, kind: str, name: str):
+        code, message, value = answer
+        if code != 1:
+            rospy.logerr('%s: the master refused %s %s: %s', self._caller_id, kind, name, message)
+            return None
+        return value
+
+
+_started: Optional[MasterRejoin] = None
+_start_lock = threading.Lock()
+
+
+def ensure_started() -> Optional[MasterRejoin]:
+    """This process's watch, started on the first call with ``~master_check_period`` (s; 0 turns it off);
+    None when off. Raises ValueError naming the parameter when it is not a number of seconds."""
+    global _started
+    with _start_lock:
+        if _started is None:
+            period = rospy.get_param('~master_check_period', DEFAULT_PERIOD)
+            if isinstance(period, bool) or not isinstance(period, (int, float)) or period < 0:
+                raise ValueError('master_check_period %r: it must be a number of seconds, 0 for off' % (period,))
+            if period == 0:
+                return None
+            _started = MasterRejoin(float(period)).start()
+        return _started

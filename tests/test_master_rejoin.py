@@ -1,0 +1,56 @@
+"""A node outlives its master: the new master at the same address gets the node's registrations back
+(temoto_core/master_rejoin.py). Real roscore, restarted on its port; a real registrar node.
+
+Across two hosts, with the robot's return, in test_two_hosts.py.
+"""
+import pytest
+
+from temoto_core.master import RosMaster, free_port
+from temoto_core.processes import ProcessGroupLauncher
+from temoto_core.testing import wait_for
+from temoto_core.xmlrpc_util import proxy
+from rr_helpers import RegistrarNode
+
+HANG = 10.0
+
+
+@pytest.fixture
+def own_master(tmp_path, session_token):
+    master = RosMaster(str(tmp_path / 'master'), session_token, port=free_port())
+    (tmp_path / 'master').mkdir()
+    master.start()
+    procs = ProcessGroupLauncher(master.env, str(tmp_path))
+    yield master, procs
+    procs.stop_all()
+    master.stop()
+
+
+def system_state(master):
+    code, _, state = proxy(master.uri, 2.0).getSystemState('/test_master_rejoin')
+    assert code == 1
+    return state
+
+
+def registered(master, node):
+    publishers, subscribers, services = system_state(master)
+    return ({t for t, nodes in publishers if node in nodes}, {t for t, nodes in subscribers if node in nodes},
+            {s for s, nodes in services if node in nodes})
+
+
+def test_a_restarted_master_gets_every_registration_of_a_node_back(own_master):
+    master, procs = own_master
+    RegistrarNode(procs, 'rr_rejoin', control_socket=str(procs.workdir) + '/rr_rejoin.sock')
+    before = registered(master, '/rr_rejoin')
+    assert '/rr_rejoin/control' in before[2] and '/temoto/rr_rejoin/status' in before[1], before
+    master.stop()
+    master.start()                       # the same address and port, knowing nothing
+    assert registered(master, '/rr_rejoin') == (set(), set(), set())
+    wait_for(lambda: registered(master, '/rr_rejoin') == before, HANG, 'every registration of /rr_rejoin back')
+
+
+def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
+    _, procs = own_master
+    proc = procs.node('temoto_test_nodes', 'rr_node', name='rr_bad_period', params={'master_check_period': -1})
+    wait_for(lambda: not proc.alive(), HANG, 'the node to stop')
+    assert proc.returncode != 0
+    assert 'master_check_period -1' in proc.log(40), proc.log(40)
