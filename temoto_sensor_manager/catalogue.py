@@ -10,7 +10,8 @@ Format (one file holds a list under ``sensors``)::
         args: ''                        # optional extra arguments (shlex-split by the ER Manager)
         reliability: 0.8                # optional prior of the moving average (default 0.8)
         rate: 30                        # optional expected rate of every topic, Hz
-        stall_timeout: 1.0              # optional silence limit of every topic, s
+        stall_timeout: 1.0              # optional silence limit of every topic, s (the most, when adaptive)
+        stall_detection: adaptive       # optional: adaptive (default) or fixed
         description: ...                # optional
         output_topics:                  # topic type -> topic, or a mapping:
           camera_info: d435/color/camera_info
@@ -20,6 +21,7 @@ Format (one file holds a list under ``sensors``)::
             remap: ''                   # node: the name to remap (default: the topic)
             rate: 30                    # overrides the entry's rate
             stall_timeout: 1.0          # overrides the entry's limit
+            stall_detection: fixed      # overrides the entry's
 
 A relative topic is resolved in the namespace of the manager that loads the
 catalogue, as ROS resolves a node's relative names: one catalogue serves every
@@ -30,7 +32,9 @@ topic stays as written.
 A malformed entry is reported with its file and line and skipped; the rest of
 the catalogue loads. The stall limit of a topic is its ``stall_timeout``, or
 ``max(3 expected periods, 100 ms)``; a topic with no rate and no limit is not
-watched for stalls (only for its first message).
+watched for stalls (only for its first message). With ``stall_detection:
+adaptive`` (the default) that limit is the most: the limit in use follows the
+topic's measured rhythm (``arrivals.py``), down to 2.5 expected periods.
 """
 import dataclasses
 import os
@@ -46,8 +50,9 @@ MIN_STALL_TIMEOUT = 0.1
 # A started driver's first message: its start-up (the allowance) plus this many of its periods.
 FIRST_DATA_PERIODS = 10.0
 _ENTRY_KEYS = {'name', 'type', 'package', 'executable', 'args', 'reliability', 'rate', 'stall_timeout',
-               'description', 'output_topics', 'input_topics'}
-_TOPIC_KEYS = {'topic', 'arg', 'remap', 'rate', 'stall_timeout'}
+               'stall_detection', 'description', 'output_topics', 'input_topics'}
+_TOPIC_KEYS = {'topic', 'arg', 'remap', 'rate', 'stall_timeout', 'stall_detection'}
+STALL_DETECTIONS = ('adaptive', 'fixed')
 
 
 class CatalogueError(ValueError):
@@ -66,6 +71,11 @@ class TopicSpec:
     remap: str = ''             # nodes: the name inside the node that is remapped
     rate: float = 0.0           # expected Hz; 0: unknown
     stall_timeout: float = 0.0  # s; 0: derived from the rate
+    stall_detection: str = 'adaptive'   # or 'fixed': the limit is silence_limit() whatever the rhythm
+
+    @property
+    def adaptive(self) -> bool:
+        return self.stall_detection == 'adaptive'
 
     def silence_limit(self) -> float:
         """Seconds of silence that count as a stall; 0 means not watched."""
@@ -155,6 +165,7 @@ def parse_entry(raw, source: str = '', namespace: str = '/') -> SensorEntry:
         raise ValueError('reliability must be in [0, 1], got %r' % prior)
     rate = _number(raw['rate'], 'rate') if 'rate' in raw else 0.0
     stall = _number(raw['stall_timeout'], 'stall_timeout') if 'stall_timeout' in raw else 0.0
+    detection = _detection(raw, 'stall_detection', 'adaptive')
     outputs = raw.get('output_topics')
     if not isinstance(outputs, dict) or not outputs:
         raise ValueError('output_topics must be a non-empty mapping of topic type -> topic')
@@ -174,7 +185,9 @@ def parse_entry(raw, source: str = '', namespace: str = '/') -> SensorEntry:
                          arg=_text(value, 'arg', required=False), remap=_text(value, 'remap', required=False),
                          rate=_number(value['rate'], 'output_topics.%s.rate' % key) if 'rate' in value else rate,
                          stall_timeout=_number(value['stall_timeout'], 'output_topics.%s.stall_timeout' % key)
-                         if 'stall_timeout' in value else stall)
+                         if 'stall_timeout' in value else stall,
+                         stall_detection=_detection(value, 'output_topics.%s.stall_detection' % key, detection,
+                                                    field='stall_detection'))
         if spec.arg and not rosgraph.names.is_legal_base_name(spec.arg):
             raise ValueError('output_topics.%s.arg %r is not a legal launch arg name' % (key, spec.arg))
         if spec.remap and not rosgraph.names.is_legal_name(spec.remap):
@@ -186,6 +199,14 @@ def parse_entry(raw, source: str = '', namespace: str = '/') -> SensorEntry:
     return SensorEntry(name=name, type=kind, package=package, executable=executable, output_topics=topics,
                        input_topics=dict(inputs), args=_text(raw, 'args', required=False),
                        description=_text(raw, 'description', required=False), prior=prior, source=source)
+
+
+def _detection(raw: dict, where: str, default: str, field: str = '') -> str:
+    """The ``stall_detection`` of ``raw`` (``field``, or the last part of ``where``), one of STALL_DETECTIONS."""
+    value = raw.get(field or where, default)
+    if value not in STALL_DETECTIONS:
+        raise ValueError('%s must be one of %s, got %r' % (where, ', '.join(STALL_DETECTIONS), value))
+    return value
 
 
 def load_file(path: str, namespace: str = '/') -> Tuple[List[SensorEntry], List[CatalogueError]]:

@@ -1,6 +1,7 @@
 """`temoto sensors ...`: the sensor catalogue, live or from files.
 
-    temoto sensors [--ns temoto]          every sensor of the running Sensor Manager: type, reliability, in use
+    temoto sensors [--ns temoto]          every sensor of the running Sensor Manager: type, reliability, in use,
+                                          and the stall limit each held topic is watched with now
     temoto sensors check FILE [FILE...]   validate catalogue files offline (problems with file:line)
 
 Exit codes: 0 ok, 1 the manager is not running or a file has problems, 2 bad arguments.
@@ -50,6 +51,9 @@ def _list(ns: str) -> int:
         print('%-22s %-14s %.3f  %-6s %s' % (s['name'], s['type'], s['reliability'], 'yes' if s['active'] else '',
                                             ', '.join('%s=%s' % (k, v['topic'])
                                                       for k, v in sorted(s['output_topics'].items()))))
+    for s in rows:
+        for topic, limit in sorted(s.get('watched', {}).items()):
+            print('watching %s of %s: stalled after %.0f ms of silence' % (topic, s['name'], limit * 1e3))
     for problem in data.get('problems', []):
         print('catalogue problem: %s' % problem)
     return 0

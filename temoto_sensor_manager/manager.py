@@ -36,7 +36,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
-from temoto_sensor_manager.catalogue import Catalogue, SensorEntry
+from temoto_sensor_manager.catalogue import Catalogue, SensorEntry, TopicSpec
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SENSOR, START_SENSOR_TYPE
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
 from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
@@ -47,6 +47,11 @@ SUB = Subsystem.SENSOR_MANAGER
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
 SENSOR_KEY = 'sensor/%d'              # owner state: the driver process of a served sensor, by internal id
+
+
+def probe_of(spec: TopicSpec, topic: str, on_first=None) -> TopicProbe:
+    """The watch of ``topic`` as its catalogue entry ``spec`` describes it."""
+    return TopicProbe(topic, spec.silence_limit(), on_first=on_first, rate=spec.rate, adaptive=spec.adaptive)
 
 
 def _gaps(probes: List[TopicProbe]) -> str:
@@ -167,7 +172,7 @@ class SensorManager:
         attempt = _Attempt()
         # Subscribed before the driver starts: the connection to its publishers is made while it starts
         # (not after the ER Manager answers), so its first message is seen as soon as it is sent.
-        probes = [TopicProbe(topic, entry.output_topics[key].silence_limit(), on_first=attempt.wake)
+        probes = [probe_of(entry.output_topics[key], topic, on_first=attempt.wake)
                   for key, topic in launch.topics.items()]
         try:
             started = self.rr.call(self.er_manager, LOAD_PROCESS, request, link=False)
@@ -249,7 +254,7 @@ class SensorManager:
             raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'sensor %s: %s' % (
                 res.sensor_name, 'the journal has no record of its driver' if record is None
                 else 'it is not in the catalogue any more'))
-        probes = [TopicProbe(kv.value, entry.output_topics[kv.key].silence_limit())
+        probes = [probe_of(entry.output_topics[kv.key], kv.value)
                   for kv in res.output_topics if kv.key in entry.output_topics]
         held = _Held(rid, entry, int(record['process_id']), probes)
         with self._lock:
@@ -290,12 +295,12 @@ class SensorManager:
         if held is not None:
             self._mark_failed(held, 'sensor %s crashed: %s' % (held.entry.name, event.message), report=False)
 
-    def _on_stall(self, probe: TopicProbe, silence: float) -> None:
+    def _on_stall(self, probe: TopicProbe, silence: float, limit: float) -> None:
         held = probe.owner
         if held is None:
             return
-        message = ('sensor %s stalled: no message on %s for %.3f s (limit %.3f s)'
-                   % (held.entry.name, probe.topic, silence, probe.limit))
+        message = ('sensor %s stalled: no message on %s for %.3f s (%s)'
+                   % (held.entry.name, probe.topic, silence, probe.describe_limit(limit)))
         self._mark_failed(held, message, report=True)
 
     def _mark_failed(self, held: _Held, message: str, report: bool) -> None:
@@ -319,10 +324,18 @@ class SensorManager:
     def catalogue_json(self) -> str:
         with self._lock:
             active = {h.entry.name: h.internal_id for h in self._held.values() if not h.failed}
+            # the limit each held topic is watched with now (adaptive: it follows the rhythm)
+            watched: Dict[str, Dict[str, float]] = {}
+            for h in self._held.values():
+                if not h.failed:
+                    watched.setdefault(h.entry.name, {}).update({p.topic: round(p.current_limit(), 4)
+                                                                 for p in h.probes})
         rows = [{'name': e.name, 'type': e.type, 'package': e.package, 'executable': e.executable,
                  'reliability': round(e.reliability.value, 6), 'source': e.source, 'active': e.name in active,
-                 'output_topics': {k: {'topic': t.topic, 'rate': t.rate, 'stall_limit': t.silence_limit()}
-                                   for k, t in e.output_topics.items()}}
+                 'output_topics': {k: {'topic': t.topic, 'rate': t.rate, 'stall_limit': t.silence_limit(),
+                                       'stall_detection': t.stall_detection}
+                                   for k, t in e.output_topics.items()},
+                 'watched': watched.get(e.name, {})}
                 for e in self.catalogue.entries]
         return json.dumps({'manager': NAME, 'sensors': rows,
                            'problems': [str(p) for p in self.catalogue.problems]}, sort_keys=True)

@@ -15,6 +15,7 @@ import rospy
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
+from temoto_sensor_manager import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.srv import LoadSensor
 from temoto_sensor_manager.testing import (FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue, catalogue_problems,
@@ -137,11 +138,37 @@ def test_stall_is_reported_within_its_limit_and_the_stalled_driver_is_stopped(sm
     sent = FakeCables().send('stall', res.sensor_name.replace('fake_', ''))
     wait_for(lambda: failed_events(events), 10, 'the watchdog FAILED at the client')
     delay = time.monotonic() - sent
-    assert limit <= delay + 0.05 and delay < limit + 2.0, (delay, limit)     # generous hang bound
+    # the limit follows the stream's rhythm (temoto_sensor_manager/arrivals.py): never under 2.5 periods
+    floor = arrivals.FLOOR_PERIODS / catalogue()[res.sensor_name]['output_topics']['lidar_data']['rate']
+    assert floor <= delay + 0.02 and delay < limit + 2.0, (delay, limit)     # generous hang bound
     assert 'stalled' in events[0].message and res.topic('lidar_data') in events[0].message
     assert not pid_gone(pid)                          # a stalled driver is alive ...
     sm.stop_sensor(res.resource_id)
     wait_for(lambda: pid_gone(pid), 10, 'the stalled driver to be stopped')  # ... until its consumer lets go
+
+
+def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_limit(smi, capsys):
+    sm = smi()
+    events = []
+    sm.register_update_callback(events.append)
+    res = sm.start_sensor('fake patient')
+    cap = catalogue()['fake_patient']['output_topics']['data']['stall_limit']
+    assert cap == 5.0
+    watch = TopicWatch(res.topic('data'))       # the manager subscribed before the driver started: it has seen
+    try:                                        # at least as many
+        wait_for(lambda: watch.count > 2 * arrivals.WARMUP, 20, 'enough messages to learn the rhythm')
+    finally:
+        watch.close()
+    from temoto_sensor_manager.cli import main
+    assert main([]) == 0
+    [line] = [x for x in capsys.readouterr().out.splitlines() if x.startswith('watching /fake/patient/data')]
+    assert float(line.split('stalled after ')[1].split(' ms')[0]) < cap * 1e3, line    # the rhythm's, shown
+    sent = FakeCables().send('stall', 'patient')
+    wait_for(lambda: failed_events(events), 10, 'the stall FAILED at the client')
+    delay = time.monotonic() - sent
+    assert delay < cap / 2, (delay, events[0].message)
+    assert 'adaptive limit' in events[0].message, events[0].message
+    sm.stop_sensor(res.resource_id)
 
 
 def test_a_driver_that_fails_to_start_or_stays_silent_makes_way_for_the_next(smi):

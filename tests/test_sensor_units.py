@@ -87,13 +87,19 @@ def test_silence_limit_defaults_to_three_periods_and_at_least_100_ms():
     assert e.output_topics['set'].silence_limit() == pytest.approx(2.5)
 
 
+def fixed_probe(topic, limit, last):
+    """What the watchdog reads of a probe, with a fixed limit."""
+    return types.SimpleNamespace(topic=topic, limit=limit, last=last, armed=False, quiet_from=0.0,
+                                 current_limit=lambda: limit)
+
+
 def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
     fired = []
     done = threading.Event()
-    dog = Watchdog(lambda probe, silence: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
+    dog = Watchdog(lambda probe, silence, limit: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
     try:
-        busy = types.SimpleNamespace(topic='busy', limit=0.15, last=time.monotonic(), armed=False, quiet_from=0.0)
-        quiet = types.SimpleNamespace(topic='quiet', limit=0.15, last=time.monotonic(), armed=False, quiet_from=0.0)
+        busy = fixed_probe('busy', 0.15, last=time.monotonic())
+        quiet = fixed_probe('quiet', 0.15, last=time.monotonic())
         dog.arm([busy, quiet])
         start = time.monotonic()
         while time.monotonic() - start < 0.5:          # 'busy' gets a message every 20 ms
@@ -115,9 +121,9 @@ def test_watchdog_grace_gives_a_probe_without_messages_time_to_connect():
     grace, one stall after it if nothing comes."""
     fired = threading.Event()
     stalls = []
-    dog = Watchdog(lambda probe, silence: (stalls.append((time.monotonic(), silence)), fired.set()))
+    dog = Watchdog(lambda probe, silence, limit: (stalls.append((time.monotonic(), silence)), fired.set()))
     try:
-        probe = types.SimpleNamespace(topic='new', limit=0.05, last=0.0, armed=False, quiet_from=0.0)
+        probe = fixed_probe('new', 0.05, last=0.0)
         start = time.monotonic()
         dog.arm([probe], grace=0.4)
         assert fired.wait(5.0)

@@ -1,0 +1,98 @@
+"""Stall detection from a stream's own rhythm: the silence limit follows the measured inter-arrival times.
+
+One fixed limit per topic has to cover the worst gap the topic ever shows on a loaded machine, so it
+reports every stall late: the simulated D435 needed 0.5 s at 30 Hz, fifteen periods. A stream's gaps
+are mostly close to its mean, and the limit can follow them: ``mean + SPREAD_FACTOR x spread`` over
+the last ``WINDOW`` gaps, the threshold of a phi-accrual detector (Hayashibara et al., 2004) with a
+normal model, phi of about 9 for a factor of 6. Two guards keep it honest when the model is wrong:
+
+- the limit is never below ``FLOOR_PERIODS`` nominal periods (a lost message is not a stall) nor
+  below ``MAX_GAP_MARGIN`` times the longest gap of the last ``HISTORY_BUCKETS`` x ``BUCKET`` gaps,
+  about a minute (a machine that was slow a minute ago may be slow again: gap tails are much heavier
+  than a normal model says; with two CPU hogs, a 25 Hz scan whose gaps had a mean of 40 ms, a spread of
+  13 ms and a longest gap of 129 ms in the last minute then showed a gap of 194 ms);
+- it is never above the catalogue's limit (``stall_timeout``, or three periods), which is also the
+  limit until ``WARMUP`` gaps have been seen.
+
+The cost per message is a few float operations on the subscriber's thread; the limit itself is
+computed only when the watchdog wakes.
+"""
+import collections
+import math
+from typing import Deque
+
+WINDOW = 300            # gaps of the mean and spread: 10 s at 30 Hz
+WARMUP = 100            # gaps before the measured rhythm is trusted (3 s at 30 Hz)
+SPREAD_FACTOR = 6.0     # limit = mean + SPREAD_FACTOR x spread
+MIN_SPREAD = 0.1        # x mean: a perfectly regular stream still gets a margin
+FLOOR_PERIODS = 2.5     # nominal (or measured) periods: the shortest limit
+MAX_GAP_MARGIN = 2.0    # x the longest recent gap: the limit stays above what the stream did lately (1.5 let
+                        # two false stalls through in 10 min with two CPU hogs: bench_stall.py)
+BUCKET = 100            # gaps per bucket of the longest-gap history
+HISTORY_BUCKETS = 20    # buckets kept: the longest gap of the last 2000 (67 s at 30 Hz)
+
+
+class ArrivalModel:
+    """The last ``window`` inter-arrival times of one topic: their mean, spread and maximum."""
+
+    def __init__(self, window: int = WINDOW) -> None:
+        self.window = window
+        self._gaps: Deque[float] = collections.deque()
+        self._sum = 0.0
+        self._sum_sq = 0.0
+        self._added = 0
+        self._longest_now = 0.0                        # the bucket being filled
+        self._longest_past: Deque[float] = collections.deque(maxlen=HISTORY_BUCKETS - 1)
+
+    def add(self, gap: float) -> None:
+        gaps = self._gaps
+        gaps.append(gap)
+        self._sum += gap
+        self._sum_sq += gap * gap
+        if len(gaps) > self.window:
+            old = gaps.popleft()
+            self._sum -= old
+            self._sum_sq -= old * old
+        self._added += 1
+        if gap > self._longest_now:
+            self._longest_now = gap
+        if self._added % BUCKET == 0:
+            self._longest_past.append(self._longest_now)
+            self._longest_now = 0.0
+        if self._added % self.window == 0:    # running sums drift: start them again from the window
+            self._sum = math.fsum(gaps)
+            self._sum_sq = math.fsum(g * g for g in gaps)
+
+    @property
+    def count(self) -> int:
+        return len(self._gaps)
+
+    def mean(self) -> float:
+        return self._sum / len(self._gaps) if self._gaps else 0.0
+
+    def spread(self) -> float:
+        """The standard deviation of the window's gaps."""
+        n = len(self._gaps)
+        if n < 2:
+            return 0.0
+        mean = self._sum / n
+        return math.sqrt(max(0.0, self._sum_sq / n - mean * mean))
+
+    def longest(self) -> float:
+        """The longest gap of the history (about the last HISTORY_BUCKETS x BUCKET gaps)."""
+        return max(max(self._longest_past, default=0.0), self._longest_now)
+
+    def limit(self, cap: float, nominal_period: float = 0.0) -> float:
+        """The silence that counts as a stall now: adaptive between the floor and ``cap`` (the cap itself
+        while warming up). ``nominal_period``: 1 / the catalogue's rate (0: unknown; the measured mean
+        then sets the floor)."""
+        if len(self._gaps) < WARMUP:
+            return cap
+        mean = self.mean()
+        adaptive = mean + SPREAD_FACTOR * max(self.spread(), MIN_SPREAD * mean)
+        floor = max(FLOOR_PERIODS * (nominal_period or mean), MAX_GAP_MARGIN * self.longest())
+        return min(cap, max(floor, adaptive))
+
+    def describe(self) -> str:
+        return 'mean gap %.3f s, spread %.3f s over the last %d gaps, longest lately %.3f s' % (
+            self.mean(), self.spread(), len(self._gaps), self.longest())
