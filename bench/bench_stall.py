@@ -72,6 +72,17 @@ def main(argv=None):
             name, _, key, kind, exe, _ = sensor
             return sm.start_sensor(kind, [key], executable=exe)
 
+        def learnt(name, timeout=30.0):
+            """Wait until the manager watches ``name`` with a limit learnt from its rhythm (below the
+            catalogue's, which holds while it learns); a stream too irregular keeps the catalogue's."""
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                entry = t.catalogue()[name]
+                cap = min(v['stall_limit'] for v in entry['output_topics'].values())
+                if entry['watched'] and max(entry['watched'].values()) < cap:
+                    return
+                time.sleep(0.5)
+
         busy = hogs(opts.hogs)
         held = {s[0]: hold(s) for s in SENSORS}
         print('bench_stall: %d sensors held beside %d CPU hogs for %.1f min ...' % (len(held), len(busy),
@@ -92,7 +103,7 @@ def main(argv=None):
         for s in SENSORS:
             name, device, _, _, _, _ = s
             for i in range(opts.stalls):
-                time.sleep(5.0)                           # long enough to learn the rhythm (WARMUP gaps)
+                learnt(name)
                 del events[:]
                 t.set_cable(device, 'unplugged', 'stall')
                 deadline = time.monotonic() + 10.0

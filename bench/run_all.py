@@ -15,7 +15,8 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ORDER = ['rr', 'journal', 'recovery', 'hosts', 'er', 'node_stop', 'sim', 'sensor', 'output', 'action_start', 'demo']
+ORDER = ['rr', 'journal', 'recovery', 'hosts', 'er', 'node_stop', 'sim', 'sensor', 'stall', 'output', 'action_start',
+         'demo']
 
 
 def scripts():
