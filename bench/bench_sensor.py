@@ -10,8 +10,9 @@ holds the driver process from the ER Manager: client -> start_sensor -> load_pro
    from a launch file, so the ER Manager's launch runner sits in between; the same chain with a
    plain node driver (a fake sensor told to exit) shows what the managers themselves add.
 2. Stall: the cable is pulled in stall mode (the driver stays alive, silent); measured the same
-   way. The watchdog waits the topic's silence limit (1.0 s for the simulated D435, see
-   config/vaultbot.yaml), so the figure of interest is the latency beyond that limit.
+   way. The stall comes right after the load, while the watchdog still learns the topic's rhythm, so it
+   waits the catalogue's silence limit (config/vaultbot.yaml), and the figure of interest is the latency
+   beyond that limit (the learnt limit is bench_stall.py's).
 3. Load until first data: start_sensor until its response, which arrives only once the first
    message is on every output topic (D435 cloud; SICK scan; a trivial fake driver as the floor).
 
@@ -64,9 +65,7 @@ def main(argv=None):
         from temoto_sensor_manager import testing as t
         rospy.init_node('bench_sensor', disable_signals=True)
         print('starting the simulation and the managers ...', flush=True)
-        t.start_sim(launcher)
-        t.start_er_manager(launcher, os.path.join(work, 'er_logs'))
-        t.start_sensor_manager(launcher, first_data_timeout=30.0)
+        t.start_robot(launcher, work)
         rr = ResourceRegistrar('bench_sensor_client')
 
         def request(sensor_type, topics, executable=''):

@@ -61,9 +61,7 @@ def main(argv=None):
         from temoto_sensor_manager.interface import SensorManagerInterface
         rospy.init_node('bench_stall', disable_signals=True)
         print('bench_stall: starting the simulation and the managers ...', flush=True)
-        t.start_sim(launcher)
-        t.start_er_manager(launcher, os.path.join(work, 'er_logs'))
-        t.start_sensor_manager(launcher, first_data_timeout=30.0)
+        t.start_robot(launcher, work)
         sm = SensorManagerInterface()
         events = []
         sm.register_update_callback(events.append)       # no reload: a FAILED is counted, not repaired

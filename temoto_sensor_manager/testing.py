@@ -87,6 +87,14 @@ class TopicWatch:
         self.sub.unregister()
 
 
+def start_robot(launcher, work: str, first_data_timeout: float = 30.0) -> None:
+    """The simulated VaultBot with its ER Manager (logs under ``work``) and Sensor Manager, as the benchmarks
+    run them."""
+    start_sim(launcher)
+    start_er_manager(launcher, os.path.join(work, 'er_logs'))
+    start_sensor_manager(launcher, first_data_timeout=first_data_timeout)
+
+
 def start_sim(launcher, **params):
     """The simulated VaultBot (world, joint states, cables); the hand waves, the wrist does not sweep."""
     base = {'world': 'lab', 'sweep': False, 'hand_motion': True}
