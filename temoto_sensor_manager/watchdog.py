@@ -118,7 +118,7 @@ class Watchdog:
         """When to look at ``probe`` again: when it is due, or sooner if its limit may shrink meanwhile (an
         adaptive limit learns the rhythm after the arm; a deadline set from the catalogue's limit would
         otherwise hold a stall until then)."""
-        if getattr(probe, 'arrivals', None) is None:
+        if probe.arrivals is None:
             return due
         return min(due, now + ADAPTIVE_RECHECK)
 

@@ -90,7 +90,7 @@ def test_silence_limit_defaults_to_three_periods_and_at_least_100_ms():
 def fixed_probe(topic, limit, last):
     """What the watchdog reads of a probe, with a fixed limit."""
     return types.SimpleNamespace(topic=topic, limit=limit, last=last, armed=False, quiet_from=0.0,
-                                 current_limit=lambda: limit)
+                                 current_limit=lambda: limit, arrivals=None)
 
 
 def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
