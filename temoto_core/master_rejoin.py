@@ -39,7 +39,6 @@ class MasterRejoin:
             raise ValueError('master_check_period %r: it must be a positive number of seconds' % (period,))
         self.period = period
         self.timeout = timeout
-        self.rejoins = 0                       # how many times this node registered again
         self._master_uri = rosgraph.get_master_uri()
         self._caller_id = rospy.get_name()
         self._stop = threading.Event()
@@ -80,7 +79,6 @@ class MasterRejoin:
                               self._caller_id, self._caller_id, known)
             return False
         self._register_all(own_uri)
-        self.rejoins += 1
         return True
 
     def _register_all(self, own_uri: str) -> None:

@@ -63,10 +63,6 @@ class ArrivalModel:
             self._sum = math.fsum(gaps)
             self._sum_sq = math.fsum(g * g for g in gaps)
 
-    @property
-    def count(self) -> int:
-        return len(self._gaps)
-
     def mean(self) -> float:
         return self._sum / len(self._gaps) if self._gaps else 0.0
 
