@@ -53,7 +53,7 @@ def displays_main(argv: Optional[list] = None) -> int:
     except RvizHostError as e:
         print('temoto displays: %s' % e, file=sys.stderr)
         return 1
-    rows = [{'name': d.name, 'class': d.display_class, 'topic': d.topic, 'enabled': d.enabled, 'drawn': d.drawn,
+    rows = [{'name': d.name, 'class': d.display_class, 'topic': d.topic, 'enabled': d.enabled, 'visible': d.visible, 'drawn': d.drawn,
              'status': d.status} for d in resp.displays]
     if args.json:
         import json
@@ -63,7 +63,8 @@ def displays_main(argv: Optional[list] = None) -> int:
     print('RViz: fixed frame %s, %d frames rendered, cap %g fps' % (resp.fixed_frame, resp.frame_count,
                                                                      resp.frame_rate))
     table = [('NAME', 'CLASS', 'TOPIC', 'DRAWN', 'STATUS')] + [
-        (r['name'], r['class'], r['topic'] or '-', 'yes' if r['drawn'] else 'no', r['status']) for r in rows]
+        (r['name'], r['class'], r['topic'] or '-',
+         'hidden' if not r['visible'] else 'yes' if r['drawn'] else 'no', r['status']) for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(4)]
     for row in table:
         print('  '.join(c.ljust(w) for c, w in zip(row, widths)) + '  ' + row[-1])

@@ -29,9 +29,10 @@ def host_node_name(temoto_namespace: str = 'temoto') -> str:
 
 
 class RvizHostClient:
-    def __init__(self, node_name: Optional[str] = None, timeout: float = 15.0):
+    def __init__(self, node_name: Optional[str] = None, timeout: float = 15.0, call_timeout: Optional[float] = None):
         self.node_name = (node_name or host_node_name()).rstrip('/')
         self.timeout = timeout
+        self.call_timeout = self.CALL_TIMEOUT if call_timeout is None else call_timeout
         self._proxies = {}
 
     def _srv(self, name: str, srv_type):
@@ -79,10 +80,10 @@ class RvizHostClient:
                 box['error'] = e
         worker = threading.Thread(target=run, daemon=True, name='rviz host call %s' % service)
         worker.start()
-        worker.join(self.CALL_TIMEOUT)
+        worker.join(self.call_timeout)
         if worker.is_alive():
             self._proxies.pop(service, None)
-            raise TimeoutError('no answer within %.0f s' % self.CALL_TIMEOUT)
+            raise TimeoutError('no answer within %.1f s' % self.call_timeout)
         if 'error' in box:
             raise box['error']
         return box['resp']
@@ -114,6 +115,10 @@ class RvizHostClient:
 
     def configure_display(self, name: str, topic: str = '', config: str = '') -> str:
         return self._call('configure_display', ConfigureDisplay, name=name, topic=topic, config=config).message
+
+    def set_visible(self, name: str, visible: bool) -> None:
+        """Hide a display (drawn transparent, still subscribed) or show it again."""
+        self.configure_display(name, config='{Visible: %s}' % ('true' if visible else 'false'))
 
     def set_view(self, config: str = '', frame_robot: bool = False) -> None:
         self._call('set_view', SetView, frame_robot=frame_robot, config=config)

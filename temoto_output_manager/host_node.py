@@ -155,7 +155,7 @@ class RvizHostNode:
             return self.host.list_displays(), self.host.frame_count(), str(self.host.manager.getFixedFrame())
         displays, fc, fixed = self._run(snapshot)
         infos = [DisplayInfo(name=d['name'], display_class=d['display_class'], topic=d['topic'],
-                             enabled=d['enabled'], drawn=d['drawn'], status=d['status']) for d in displays]
+                             enabled=d['enabled'], visible=d['visible'], drawn=d['drawn'], status=d['status']) for d in displays]
         return ListDisplaysResponse(displays=infos, fixed_frame=fixed, frame_count=fc,
                                     frame_rate=float(self.host.settings.frame_rate))
 

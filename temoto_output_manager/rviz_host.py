@@ -35,6 +35,8 @@ from .framing import OPERATOR_VIEW, OrbitView, robot_view
 log = logging.getLogger('temoto_output_manager.rviz_host')
 
 IMAGE_CLASS = 'rviz/Image'
+VISIBLE = 'Visible'     # not an RViz property: the host's own, in add_display's and configure_display's config
+ALPHA = 'Alpha'
 BUILTIN_GRID = 'Grid'
 BUILTIN_ROBOT = 'RobotModel'
 
@@ -90,6 +92,11 @@ class HostedDisplay:
     defaults: Optional[list] = None  # Image displays: property values to restore when pooled
     probe: Any = None                # classes without a message count: a subscriber that sees the data
     probe_seen: threading.Event = field(default_factory=threading.Event)
+    hidden_alpha: Optional[float] = None   # hidden (drawn with Alpha 0, still subscribed): the Alpha to restore
+
+    @property
+    def visible(self) -> bool:
+        return self.hidden_alpha is None
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,14 @@ class RobotDrawn:
     shared by several robots ('' for none)."""
     description: str = 'robot_description'
     tf_prefix: str = ''
+
+
+def _pop_flag(config: Dict[str, Any], key: str, default: Optional[bool] = True) -> Optional[bool]:
+    """Take the boolean ``key`` out of ``config``; ``default`` when it is absent."""
+    value = config.pop(key, default)
+    if value is not default and not isinstance(value, bool):
+        raise HostError("property '%s' expects true or false, got %r" % (key, value))
+    return value
 
 
 def robots_from_names(text: str) -> List[RobotDrawn]:
@@ -259,9 +274,8 @@ class RvizHost:
         topic_label = topic_property(cls)
         if topic_label is None and topic:
             raise HostError('%s takes no topic (got %s)' % (cls, topic))
-        enabled = bool(config.pop('Enabled', True)) if isinstance(config.get('Enabled', True), bool) else None
-        if enabled is None:
-            raise HostError("property 'Enabled' expects true or false")
+        enabled = _pop_flag(config, 'Enabled')
+        visible = _pop_flag(config, VISIBLE)
         defaults = None
         if cls == IMAGE_CLASS and self._image_pool:
             d, defaults = self._image_pool.pop()
@@ -277,11 +291,17 @@ class RvizHost:
         except display_config.DisplayConfigError as e:
             self._discard(cls, d, defaults)
             raise HostError(str(e)) from None
-        d.setValue(enabled)
         fc = self.frame_count()
         probed = cls in PROBED_CLASSES and bool(topic)
         hd = HostedDisplay(name, cls, topic, d, FirstFrameWatch(bool(topic_label), fc, margin=1 if probed else 0),
                            time.monotonic(), defaults=defaults)
+        if not visible:
+            try:
+                self._hide(hd)
+            except HostError:
+                self._discard(cls, d, defaults)
+                raise
+        d.setValue(enabled)
         self.displays[name] = hd
         if probed:
             self._attach_probe(hd)
@@ -336,12 +356,27 @@ class RvizHost:
         label = topic_property(hd.cls)
         if topic and label is None:
             raise HostError('%s takes no topic (got %s)' % (hd.cls, topic))
+        config = dict(config)
+        visible = _pop_flag(config, VISIBLE, default=None)
+        if not hd.visible and ALPHA in config:       # a hidden display keeps Alpha 0: the new value waits
+            alpha = config.pop(ALPHA)
+            if not isinstance(alpha, (int, float)) or isinstance(alpha, bool) or not 0.0 <= alpha <= 1.0:
+                raise HostError("property '%s' expects a number from 0 to 1, got %r" % (ALPHA, alpha))
+            hd.hidden_alpha = float(alpha)
+            changed.append(ALPHA)
         if config:
             try:
-                changed = display_config.apply_config(hd.handle, dict(config))
+                changed += display_config.apply_config(hd.handle, config)
             except display_config.DisplayConfigError as e:
                 raise HostError(str(e)) from None
         fc = self.frame_count()
+        if visible is False and hd.visible:
+            self._hide(hd)
+            changed.append(VISIBLE)
+            self.on_event('hidden', name, hd.cls, hd.topic, fc, 0.0)
+        elif visible and not hd.visible:
+            self._reveal(hd, fc)
+            changed.append(VISIBLE)
         if topic and topic != hd.topic:
             display_config.resolve(hd.handle, (label,)).setValue(topic)
             hd.topic = topic
@@ -354,6 +389,27 @@ class RvizHost:
         if changed:
             self.on_event('configured', name, hd.cls, hd.topic, fc, 0.0)
         return changed
+
+    def _hide(self, hd: HostedDisplay) -> None:
+        """Draw ``hd`` fully transparent. Unchecking 'Enabled' would unsubscribe it, and showing it again
+        would then wait for a new TCPROS connection and the next message: a hidden display keeps both."""
+        try:
+            alpha = display_config.resolve(hd.handle, (ALPHA,))
+        except display_config.DisplayConfigError:
+            raise HostError('%s has no %s property, so it cannot be hidden while it stays subscribed'
+                            % (hd.cls, ALPHA)) from None
+        hd.hidden_alpha = float(alpha.getValue())
+        alpha.setValue(0.0)
+
+    def _reveal(self, hd: HostedDisplay, fc: int) -> None:
+        """Give ``hd`` its Alpha back. Its first frame is then the next one rendered with its data: the
+        data it already holds, so no blank frame between the switch and the picture."""
+        display_config.resolve(hd.handle, (ALPHA,)).setValue(hd.hidden_alpha)
+        hd.hidden_alpha = None
+        hd.watch.restart(fc)
+        hd.added_at = time.monotonic()
+        self.on_event('shown', hd.name, hd.cls, hd.topic, fc, 0.0)
+        self._ensure_watching()
 
     def _get(self, name: str) -> HostedDisplay:
         hd = self.displays.get(name)
@@ -383,7 +439,8 @@ class RvizHost:
         out = []
         for hd in self.displays.values():
             out.append({'name': hd.name, 'display_class': hd.cls, 'topic': hd.topic,
-                        'enabled': bool(hd.handle.getValue()), 'drawn': hd.watch.drawn,
+                        'enabled': bool(hd.handle.getValue()), 'visible': hd.visible,
+                        'drawn': hd.visible and hd.watch.drawn,
                         'status': '; '.join('%s: %s' % kv for kv in self.status_lines(hd.handle)),
                         'builtin': hd.builtin})
         return out
@@ -397,7 +454,7 @@ class RvizHost:
         fc = self.frame_count()
         pending = False
         for hd in list(self.displays.values()):
-            if hd.watch.drawn:
+            if hd.watch.drawn or not hd.visible:     # a hidden display's first frame comes once it is shown
                 continue
             msgs = self.messages_received(hd) if hd.watch.needs_data else None
             if hd.watch.observe(fc, msgs):

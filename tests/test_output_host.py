@@ -117,6 +117,49 @@ def test_laser_scan_and_image_displays(host, events, rospy_client):
         image.stop()
 
 
+def test_a_hidden_display_stays_subscribed_and_shows_the_data_it_holds_at_once(host, events, rospy_client):
+    """Hot standby's display: hidden, it receives but draws nothing; shown, its last message is on screen at the
+    next frame. The publisher stops before the reveal, so the picture can only come from what it held."""
+    _, client = host
+    pub = sd.RepeatingPublisher('/om_test/standby', sd.cloud_msg(rgb=(255, 0, 255)), 15).start()
+    try:
+        client.add_display('rviz/PointCloud2', '/om_test/standby', name='standby',
+                           config='{Size (Pixels): 3, Color Transformer: RGB8, Visible: false}')
+        wait_for(lambda: pub.pub.get_num_connections() > 0, 10, 'the hidden display to subscribe')
+        wait_for(lambda: 'Points' in next(d for d in client.list_displays().displays if d.name == 'standby').status,
+                 15, 'the hidden display to receive clouds')
+        info = next(d for d in client.list_displays().displays if d.name == 'standby')
+        assert not info.visible and not info.drawn and info.enabled
+        assert colour_fraction(png_pixels(client.screenshot('view')), (255, 0, 255)) < 0.001, 'hidden, yet drawn'
+        assert first_frame(events, 'standby') is None, 'a hidden display reported a frame on screen'
+    finally:
+        pub.stop()
+    client.set_visible('standby', True)
+    ev = wait_for(lambda: first_frame(events, 'standby'), 10, 'the first frame once shown')
+    shown = next(e for e in events if e.event == DisplayEvent.SHOWN and e.display_name == 'standby')
+    assert ev.frame_count > shown.frame_count
+    assert colour_fraction(png_pixels(client.screenshot('view')), (255, 0, 255)) > 0.01, 'shown, yet not drawn'
+    info = next(d for d in client.list_displays().displays if d.name == 'standby')
+    assert info.visible and info.drawn
+    client.set_visible('standby', False)
+    assert any(e.event == DisplayEvent.HIDDEN and e.display_name == 'standby' for e in events)
+    wait_for(lambda: colour_fraction(png_pixels(client.screenshot('view')), (255, 0, 255)) < 0.001, 10,
+             'the cloud to leave the screen once hidden again')
+    client.remove_display('standby')
+
+
+def test_hiding_is_refused_clearly_where_it_cannot_work(host):
+    _, client = host
+    before = client.display_names()
+    with pytest.raises(RvizHostError, match='rviz/Image has no Alpha property'):
+        client.add_display('rviz/Image', '/om_test/hidden_image', name='hidden image', config='{Visible: false}')
+    with pytest.raises(RvizHostError, match="'Visible' expects true or false"):
+        client.add_display('rviz/PointCloud2', '/om_test/c', name='bad flag', config='{Visible: maybe}')
+    assert client.display_names() == before
+    with pytest.raises(RvizHostError, match="no display named 'ghost'"):
+        client.set_visible('ghost', True)
+
+
 def test_bad_requests_get_clear_errors_and_change_nothing(host):
     _, client = host
     before = client.display_names()

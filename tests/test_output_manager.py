@@ -191,3 +191,31 @@ def test_bad_requests_fail_clearly_and_leave_no_host(om, kwargs, words):
     for w in words:
         assert w in str(err.value), str(err.value)
     wait_for(lambda: host_pid() is None, 15, 'no RViz host left after a refused display')
+
+
+def test_a_hidden_display_is_its_own_resource_and_its_holder_shows_it(om, events, rospy_client):
+    """A hot standby's display: requested hidden, never shared with the visible display of the same topic,
+    and shown by the interface that holds it, in one call to the host."""
+    pub = sd.RepeatingPublisher('/om_mgr/standby', sd.cloud_msg(rgb=(255, 0, 255)), 15).start()
+    try:
+        a, b = om(), om()
+        config = '{Size (Pixels): 3, Color Transformer: RGB8}'
+        hidden = a.show('point cloud', '/om_mgr/standby', config=config, hidden=True)
+        visible = b.show('point cloud', '/om_mgr/standby', config=config)
+        assert hidden.display_name != visible.display_name, 'a hidden request must not share a visible display'
+        host = RvizHostClient(HOST)
+        by_name = {d.name: d for d in host.list_displays().displays}
+        assert not by_name[hidden.display_name].visible and by_name[visible.display_name].visible
+        with pytest.raises(TemotoError, match='holds no display'):
+            b.set_visible(hidden.trr.resource_id, True)
+        b.hide(visible.trr.resource_id)
+        wait_for(lambda: magenta_fraction(host.screenshot('view')) < 0.001, 10, 'the visible display gone')
+        a.set_visible(hidden.trr.resource_id, True)
+        wait_for(lambda: any(e.event == 'first_frame' and e.display_name == hidden.display_name for e in events),
+                 10, 'the first frame of the shown display')
+        assert magenta_fraction(host.screenshot('view')) > 0.01
+        a.hide(hidden.trr.resource_id)
+        with pytest.raises(TemotoError, match='holds no display'):
+            a.set_visible(hidden.trr.resource_id, False)
+    finally:
+        pub.stop()
