@@ -19,6 +19,7 @@ from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
 from temoto_core.srv import GetRegistry
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME, START_SENSOR, START_SENSOR_TYPE
+from temoto_sensor_manager.selection import likely_topics, ranked_rows
 
 TopicsArg = Union[None, Mapping[str, str], Sequence[str]]
 
@@ -90,6 +91,18 @@ class SensorManagerInterface(ManagerInterface):
                                                    output_topics=_key_values(output_topics, 'output_topics'),
                                                    input_topics=_key_values(input_topics, 'input_topics'))
         return _result(self._load(START_SENSOR, request, on_status))
+
+    def catalogue(self, timeout: float = 1.0) -> List[dict]:
+        """The manager's catalogue rows now (type, topics, package, executable, reliability)."""
+        return fetch_catalogue(self.namespace or self.rr.namespace, timeout)
+
+    def ranked_sensors(self, sensor_type: str, keys: Sequence[str], timeout: float = 1.0) -> List[dict]:
+        """The rows that could answer ``start_sensor(sensor_type, keys)``, in the manager's order, best first."""
+        return ranked_rows(self.catalogue(timeout), sensor_type, keys)
+
+    def likely_topics(self, sensor_type: str, keys: Sequence[str], timeout: float = 1.0) -> Optional[Dict[str, str]]:
+        """The topics ``start_sensor(sensor_type, keys)`` will most likely give (None: no candidate)."""
+        return likely_topics(self.catalogue(timeout), sensor_type, keys)
 
     def stop_sensor(self, resource_id: int) -> None:
         """Release a sensor started by this interface (its driver stops when nobody else holds it)."""

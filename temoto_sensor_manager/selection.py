@@ -122,6 +122,15 @@ def plan(entry: SensorEntry, query: SensorQuery) -> LaunchPlan:
     return LaunchPlan(' '.join(shlex.quote(a) for a in args), topics)
 
 
+def ranked_rows(rows: Sequence[dict], sensor_type: str, keys: Sequence[str]) -> List[dict]:
+    """The catalogue rows that could answer a ``start_sensor`` of ``sensor_type`` with topic types ``keys``,
+    best first: the ranking ``candidates`` applies (reliability, then catalogue order)."""
+    wanted = set(keys)
+    found = [r for r in rows if isinstance(r, dict) and r.get('type') == sensor_type
+             and isinstance(r.get('output_topics'), dict) and wanted <= set(r['output_topics'])]
+    return sorted(found, key=lambda r: -float(r.get('reliability', 0.0)))
+
+
 def likely_topics(rows: Sequence[dict], sensor_type: str, keys: Sequence[str]) -> Optional[Dict[str, str]]:
     """The topics a ``start_sensor`` request with no names would most likely be answered with.
 
@@ -130,13 +139,10 @@ def likely_topics(rows: Sequence[dict], sensor_type: str, keys: Sequence[str]) -
     can get ready for the data (e.g. subscribe a display) while the driver starts. Only a
     guess: the best candidate may fail and a lower one answer. None when nothing matches.
     """
-    wanted = set(keys)
-    found = [r for r in rows if isinstance(r, dict) and r.get('type') == sensor_type
-             and isinstance(r.get('output_topics'), dict) and wanted <= set(r['output_topics'])]
+    found = ranked_rows(rows, sensor_type, keys)
     if not found:
         return None
-    best = sorted(found, key=lambda r: -float(r.get('reliability', 0.0)))[0]
     try:
-        return {k: str(best['output_topics'][k]['topic']) for k in keys}
+        return {k: str(found[0]['output_topics'][k]['topic']) for k in keys}
     except (KeyError, TypeError):
         return None

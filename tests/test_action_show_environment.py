@@ -7,6 +7,7 @@ config='', on_status=cb) -> id, .hide(id). Statuses are typed StatusEvents, give
 belongs to the integration suite.
 """
 import itertools
+import time
 import threading
 from types import SimpleNamespace
 
@@ -33,6 +34,7 @@ class Devices:
         self.plugged = {name for name, _, _ in VAULTBOT}
         self.active = {}             # resource id -> sensor name
         self.shown = {}              # display id -> (type, topic)
+        self.hidden = {}             # display id -> (type, topic): subscribed, drawn transparent
         self.configs = {}            # display id -> the RViz properties it was shown with
         self.log = []
         self.ids = itertools.count(1)
@@ -43,6 +45,7 @@ class Devices:
         self.start_gate.set()
         self.failed_before = set()           # ranked last by the fake's likely_topics (as reliability does)
         self.guess_override = None           # likely_topics answers this instead
+        self.flap_after = {}                 # name -> seconds: the device starts, then fails this long after
 
     def unplug(self, name):
         with self.lock:
@@ -51,6 +54,12 @@ class Devices:
             victims = [(rid, self.policies[rid]) for rid, n in self.active.items() if n == name]
         for rid, cb in victims:
             cb(status(rid, Status.FAILED, '%s unplugged' % name))
+
+    def fail(self, rid, why):
+        with self.lock:
+            cb = self.policies[rid] if rid in self.active else None
+        if cb is not None:
+            cb(status(rid, Status.FAILED, why))
 
     def crash_display(self, did):
         """The RViz host of a display dies: FAILED to that display's holder."""
@@ -67,20 +76,31 @@ class FakeSensorManager:
     def __init__(self, devices, rr):
         self.d = devices
 
-    def start_sensor(self, sensor_type, output_topics, on_status=None):
+    def start_sensor(self, sensor_type, output_topics, package_name='', executable='', on_status=None):
         assert self.d.start_gate.wait(10), 'start_sensor gate never opened'
         with self.d.lock:
             for name, stype, topics in VAULTBOT:
+                if executable and executable != name:
+                    continue
                 if stype == sensor_type and name in self.d.plugged and set(output_topics) <= set(topics):
                     rid = next(self.d.ids)
                     self.d.active[rid] = name
                     self.d.policies[rid] = on_status
                     self.d.log.append(('start', name))
+                    if name in self.d.flap_after:
+                        threading.Timer(self.d.flap_after[name], self.d.fail, (rid, '%s flapped' % name)).start()
                     return SimpleNamespace(sensor_name=name, resource_id=rid,
                                            output_topics={k: topics[k] for k in output_topics})
         raise RuntimeError('no %s with %s available' % (sensor_type, sorted(output_topics)))
 
-    def likely_topics(self, sensor_type, keys):
+    def ranked_sensors(self, sensor_type, keys, timeout=1.0):
+        """The real manager's ranking: matches in VAULTBOT's order, a device that failed before last."""
+        with self.d.lock:
+            rows = [{'name': name, 'package': 'fake', 'executable': name, 'type': stype}
+                    for name, stype, topics in VAULTBOT if stype == sensor_type and set(keys) <= set(topics)]
+            return sorted(rows, key=lambda r: r['name'] in self.d.failed_before)
+
+    def likely_topics(self, sensor_type, keys, timeout=1.0):
         """What the real manager's catalogue ranking gives: the first plugged-or-not match in VAULTBOT."""
         with self.d.lock:
             self.d.log.append(('guess', sensor_type))
@@ -106,18 +126,26 @@ class FakeOutputManager:
     def __init__(self, devices, rr):
         self.d = devices
 
-    def show_in_rviz(self, display_type, topic, name='', config='', on_status=None):
+    def show_in_rviz(self, display_type, topic, name='', config='', on_status=None, hidden=False):
         with self.d.lock:
             did = 1000 + next(self.d.ids)
             self.d.policies[did] = on_status
-            self.d.shown[did] = (display_type, topic)
+            (self.d.hidden if hidden else self.d.shown)[did] = (display_type, topic)
             self.d.configs[did] = config
-            self.d.log.append(('show', display_type, topic))
+            self.d.log.append(('show hidden' if hidden else 'show', display_type, topic))
             return did
+
+    def set_visible(self, did, visible):
+        with self.d.lock:
+            src, dst = (self.d.hidden, self.d.shown) if visible else (self.d.shown, self.d.hidden)
+            if did not in src:
+                raise RuntimeError('display %d is not %s' % (did, 'hidden' if visible else 'shown'))
+            dst[did] = src.pop(did)
+            self.d.log.append(('reveal' if visible else 'conceal',) + dst[did])
 
     def hide(self, did):
         with self.d.lock:
-            self.d.log.append(('hide',) + self.d.shown.pop(did))
+            self.d.log.append(('hide',) + (self.d.shown.pop(did, None) or self.d.hidden.pop(did)))
 
 
 @pytest.fixture
@@ -359,3 +387,161 @@ def test_a_display_failure_reaches_the_action_and_the_same_sensor_is_shown_again
     assert [e for e in devices.log if e[0] == 'start'] == [('start', 'd435')], 'no failover for a display crash'
     run.stop(10)
     assert devices.shown == {} and devices.active == {}, 'nothing held after the stop'
+
+
+# ---------------------------------------------------------------------------- standby, fail-back, flapping
+FAST = {'retry_initial_s': 0.05, 'retry_max_s': 0.2, 'failback_check_s': 0.05, 'failback_max_s': 0.4,
+        'failback_hold_s': 0.2}
+
+
+def started(devices, name):
+    with devices.lock:
+        return [e for e in devices.log if e[0] == 'start' and e[1] == name]
+
+
+def hidden(devices):
+    with devices.lock:
+        return sorted(devices.hidden.values())
+
+
+def run_with(engine, events, say='show the environment', **config):
+    engine.action_config['show_environment'] = dict(FAST, **config)
+    result, run = engine.say(say)
+    assert run is not None, result.message
+    wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
+    return run
+
+
+def test_warm_standby_runs_the_next_driver_and_a_failover_only_adds_its_display(setup):
+    engine, devices, events, _ = setup
+    run = run_with(engine, events, standby='warm', failback=False)
+    ready = wait_for(lambda: of(events, 'standby_ready'), 10, 'the spare running')[0]
+    assert ready['sensor_name'] == 'hokuyo' and ready['display'] == 'none'
+    assert displayed(devices) == [('point cloud', '/d435/points')] and hidden(devices) == []
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    active = of(events, 'sensor_active')[1]
+    assert active['sensor_name'] == 'hokuyo' and active['via'] == 'standby' and active['standby'] == 'warm'
+    assert len(started(devices, 'hokuyo')) == 1, 'the running spare is used, not started again'
+    wait_for(lambda: displayed(devices) == [('point cloud', '/stitcher/cloud')], 10, 'the spare shown')
+    wait_for(lambda: len(of(events, 'standby_ready')) == 2, 10, 'the next spare running')
+    assert of(events, 'standby_ready')[1]['sensor_name'] == 'sick'
+    run.stop(10)
+    assert devices.shown == {} and devices.hidden == {} and devices.active == {}, 'nothing held after the stop'
+
+
+def test_hot_standby_fails_over_by_showing_a_display_that_was_already_subscribed(setup):
+    engine, devices, events, _ = setup
+    run = run_with(engine, events, say='show the environment with a hot standby', failback=False)
+    wait_for(lambda: of(events, 'standby_ready'), 10, 'the spare streaming into its hidden display')
+    assert hidden(devices) == [('point cloud', '/stitcher/cloud')]
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    assert of(events, 'sensor_active')[1]['via'] == 'standby'
+    assert ('reveal', 'point cloud', '/stitcher/cloud') in devices.log
+    assert devices.log.count(('show hidden', 'point cloud', '/stitcher/cloud')) == 1
+    assert not [e for e in devices.log if e[0] == 'show' and e[2] == '/stitcher/cloud'], 'no new display'
+    wait_for(lambda: hidden(devices) == [('laser scan', '/sick/scan')], 10, 'the next spare hidden and streaming')
+    assert displayed(devices) == [('point cloud', '/stitcher/cloud')]
+    run.stop(10)
+    assert devices.shown == {} and devices.hidden == {} and devices.active == {}, 'nothing held after the stop'
+
+
+def test_a_failed_standby_is_reported_and_replaced(setup):
+    engine, devices, events, _ = setup
+    run_with(engine, events, standby='hot', failback=False)
+    wait_for(lambda: of(events, 'standby_ready'), 10, 'the spare ready')
+    devices.unplug('hokuyo')
+    failed = wait_for(lambda: of(events, 'standby_failed'), 10, 'the spare failure reported')[0]
+    assert failed['sensor_name'] == 'hokuyo' and failed['message'] == 'hokuyo unplugged'
+    replaced = wait_for(lambda: len(of(events, 'standby_ready')) == 2 and of(events, 'standby_ready')[1],
+                        10, 'a new spare')
+    assert replaced['sensor_name'] == 'sick'
+    wait_for(lambda: hidden(devices) == [('laser scan', '/sick/scan')], 10, 'the failed spare released')
+    assert started(devices, 'hokuyo') == [('start', 'hokuyo')] and ('stop', 'hokuyo') in devices.log
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'the new spare active')
+    assert of(events, 'sensor_active')[1]['sensor_name'] == 'sick'
+    assert displayed(devices) == [('laser scan', '/sick/scan')]
+
+
+@pytest.mark.parametrize('standby', ['cold', 'hot'])
+def test_the_view_fails_back_to_a_replugged_better_sensor_after_a_hold(setup, standby):
+    engine, devices, events, feedback = setup
+    run = run_with(engine, events, standby=standby)
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    devices.plug('d435')
+    back = wait_for(lambda: of(events, 'failback'), 10, 'the fail-back')[0]
+    candidate = of(events, 'failback_candidate')[0]
+    assert back['label'] == 'RGB-D camera cloud' and back['from_sensor'] == 'hokuyo'
+    assert candidate['sensor_name'] == 'd435' and candidate['hold_s'] == FAST['failback_hold_s']
+    active = of(events, 'sensor_active')[2]
+    assert active['sensor_name'] == 'd435' and active['via'] == 'failback'
+    # shown by a visibility change, with no blank frame: the candidate's display was already subscribed
+    assert ('reveal', 'point cloud', '/d435/points') in devices.log
+    wait_for(lambda: displayed(devices) == [('point cloud', '/d435/points')], 10, 'the better view alone on screen')
+    if standby == 'hot':
+        assert back['kept_as_standby'] is True
+        assert hidden(devices) == [('point cloud', '/stitcher/cloud')], 'the old view is now the hidden spare'
+        assert len(started(devices, 'hokuyo')) == 1
+    else:
+        assert back['kept_as_standby'] is False
+        wait_for(lambda: ('stop', 'hokuyo') in devices.log, 10, 'the worse sensor released under cold')
+    wait_for(lambda: any('a better sensor is back' in f for f in feedback), 10, 'the operator told')
+    assert run.nodes['show_environment_0'].state == 'RUNNING'
+
+
+def test_a_flapping_sensor_costs_at_most_one_switch_per_backoff_window(setup):
+    """A camera that fails again 20 ms after each start (a loose cable) is tried with a doubling wait, then
+    quarantined: the view never switches back to it, and each try is reported."""
+    engine, devices, events, _ = setup
+    run_with(engine, events, failback_hold_s=30.0, quarantine_after=3, quarantine_s=60.0)
+    devices.flap_after['d435'] = 0.02
+    devices.unplug('d435')          # shown for less than a hold: the first flap
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    devices.plug('d435')
+    abandoned = wait_for(lambda: len(of(events, 'failback_abandoned')) >= 2 and of(events, 'failback_abandoned'),
+                         10, 'two fail-back tries abandoned')
+    assert [a['retry_in_s'] for a in abandoned] == [0.1, 60.0]
+    assert [a['quarantined'] for a in abandoned] == [False, True]
+    assert all(a['message'] == 'd435 flapped' for a in abandoned)
+    assert [a['sensor_name'] for a in of(events, 'sensor_active')] == ['d435', 'hokuyo']
+    assert of(events, 'failback') == []
+    wait_for(lambda: devices.log.count(('stop', 'd435')) == 3, 10, 'the camera and both tries released')
+    assert len(started(devices, 'd435')) == 3, 'quarantined: not tried again'
+
+
+def test_the_failover_configuration_is_checked_and_names_what_is_wrong():
+    from temoto_action_engine.failover_policy import FailoverConfig, Standby
+    assert FailoverConfig.from_config({}).standby is Standby.COLD
+    assert FailoverConfig.from_config({'standby': 'warm'}, 'HOT').standby is Standby.HOT
+    for config, override, words in [({'standby': 'lukewarm'}, None, 'standby must be one of cold, warm, hot'),
+                                    ({}, 'tepid', "the request's standby must be one of"),
+                                    ({'failback': 'yes'}, None, 'failback must be true or false'),
+                                    ({'failback_hold_s': -1}, None, 'failback_hold_s must be a number'),
+                                    ({'quarantine_after': True}, None, 'quarantine_after must be a number'),
+                                    ({'failback_check_s': 5, 'failback_max_s': 1}, None, 'failback_max_s (1)')]:
+        with pytest.raises(ValueError, match=words.replace('(', r'\(').replace(')', r'\)')):
+            FailoverConfig.from_config(config, override)
+
+
+def test_backoff_doubles_quarantines_only_a_flapping_source_and_forgives_a_whole_hold():
+    from temoto_action_engine.failover_policy import Backoff
+    b = Backoff(initial=1.0, maximum=8.0, quarantine_after=3, quarantine_s=60.0)
+    assert [b.failed(0.0, flapped=False) for _ in range(5)] == [1.0, 2.0, 4.0, 8.0, 8.0]
+    assert not b.quarantined and not b.ready(7.9) and b.ready(8.0)
+    b.succeeded()
+    assert [b.failed(0.0, flapped=True) for _ in range(3)] == [1.0, 2.0, 60.0] and b.quarantined
+    b.succeeded()
+    assert b.ready(0.0) and b.failed(0.0, flapped=True) == 1.0
+
+
+def test_a_bad_standby_fails_the_action_before_it_holds_anything(setup):
+    engine, devices, events, _ = setup
+    engine.action_config['show_environment'] = {'standby': 'lukewarm'}
+    _, run = engine.say('show the environment')
+    assert run.wait(10) == []
+    node = run.nodes['show_environment_0']
+    assert node.state == 'FAILED' and 'standby must be one of cold, warm, hot' in node.message
+    assert devices.log == []
