@@ -35,6 +35,7 @@ from . import topics as T
 # --priority names -> (index in action_engine.yaml's sensor_priority, device to unplug, screenshot name)
 PRIORITY_ENTRIES = OrderedDict([('rgbd', (0, 'd435')), ('arm_cloud', (1, 'hokuyo')), ('base_scan', (2, 'sick'))])
 PRIORITY_PARAM = '/temoto_action_engine/actions/show_environment/sensor_priority'
+STANDBY_PARAM = '/temoto_action_engine/actions/show_environment/standby'
 INSTRUCTION = 'show the environment'
 STARTUP_TIMEOUT = 60.0
 # --kill-managers: node -> the registrars it runs (each must answer, recovered, before the next kill)
@@ -76,6 +77,7 @@ class DemoOptions:
     seed: int = 0
     hosts: int = 1               # 2: the robot and the operator's station on two hosts (network namespaces)
     robot: str = 'vaultbot'      # --hosts 2: the robot's TeMoto namespace
+    standby: str = 'cold'        # the view's standby policy: cold, warm or hot
 
 
 class Progress:
@@ -198,6 +200,10 @@ class Demo:
     def _priority_override(self, default: list) -> list:
         return [default[PRIORITY_ENTRIES[name][0]] for name in self.opts.priority]
 
+    def _overrides(self, params: dict) -> dict:
+        """The engine's parameters this run sets: the view's priority list and its standby policy."""
+        return {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM]), STANDBY_PARAM: self.opts.standby}
+
     def start(self) -> None:
         from temoto_core.master import RosMaster
         from .recording import Recording
@@ -215,7 +221,7 @@ class Demo:
             env = self._env()
             launch = os.path.join(LAUNCH_DIR, 'demo.launch')
             _, params = load_launch(launch, launch_args)
-            overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
+            overrides = self._overrides(params)
             self.stacks = [self._stack(launch, env, 'logs', launch_args, overrides)]
         for stack in self.stacks:
             stack.start(STARTUP_TIMEOUT)
@@ -251,7 +257,7 @@ class Demo:
         robot_launch = os.path.join(LAUNCH_DIR, 'robot.launch')
         operator_launch = os.path.join(LAUNCH_DIR, 'operator.launch')
         _, params = load_launch(operator_launch, _declared_args(operator_launch, args))
-        overrides = {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM])}
+        overrides = self._overrides(params)
         self.stacks = [
             self._stack(robot_launch, self._env(robot), os.path.join('logs', 'robot'),
                         _declared_args(robot_launch, args), wrap=lambda argv: self.hosts.argv(robot, argv)),
@@ -355,6 +361,7 @@ class Demo:
                     what = '%s on screen after unplugging %s (%s) while the Sensor Manager was down' % (
                         labels[k], device, mode)
                 else:
+                    self._wait_standby(k, timeout)
                     since = time.monotonic()
                     self._mark('unplug', device=device, mode=mode)
                     self._unplug(device, mode)
@@ -499,6 +506,26 @@ class Demo:
             grown.wait(limit)
         finally:
             sub.unregister()
+
+    def _wait_standby(self, index: int, timeout: float) -> None:
+        """Under warm and hot, unplug only once the spare for entry ``index`` runs (and, hot, its hidden display
+        holds data): a failure that comes before the spare is ready is a cold failover, whatever the policy."""
+        if self.opts.standby == 'cold':
+            return
+        ready = self.watcher.wait_action(lambda e: e.get('event') == 'standby_ready' and
+                                         e.get('priority_index') == index, 0.0, timeout,
+                                         'the %s standby of entry %d' % (self.opts.standby, index))
+        if self.opts.standby == 'hot':
+            from temoto_output_manager.first_frame import received_count
+            from temoto_output_manager.host_client import RvizHostClient, host_node_name
+            from temoto_core.wait import wait_for
+            host = RvizHostClient(host_node_name(self.opts.namespace))
+
+            def holds_data() -> bool:
+                shown = [d for d in host.list_displays().displays if d.topic == ready.get('topic')]
+                return any(received_count(part.split(': ', 1)[-1]) for d in shown for part in d.status.split('; '))
+            wait_for(holds_data, timeout, 'the hidden display of %s to hold data' % ready.get('label'))
+        self.progress.line('%s standby ready: %s' % (self.opts.standby, ready.get('label')))
 
     def _hold_host(self) -> None:
         """Keep the RViz host up after the action ends, for the empty-view baseline.

@@ -479,6 +479,8 @@ class ShowEnvironment(ActionBase):
                 self.source_backoff[i].failed(now, flapped=False)
         held, a = p.held, self.active
         if held is None:
+            if p.role == BETTER:
+                self.log_info('no better sensor works yet (%s)' % p.why)
             if p.role == SPARE:
                 self.event('standby_unavailable', message=p.why, standby=self.policy.standby.value)
                 self._retry_spare_later()
