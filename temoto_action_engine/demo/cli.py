@@ -116,6 +116,8 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--hosts', type=int, choices=(1, 2), default=1,
                    help='2: the robot and the operator\'s station on two hosts (network namespaces; needs root)')
     p.add_argument('--robot', default='vaultbot', help='--hosts 2: the robot\'s TeMoto namespace (default %(default)s)')
+    p.add_argument('--replug', action='store_true',
+                   help='at the end, plug the first device back: the view fails back to it after a hold')
     p.add_argument('--standby', choices=('cold', 'warm', 'hot'), default='cold',
                    help='the view\'s standby policy: cold starts the next sensor on a failure, warm keeps its driver '
                    'running, hot also streams it into a hidden display (default %(default)s)')
@@ -145,5 +147,6 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     opts = DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
                        modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
                        priority=priority, report=not args.no_report, kill_managers=args.kill_managers,
-                       seed=args.seed, hosts=args.hosts, robot=args.robot, standby=args.standby)
+                       seed=args.seed, hosts=args.hosts, robot=args.robot, standby=args.standby,
+                       replug=args.replug)
     return run_demo(opts)

@@ -50,6 +50,7 @@ class DisplayEv:
     name: str
     topic: str
     seconds_since_added: float
+    frame_count: int = 0        # RViz frames rendered when the host saw it
 
 
 @dataclass
@@ -112,7 +113,7 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
                                            int(msg.resource_id), int(msg.status_code), msg.message))
             elif topic == T.display_events(namespace):
                 run.display.append(DisplayEv(_stamp(msg, bag_t), msg.event, msg.display_name, msg.topic,
-                                             float(msg.seconds_since_added)))
+                                             float(msg.seconds_since_added), int(msg.frame_count)))
             elif topic == T.action_events(namespace):
                 try:
                     ev = json.loads(msg.data)
@@ -156,6 +157,7 @@ class Stage:
     topic: str
     active_t: float         # the action's sensor_active event
     first_frame_t: Optional[float]
+    via: str = ''           # how it came on screen: start, failover, standby, failback, retry
 
 
 @dataclass
@@ -245,6 +247,52 @@ class Analysis:
     failures: List[Failure]
     labels: Dict[str, str]      # topic -> sensor label
     kills: List[ManagerKill] = field(default_factory=list)
+    failbacks: List['FailBack'] = field(default_factory=list)
+    standby: str = ''           # the view's standby policy, from the action's events
+
+
+@dataclass
+class FailBack:
+    """A better device plugged back, and the view's return to it."""
+    device: str
+    replug_t: float
+    label: str = ''
+    failback_t: Optional[float] = None        # the action's failback event
+    first_frame_t: Optional[float] = None     # the better view's first frame on screen
+    blank_frames: Optional[int] = None        # frames RViz rendered with neither view: 0 is a seamless switch
+
+    @property
+    def delay(self) -> Optional[float]:
+        return None if self.first_frame_t is None else self.first_frame_t - self.replug_t
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__, delay_s=self.delay)
+
+
+def analyse_failbacks(run: Run, stages: List[Stage]) -> List[FailBack]:
+    """Each replug followed by a fail-back: when the better view was on screen, and whether any frame was blank.
+
+    Blank frames come from the RViz host's frame counts: the old view went off (``hidden`` or ``removed``) at
+    frame a, the better one was first drawn at frame b; b - a - 1 frames were rendered with neither.
+    """
+    out = []
+    for t, device in run.replugs:
+        fb = FailBack(device, t)
+        ev = _first(run.actions, lambda e: e.get('event') == 'failback' and e['t'] >= t)
+        if ev is not None:
+            fb.label, fb.failback_t = str(ev.get('label', '')), ev['t']
+            new = _first(stages, lambda s: s.active_t >= ev['t'] - 0.5 and s.label == fb.label)
+            old_topic = next((s.topic for s in reversed(stages) if s.active_t < ev['t'] - 0.5), '')
+            if new is not None and new.first_frame_t is not None:
+                fb.first_frame_t = new.first_frame_t
+                drawn = _first(run.display, lambda e: e.event == 'first_frame' and e.topic == new.topic
+                               and e.t >= ev['t'] - 0.5)
+                off = _first(run.display, lambda e: e.event in ('hidden', 'removed') and e.topic == old_topic
+                             and e.t >= ev['t'] - 0.5)
+                if drawn is not None and off is not None:
+                    fb.blank_frames = max(0, drawn.frame_count - off.frame_count - 1)
+        out.append(fb)
+    return out
 
 
 def _first(items, pred):
@@ -264,7 +312,7 @@ def analyse(run: Run) -> Analysis:
         topic = str(e.get('topic', ''))
         labels.setdefault(topic, str(e.get('label', topic)))
         stages.append(Stage(int(e.get('priority_index', -1)), str(e.get('label', '')), str(e.get('sensor_name', '')),
-                            topic, e['t'], _first_frame(run, topic, e['t'])))
+                            topic, e['t'], _first_frame(run, topic, e['t']), str(e.get('via', ''))))
     failures = []
     for i, u in enumerate(run.unplugs):
         nxt = run.unplugs[i + 1].t if i + 1 < len(run.unplugs) else float('inf')
@@ -287,7 +335,9 @@ def analyse(run: Run) -> Analysis:
             if frames:
                 f.last_frame_t = frames[-1]
         failures.append(f)
-    return Analysis(t0, stages, failures, labels, analyse_kills(run, stages, failures))
+    standby = next((str(e.get('standby')) for e in actives if e.get('standby')), '')
+    return Analysis(t0, stages, failures, labels, analyse_kills(run, stages, failures),
+                    analyse_failbacks(run, stages), standby)
 
 
 def analyse_kills(run: Run, stages: List[Stage], failures: List[Failure]) -> List[ManagerKill]:
@@ -434,7 +484,9 @@ class Report:
         return {'bag': self.run.bag, 'report': self.path, 'timeline': self.timeline, 'screenshots': self.screenshots,
                 'stages': [s.__dict__ for s in self.analysis.stages],
                 'failures': [f.as_dict() for f in self.analysis.failures],
-                'kills': [k.as_dict() for k in self.analysis.kills]}
+                'kills': [k.as_dict() for k in self.analysis.kills],
+                'standby': self.analysis.standby,
+                'failbacks': [f.as_dict() for f in self.analysis.failbacks]}
 
 
 def _screenshots(run: Run, bag_dir: str, out_dir: str) -> List[Tuple[str, str]]:
@@ -494,13 +546,16 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
           'Ticks: frames of each stream arriving (relay); bars: the stream displayed in RViz (first frame drawn to '
           'display removed); red: unplug; orange: first FAILED status; purple: the action received FAILED; '
           'green: the new stream\'s first frame on screen.', '']
-    L += ['## Stages', '', '| # | sensor | topic | action chose it at | first frame on screen at | chose → drawn |',
-          '| --- | --- | --- | --- | --- | --- |']
+    L += ['## Stages', '', '| # | sensor | topic | via | action chose it at | first frame on screen at | chose → drawn |',
+          '| --- | --- | --- | --- | --- | --- | --- |']
     for s in an.stages:
         ff = s.first_frame_t
-        L.append('| %d | %s (%s) | `%s` | %.3f s | %s | %s |' % (
-            s.index, s.label, s.sensor, s.topic, s.active_t - an.t0,
+        L.append('| %d | %s (%s) | `%s` | %s | %.3f s | %s | %s |' % (
+            s.index, s.label, s.sensor, s.topic, s.via or '-', s.active_t - an.t0,
             '—' if ff is None else '%.3f s' % (ff - an.t0), _fmt(None if ff is None else ff - s.active_t)))
+    L += ['', 'Standby policy: **%s**. Each stage says how it came on screen: `start`, `failover` (the next '
+          'sensor started), `standby` (the spare that was running), `failback` or `retry`.' % (an.standby or 'cold'),
+          '']
     L += ['', '## Failures', '']
     if not an.failures:
         L += ['No device was unplugged in this run.', '']
@@ -515,6 +570,15 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
               '| display gap | %s | last frame of the failed stream → first frame of the substitute |'
               % _fmt(f.display_gap),
               '| switch time | %s | unplug → first frame of the substitute |' % _fmt(f.switch), '']
+    if an.failbacks:
+        L += ['## Fail-backs', '', 'A better device plugged back; the view returns to it after the action\'s hold '
+              '(`failback_hold_s`). Blank frames: frames RViz rendered after the old view went off and before the '
+              'better one was drawn (RViz\'s own frame counts).', '',
+              '| device | back on screen | replug → on screen | blank frames |', '| --- | --- | --- | --- |']
+        for fb in an.failbacks:
+            L.append('| %s | %s | %s | %s |' % (fb.device, fb.label or 'no', _fmt(fb.delay),
+                                                '-' if fb.blank_frames is None else fb.blank_frames))
+        L.append('')
     if an.kills:
         L += ['## Managers killed (`--kill-managers`)', '',
               'Each manager was SIGKILLed once, respawned, and recovered from its journal while the view was up. '

@@ -78,6 +78,7 @@ class DemoOptions:
     hosts: int = 1               # 2: the robot and the operator's station on two hosts (network namespaces)
     robot: str = 'vaultbot'      # --hosts 2: the robot's TeMoto namespace
     standby: str = 'cold'        # the view's standby policy: cold, warm or hot
+    replug: bool = False         # at the end, plug the first device back and wait for the fail-back
 
 
 class Progress:
@@ -381,6 +382,8 @@ class Demo:
                 self._hold_host()
             if k == 0 and self.opts.kill_managers:
                 self._kill_managers()
+        if self.opts.replug:
+            self._replug(labels[0], timeout)
         if self.hosts is not None:
             self._partition(len(self.opts.priority) - 1, labels[-1])
         self._empty_view()
@@ -506,6 +509,26 @@ class Demo:
             grown.wait(limit)
         finally:
             sub.unregister()
+
+    def _replug(self, label: str, timeout: float) -> None:
+        """Plug the first device back: the action tries it again (its wait doubles up to failback_max_s), holds it
+        hidden for failback_hold_s, and shows it again by a visibility change."""
+        import rospy
+        from vaultbot_sim.srv import SetDeviceState
+        name = self.opts.priority[0]
+        device = PRIORITY_ENTRIES[name][1]
+        since = time.monotonic()
+        self._mark('replug', device=device)
+        resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(device=device, state='plugged',
+                                                                                   mode='')
+        if not resp.success:
+            raise RuntimeError('the simulation refused to plug %s back: %s' % (device, resp.message))
+        self.watcher.wait_action(lambda e: e.get('event') == 'failback' and e.get('priority_index') == 0, since,
+                                 timeout, 'the fail-back to the %s' % label)
+        topic = self.watcher.wait_stage(0, since, timeout, label)
+        self._mark('on_screen', priority_index=0, entry=name, topic=topic)
+        self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
+        self.progress.line('%s on screen again after plugging %s back (fail-back)' % (label, device))
 
     def _wait_standby(self, index: int, timeout: float) -> None:
         """Under warm and hot, unplug only once the spare for entry ``index`` runs (and, hot, its hidden display
