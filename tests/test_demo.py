@@ -94,6 +94,7 @@ def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run
     frames = [s.first_frame_t for s in an.stages]
     assert None not in frames and frames == sorted(frames)
     assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
+    assert an.standby == 'cold' and [s.via for s in an.stages] == ['start', 'failover', 'failover']
     for f in an.failures:
         assert f.failed_t is not None, 'no FAILED status after unplugging %s' % f.device
         assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
@@ -242,3 +243,28 @@ def test_demo_on_two_hosts_without_root_says_why_in_one_line(tmp_path):
                                                 'and a veth pair need CAP_NET_ADMIN and CAP_SYS_ADMIN, which this '
                                                 'process lacks)'], proc.stderr
     assert not (tmp_path / 'run').exists()
+
+
+@pytest.mark.parametrize('standby', ['warm', 'hot'])
+def test_standby_policies_fail_over_to_the_running_spare_and_hot_fails_back_with_no_blank_frame(tmp_path_factory,
+                                                                                                standby):
+    """``--standby warm|hot --replug``: each failover takes the spare that was already running (no driver started
+    after the FAILED), and the camera plugged back is shown again after the hold; under hot, with no frame
+    rendered between the old view going off and the camera's view being drawn (RViz's frame counts)."""
+    from temoto_action_engine.demo.report import analyse, load_run
+    proc, out, left = run_demo(tmp_path_factory, '--standby', standby, '--replug')
+    assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
+    assert left == []
+    assert sum('%s standby ready' % standby in line for line in proc.stdout.splitlines()) == 2, proc.stdout
+    an = analyse(load_run(str(out / 'failover.bag')))
+    assert an.standby == standby
+    assert [(s.index, s.via) for s in an.stages] == [(0, 'start'), (1, 'standby'), (2, 'standby'), (0, 'failback')]
+    for f in an.failures:
+        assert f.action_t is not None and f.display_gap is not None and 0 < f.display_gap < MAX_GAP_S, f
+    [fb] = an.failbacks
+    assert fb.device == 'd435' and fb.label == 'RGB-D camera cloud' and fb.first_frame_t is not None
+    if standby == 'hot':
+        assert fb.blank_frames == 0, fb
+    report = json.loads((out / 'report.json').read_text())
+    assert report['standby'] == standby and report['failbacks'][0]['delay_s'] > 0
+    assert 'Fail-backs' in (out / 'report.md').read_text()
