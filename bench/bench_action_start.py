@@ -25,6 +25,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+from common import pct  # noqa: E402
 
 from temoto_action_engine.testing import write_plugin  # noqa: E402
 from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
@@ -39,11 +40,6 @@ class Emit(ActionBase):
         self.set_output('value', self.input('tag'))
 '''
 GOAL_P95_S = 0.25      # start_graph to the node RUNNING, in a worker
-
-
-def p95(values):
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(0.95 * (len(ordered) - 1))))]
 
 
 class Events:
@@ -117,8 +113,8 @@ def main() -> int:
         launcher.stop_all()
         ros.stop()
         ros.restore_process(saved)
-    res = {m: {'running_median_ms': statistics.median(running[m]) * 1e3, 'running_p95_ms': p95(running[m]) * 1e3,
-               'finished_median_ms': statistics.median(finished[m]) * 1e3, 'finished_p95_ms': p95(finished[m]) * 1e3,
+    res = {m: {'running_median_ms': statistics.median(running[m]) * 1e3, 'running_p95_ms': pct(running[m], 95) * 1e3,
+               'finished_median_ms': statistics.median(finished[m]) * 1e3, 'finished_p95_ms': pct(finished[m], 95) * 1e3,
                'n': len(running[m])} for m in MODES}
     ratio = statistics.median(running['worker']) / statistics.median(running['thread'])
     res['ratio_worker_over_thread_running'] = ratio

@@ -21,24 +21,30 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Sequence
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+from common import child_env  # noqa: E402
 GAP_GOAL_S = 0.8
 RUN_GOAL_S = 90.0
 FIGURES = ('display_gap_s', 'detection_s', 'propagation_s', 'switch_s')
 
 
-def one_run(out: str) -> dict:
-    env = {k: v for k, v in os.environ.items()
-           if k not in ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')}
+def one_run(out: str, args: Sequence[str] = ()) -> dict:
+    """``temoto demo --out out ARGS`` in a child process, as a user starts it; its rc, wall time and report's
+    failures (and fail-backs)."""
+    env = child_env()
     t = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'demo', '--out', out], env=env,
+    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'demo', '--out', out] + list(args), env=env,
                           capture_output=True, text=True, timeout=300, cwd=ROOT)
     wall = time.monotonic() - t
-    result = {'rc': proc.returncode, 'wall_s': wall, 'failures': []}
+    result = {'rc': proc.returncode, 'wall_s': wall, 'failures': [], 'failbacks': []}
     try:
         with open(os.path.join(out, 'report.json')) as f:
-            result['failures'] = json.load(f)['failures']
+            report = json.load(f)
+        result['failures'] = report['failures']
+        result['failbacks'] = report.get('failbacks', [])
     except (OSError, ValueError, KeyError):
         result['error'] = proc.stderr[-2000:]
     return result

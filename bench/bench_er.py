@@ -40,17 +40,13 @@ import xmlrpc.client
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+from common import pct  # noqa: E402
 
 from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
 from temoto_core import master_lookup as er_master  # noqa: E402
 
 POLL = 0.02
 LAUNCH = 'er_bench_two.launch'
-
-
-def pct(values, p):
-    s = sorted(values)
-    return s[min(len(s) - 1, int(round(p / 100.0 * (len(s) - 1))))]
 
 
 def summary(values):

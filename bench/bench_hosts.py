@@ -33,6 +33,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, 'tests'))
+from common import pct  # noqa: E402
 
 from temoto_core import hosts as hosts_mod  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
@@ -44,7 +45,7 @@ def median_ms(values):
 
 
 def p95_ms(values):
-    return sorted(values)[int(0.95 * (len(values) - 1))] * 1e3
+    return pct(values, 95) * 1e3
 
 
 class Station:

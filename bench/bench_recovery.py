@@ -30,6 +30,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+from common import pct  # noqa: E402
 
 from temoto_action_engine.demo.stack import Stack  # noqa: E402
 from temoto_core import master_lookup  # noqa: E402
@@ -43,11 +44,6 @@ MANAGERS = {'/temoto_er_manager': ['temoto_er_manager'], '/temoto_sensor_manager
             '/temoto_context_manager': ['temoto_context_manager', 'temoto_context_manager_trackers']}
 GOAL_P95_MS = 1000.0
 LAUNCH = os.path.join(ROOT, 'temoto_action_engine', 'launch', 'demo.launch')
-
-
-def pct(values, q):
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def registry(rr, restarted=''):
@@ -168,7 +164,7 @@ def main(argv=None):
             procs = now
             if (k + 1) % 20 == 0:
                 every = [t for ts in times.values() for t in ts]
-                print('  %d kills: p95 so far %.0f ms' % (k + 1, 1e3 * pct(every, 0.95)), file=sys.stderr)
+                print('  %d kills: p95 so far %.0f ms' % (k + 1, 1e3 * pct(every, 95)), file=sys.stderr)
         if any(e.get('event') in ('sensor_failed', 'graph_finished') for e in events):
             failures.append('the view failed over during the kills: %s' % [e for e in events if e.get('event') in
                                                                         ('sensor_failed', 'graph_finished')])
@@ -181,9 +177,9 @@ def main(argv=None):
     if not every:
         print('FAILED: no kill recovered: %s' % '; '.join(failures), file=sys.stderr)
         return 1
-    result = {'kills': len(every), 'seed': args.seed, 'p50_ms': 1e3 * pct(every, 0.5), 'p95_ms': 1e3 * pct(every, 0.95),
+    result = {'kills': len(every), 'seed': args.seed, 'p50_ms': 1e3 * pct(every, 50), 'p95_ms': 1e3 * pct(every, 95),
               'max_ms': 1e3 * max(every), 'lost': lost, 'duplicated': duplicated, 'orphaned': orphaned,
-              'per_manager': {n: {'kills': len(ts), 'p50_ms': 1e3 * statistics.median(ts), 'p95_ms': 1e3 * pct(ts, 0.95)}
+              'per_manager': {n: {'kills': len(ts), 'p50_ms': 1e3 * statistics.median(ts), 'p95_ms': 1e3 * pct(ts, 95)}
                               for n, ts in times.items() if ts},
               'failures': failures}
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)

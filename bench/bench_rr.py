@@ -30,7 +30,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, 'tests'))
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from common import loopback_master  # noqa: E402
 
 
 def median_ms(values):
@@ -53,9 +53,7 @@ def main(argv=None):
     ap.add_argument('--fanout', type=int, default=1000, help='consumers for the fan-out figure')
     args = ap.parse_args(argv)
 
-    master = RosMaster().start()
-    master.point_this_process()
-    procs = ProcessGroupLauncher(master.env, master.workdir)
+    master, procs = loopback_master('bench_rr_')
     try:
         return run(args, procs)
     finally:

@@ -24,22 +24,17 @@ import json
 import os
 import statistics
 import sys
-import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+from common import loopback_master, pct  # noqa: E402
 
-from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_core.testing import FirstFailure  # noqa: E402
 
 CRASH_GOAL_MS = 100.0         # exit seen by the ER Manager (pidfd) and forwarded one registrar up
 STALL_EXTRA_GOAL_MS = 100.0   # beyond the silence limit: one watchdog wake-up plus the status hop
 LOAD_GOAL_S = 5.0             # D435 (pybullet scene load + first rendered cloud) on a 2-core machine
-
-
-def pct(values, p):
-    s = sorted(values)
-    return s[min(len(s) - 1, int(round(p / 100.0 * (len(s) - 1))))]
 
 
 def summary(values, scale=1e3):
@@ -52,10 +47,7 @@ def main(argv=None):
     ap.add_argument('--failures', type=int, default=5, help='unplugs per mode')
     ap.add_argument('--loads', type=int, default=4, help='loads per sensor')
     opts = ap.parse_args(argv)
-    work = tempfile.mkdtemp(prefix='bench_sensor_')
-    ros = RosMaster(work).start()
-    ros.point_this_process()
-    launcher = ProcessGroupLauncher(ros.env, work)
+    ros, launcher = loopback_master('bench_sensor_')
     results = {}
     try:
         import rospy
@@ -65,7 +57,7 @@ def main(argv=None):
         from temoto_sensor_manager import testing as t
         rospy.init_node('bench_sensor', disable_signals=True)
         print('starting the simulation and the managers ...', flush=True)
-        t.start_robot(launcher, work)
+        t.start_robot(launcher, launcher.workdir)
         rr = ResourceRegistrar('bench_sensor_client')
 
         def request(sensor_type, topics, executable=''):

@@ -22,13 +22,12 @@ import re
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from common import loopback_master  # noqa: E402
 
 # sensor, device (cable), topic type, sensor type, executable, nominal Hz
 SENSORS = [('realsense_d435', 'd435', 'camera_data', 'depth camera', 'd435_driver', 30.0),
@@ -48,10 +47,7 @@ def main(argv=None):
     ap.add_argument('--stalls', type=int, default=10, help='stall unplugs per sensor')
     ap.add_argument('--hogs', type=int, default=2, help='busy-looping processes beside the stack')
     opts = ap.parse_args(argv)
-    work = tempfile.mkdtemp(prefix='bench_stall_')
-    ros = RosMaster(work).start()
-    ros.point_this_process()
-    launcher = ProcessGroupLauncher(ros.env, work)
+    ros, launcher = loopback_master('bench_stall_')
     busy = []
     false_failed, detections, limits, nominal_false = [], {s[0]: [] for s in SENSORS}, {}, 0
     try:
@@ -61,7 +57,7 @@ def main(argv=None):
         from temoto_sensor_manager.interface import SensorManagerInterface
         rospy.init_node('bench_stall', disable_signals=True)
         print('bench_stall: starting the simulation and the managers ...', flush=True)
-        t.start_robot(launcher, work)
+        t.start_robot(launcher, launcher.workdir)
         sm = SensorManagerInterface()
         events = []
         sm.register_update_callback(events.append)       # no reload: a FAILED is counted, not repaired

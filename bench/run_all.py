@@ -16,7 +16,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ORDER = ['rr', 'journal', 'recovery', 'hosts', 'er', 'node_stop', 'sim', 'sensor', 'stall', 'output', 'action_start',
-         'demo']
+         'demo', 'standby', 'chaos']
 
 
 def scripts():
