@@ -15,6 +15,7 @@ PACKAGES = [
     'temoto_context_manager',
     'temoto_action_engine',
     'vaultbot_sim',
+    'temoto_chaos',
 ]
 
 setup(

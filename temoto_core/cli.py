@@ -22,6 +22,7 @@ COMMANDS = {
     'record': ('temoto_action_engine.demo.cli:record_main', 'record the failover topic set to a bag'),
     'report': ('temoto_action_engine.demo.cli:report_main', 'make the report of a recorded run from its bag'),
     'replay': ('temoto_action_engine.demo.replay:replay_main', 'show the views of a recorded run again in RViz'),
+    'chaos': ('temoto_chaos.cli:chaos_main', 'a seeded history of operations and faults, checked after every step'),
 }
 
 

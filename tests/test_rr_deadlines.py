@@ -6,6 +6,7 @@ A holds resources from C, or calls it. C is slowed down (``delay``), SIGSTOPped
 SIGKILLed (it keeps no journal, so what it served is gone).
 """
 import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -14,10 +15,14 @@ import threading
 import time
 
 import pytest
+import rospy
 
 from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import owners
+from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.deadlines import call_once
+from temoto_core.srv import GetRegistry
 from temoto_core.testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
@@ -140,3 +145,47 @@ def test_a_request_type_gets_its_managers_deadline_without_the_contract_imported
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ['15.0', '10.0']
+
+
+def test_a_one_off_read_of_a_stopped_server_fails_within_its_deadline(pair):
+    # a manager's catalogue and a neighbour's registry are read with call_once, not a registrar call: a
+    # plain rospy call would hang on a stopped server for as long as it stays stopped
+    _, c = pair
+    service = '/temoto/rr_dc/registry'
+    assert json.loads(call_once(service, GetRegistry, GetRegistry._request_class(), 2.0).json)['name'] == 'rr_dc'
+    with stopped(c):
+        t0 = time.monotonic()
+        with pytest.raises(rospy.ServiceException, match='rr_dc/registry'):
+            call_once(service, GetRegistry, GetRegistry._request_class(), 0.5)
+        assert time.monotonic() - t0 < HANG
+    with pytest.raises(rospy.ServiceException, match='not known to the master'):
+        call_once('/temoto/nobody/registry', GetRegistry, GetRegistry._request_class(), 0.5)
+
+
+def test_an_owner_answering_a_load_while_its_watch_reads_the_holds_stays_watched(rospy_client):
+    """The race the chaos history of seed 17 found (two hosts, step 132): the watch read "nothing held" just
+    before a load from the owner was answered, then ended; the new resource was held with no watch, and a
+    partition never failed it."""
+    core = RegistrarCore('rr_race', 'temoto', 0)
+    loaded = threading.Event()
+    holding = []
+
+    def holds_from(node):
+        if not loaded.is_set():         # read just before a load from the owner is answered...
+            loaded.set()
+            holding.append(node)        # ...which is held from now on, and noticed after this read
+            watch.notice('/owner', 'http://127.0.0.1:9/', 0)
+            return False
+        return bool(holding)
+
+    watch = owners.OwnerWatch(core, holds_from, lambda node: [], lambda *a: None, lambda *a: True,
+                              lambda *a: True, period=0.05, bound=0.2, busy_bound=0.3)
+    try:
+        watch.notice('/owner', 'http://127.0.0.1:9/', 0)     # the first answer starts the watch
+        wait_for(loaded.is_set, HANG, 'the watch to read the holds')
+        deadline = time.monotonic() + 0.5                    # several periods: the watch had its chance to end
+        while time.monotonic() < deadline:
+            assert '/owner' in watch._owners, 'the watch ended while a resource was held from the owner'
+            time.sleep(0.05)
+    finally:
+        watch.stop()

@@ -1,0 +1,160 @@
+"""The invariants, checked from outside: registries as the introspection services send them (plain JSON,
+read here without the registrar's code), each client's own account, and the processes the kernel lists.
+
+A check reads a snapshot and returns the violations it sees, each a sentence. Some invariants hold only
+once the system has settled (a FAILED travels, a killed manager takes its registry back), so the runner
+asks again until none is left or its bound passes, and reports what is left then.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import threading
+from typing import Callable, Dict, List, Optional
+
+import psutil
+import rospy
+
+from temoto_core.srv import GetRegistry
+
+DRIVERS = ('d435_driver', 'hokuyo_driver', 'sick_driver', 'laser_stitcher')
+READ_TIMEOUT = 2.0
+# a call's deadline (the managers' contracts) and the slack a loaded machine gets before it is a violation
+DEADLINES = {'load': 40.0, 'unload': 15.0}
+DEADLINE_SLACK = 2.0
+START_SENSOR = 'start_sensor'
+
+
+def read_json(service: str, timeout: float = READ_TIMEOUT) -> Optional[dict]:
+    """A GetRegistry-typed service's JSON, or None if it does not answer within ``timeout`` (a thread is
+    left behind only when the server hangs, which the caller then reports)."""
+    box: Dict[str, object] = {}
+
+    def ask() -> None:
+        try:
+            box['json'] = json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+        except Exception as e:        # not up, refused, stopped: the caller reports no answer
+            box['error'] = e
+    thread = threading.Thread(target=ask, daemon=True, name='chaos-read')
+    thread.start()
+    thread.join(timeout)
+    return box.get('json')
+
+
+@dataclasses.dataclass
+class Snapshot:
+    sensor_manager: Optional[dict]
+    er_manager: Optional[dict]
+    er_processes: Optional[dict]
+    clients: Dict[int, dict]                 # client index -> its state (the socket's answer)
+    client_registries: Dict[int, Optional[dict]]
+    drivers: Dict[int, str]                  # live driver pid -> its name (the kernel's comm)
+
+
+def take(namespace: str, client_states: Dict[int, dict], session_processes: Callable[[], List[int]]) -> Snapshot:
+    base = '/%s' % namespace.strip('/')
+    drivers = {}
+    for pid in session_processes():
+        try:
+            name = psutil.Process(pid).name()
+        except psutil.Error:
+            continue
+        if name in DRIVERS:
+            drivers[pid] = name
+    return Snapshot(read_json(base + '/temoto_sensor_manager/registry'), read_json(base + '/temoto_er_manager/registry'),
+                    read_json(base + '/temoto_er_manager/processes'), client_states,
+                    {i: read_json('%s/%s/registry' % (base, s['registrar'])) for i, s in client_states.items()},
+                    drivers)
+
+
+def _settled(snap: Snapshot) -> List[str]:
+    out = []
+    for name, reg in (('Sensor Manager', snap.sensor_manager), ('ER Manager', snap.er_manager)):
+        if reg is None:
+            out.append('the %s does not answer' % name)
+        elif reg.get('recovering'):
+            out.append('the %s is still recovering' % name)
+        elif any(q['state'] in ('loading', 'unloading') for q in reg['server_queries']):
+            out.append('the %s has a load or unload under way' % name)
+    return out
+
+
+def check(snap: Snapshot) -> List[str]:
+    """Every violation this snapshot shows (an unsettled system is reported as such, not checked)."""
+    unsettled = _settled(snap)
+    if unsettled or snap.er_processes is None:
+        return unsettled or ['the ER Manager does not list its processes']
+    out: List[str] = []
+    listed = {p['pid']: (row, p) for row in snap.er_processes['processes'] for p in row['processes']}
+    # every live driver belongs to a registry entry, and no driver runs twice
+    for pid, name in snap.drivers.items():
+        if pid not in listed:
+            out.append('driver %s (pid %d) runs, but no ER Manager entry has it' % (name, pid))
+    names = sorted(snap.drivers.values())
+    for name in set(names):
+        if names.count(name) > 1:
+            out.append('%s runs %d times: %s' % (name, names.count(name), sorted(
+                pid for pid, n in snap.drivers.items() if n == name)))
+    # every ER entry is alive or FAILED: a process the kernel no longer has is known to have exited, and the
+    # resource of a process that exited is FAILED (or gone) in the ER Manager's registry
+    active_er = {q['internal_id'] for q in snap.er_manager['server_queries'] if q['state'] == 'active'}
+    for pid, (row, proc) in listed.items():
+        if not psutil.pid_exists(pid) and proc['state'] != 'exited':
+            out.append('the ER Manager lists %s (pid %d) as %s, but it is gone' % (row['label'], pid, proc['state']))
+    for row in snap.er_processes['processes']:
+        if row['state'] == 'exited' and row['resource_id'] in active_er:
+            out.append('the ER Manager\'s %s exited, but its resource is still active' % row['label'])
+    out += _holders(snap)
+    out += _deadlines(snap)
+    return out
+
+
+def _holders(snap: Snapshot) -> List[str]:
+    """Acknowledged loads, references and FAILED deliveries, between the Sensor Manager and its consumers."""
+    out = []
+    served = {}          # (client node, external id) -> the Sensor Manager's entry
+    for q in snap.sensor_manager['server_queries']:
+        if q['server'] != START_SENSOR:
+            continue
+        for c in q['consumers']:
+            served[(c['client_name'], c['resource_id'])] = q
+    held = {}            # (client node, external id) -> (client index, local ids, the client's entry state)
+    for i, state in snap.clients.items():
+        reg = snap.client_registries.get(i)
+        if reg is None:
+            out.append('client %d (%s) does not answer for its registry' % (i, state['node']))
+            continue
+        for cq in reg['client_queries']:
+            if cq['target'].endswith('/' + START_SENSOR):
+                held[(state['node'], cq['external_id'])] = (i, cq['local_ids'], cq['state'])
+        heard_failed = {s['id'] for s in state['statuses'] if s['code'] == 'FAILED'}
+        local = {lid for cq in reg['client_queries'] for lid in cq['local_ids']}
+        for lid, info in state['held'].items():
+            if int(lid) not in local:
+                out.append('client %d: acknowledged load %s (%s) is not in its registry: lost' % (i, lid, info['sensor']))
+        for key, (ci, lids, cstate) in list(held.items()):
+            if ci != i:
+                continue
+            q = served.get(key)
+            if q is None:
+                if cstate != 'failed':
+                    out.append('client %d holds %s id %d, which the Sensor Manager does not serve it: lost'
+                               % (i, key[0], key[1]))
+            elif q['state'] == 'failed' and not any(lid in heard_failed for lid in lids):
+                out.append('client %d never heard the FAILED of %s (%s)' % (i, q['summary'].get('sensor_type', '?'),
+                                                                          q.get('failure', '')[:120]))
+    for key, q in served.items():
+        if key not in held:
+            out.append('the Sensor Manager counts %s id %d as a holder of %s, which holds nothing of it: a leaked '
+                       'reference' % (key[0], key[1], q['summary'].get('sensor_type', '?')))
+    return out
+
+
+def _deadlines(snap: Snapshot) -> List[str]:
+    out = []
+    for i, state in snap.clients.items():
+        for call in state['calls']:
+            limit = DEADLINES.get(call['op'], 1.0) + DEADLINE_SLACK
+            if call['seconds'] > limit:
+                out.append('client %d: a %s took %.1f s, past its deadline' % (i, call['op'], call['seconds']))
+    return out

@@ -1,0 +1,117 @@
+"""A chaos client: a registrar of its own in its own process, loading and unloading sensors when told.
+
+The runner drives it over a Unix socket (one JSON object per line, one answer per line), so it reaches the
+client whatever the ROS graph is doing. The client acknowledges what the Sensor Manager acknowledged, and
+keeps, for the checker, what a real consumer would know: the resources it holds, every status it heard
+for them, and how long each call took against its deadline. It sets no failure policy of its own beyond
+recording: a FAILED resource stays held (failed) until the runner unloads it, as an action's would until
+its policy runs.
+"""
+from __future__ import annotations
+
+import json
+import os
+import socketserver
+import threading
+import time
+from typing import Dict, List
+
+import rospy
+
+from temoto_core.errors import TemotoError
+from temoto_core.node import init_node, spin
+from temoto_core.rr import StatusEvent
+from temoto_sensor_manager.interface import SensorManagerInterface
+
+NODE_NAME = 'chaos_client'     # the runner names each incarnation (__name:=chaos_client_<client>_<generation>)
+
+
+class ChaosClient:
+    """The state a consumer knows, and the operations the runner asks of it."""
+
+    def __init__(self, namespace: str) -> None:
+        self.sensors = SensorManagerInterface(namespace=namespace)
+        self.lock = threading.Lock()
+        self.held: Dict[int, dict] = {}        # local id -> {'type', 'sensor', 'failed': message or ''}
+        self.statuses: List[dict] = []         # every status heard, in order
+        self.calls: List[dict] = []            # {'op', 'seconds', 'ok'}: the checker holds them to their deadline
+
+    def _on_status(self, ev: StatusEvent) -> None:
+        with self.lock:
+            self.statuses.append({'id': ev.resource_id, 'code': ev.code.name, 'message': ev.message})
+            if ev.failed and ev.resource_id in self.held:
+                self.held[ev.resource_id]['failed'] = ev.message or 'FAILED'
+
+    def load_sensor(self, sensor_type: str, keys: List[str]) -> dict:
+        t0 = time.monotonic()
+        try:
+            result = self.sensors.start_sensor(sensor_type, output_topics=keys, on_status=self._on_status)
+        except TemotoError as e:
+            self._call('load', t0, False)
+            return {'ok': False, 'error': str(e)}
+        self._call('load', t0, True)
+        with self.lock:
+            self.held[result.resource_id] = {'type': sensor_type, 'sensor': result.sensor_name, 'failed': ''}
+        return {'ok': True, 'id': result.resource_id, 'sensor': result.sensor_name}
+
+    def unload(self, resource_id: int) -> dict:
+        t0 = time.monotonic()
+        try:
+            self.sensors.stop_sensor(resource_id)
+            ok, error = True, ''
+        except TemotoError as e:
+            ok, error = False, str(e)
+        self._call('unload', t0, ok)
+        with self.lock:
+            self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
+        return {'ok': ok, 'error': error}
+
+    def _call(self, op: str, t0: float, ok: bool) -> None:
+        with self.lock:
+            self.calls.append({'op': op, 'seconds': time.monotonic() - t0, 'ok': ok})
+
+    def state(self) -> dict:
+        with self.lock:
+            return {'node': rospy.get_name(), 'registrar': self.sensors.rr.name, 'pid': os.getpid(),
+                    'held': {str(k): dict(v) for k, v in self.held.items()}, 'statuses': list(self.statuses),
+                    'calls': list(self.calls)}
+
+    def handle(self, cmd: dict) -> dict:
+        op = cmd.get('op')
+        if op == 'load_sensor':
+            return self.load_sensor(str(cmd['type']), [str(k) for k in cmd['keys']])
+        if op == 'unload':
+            return self.unload(int(cmd['id']))
+        if op == 'state':
+            return self.state()
+        return {'ok': False, 'error': 'unknown op %r: load_sensor, unload or state' % (op,)}
+
+
+class _Handler(socketserver.StreamRequestHandler):
+    def handle(self) -> None:
+        for line in self.rfile:
+            try:
+                answer = self.server.client.handle(json.loads(line))
+            except (ValueError, KeyError, TypeError) as e:
+                answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
+            self.wfile.write(json.dumps(answer).encode() + b'\n')
+            self.wfile.flush()
+
+
+class _Server(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
+    daemon_threads = True
+
+
+def main() -> None:
+    init_node(NODE_NAME)
+    namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
+    socket_path = str(rospy.get_param('~control_socket'))
+    client = ChaosClient(namespace)
+    server = _Server(socket_path, _Handler)
+    server.client = client
+    threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()
+    try:
+        spin()
+    finally:
+        server.shutdown()
+        client.sensors.shutdown()

@@ -1,0 +1,308 @@
+"""``temoto chaos``: run a seeded history against the robot's real managers and check it after every step.
+
+The stack is ``robot.launch`` with journals and respawn (``recovery:=true``): the simulated VaultBot, its
+ER Manager and its Sensor Manager, under their own roscore. Each client is a process of its own
+(``chaos_client``) with its own registrar. A step is a client operation (a sensor loaded or unloaded;
+equal requests are shared) or a fault (a driver, a client or a manager SIGKILLed; a manager SIGSTOPped
+for a while; a cable pulled, crash or stall, or plugged back; with two hosts, the link between them cut
+for a while). After each step the checker reads the system from outside and the step passes once no
+invariant is violated, within ``settle_s``.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import os
+import signal
+import time
+from typing import Dict, List, Optional
+
+import psutil
+import rospy
+
+from temoto_action_engine.demo.stack import Stack
+from temoto_core import control_socket
+from temoto_core.hosts import TwoHosts
+from temoto_core.master import RosMaster
+from temoto_core.master_lookup import lookup_node, node_pid
+from temoto_core.processes import ProcessGroupLauncher, kill_leftovers, leftover_processes
+from vaultbot_sim.srv import SetDeviceState
+
+from . import checker
+from .history import Step, history
+
+ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
+LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true']
+CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
+PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
+
+
+@dataclasses.dataclass
+class ChaosOptions:
+    seed: int
+    steps: int
+    out_dir: str
+    clients: int = 3
+    settle_s: float = 20.0
+    until: Optional[int] = None     # replay only the steps before this one
+    hosts: int = 1                  # 2: the robot's stack on one host, the clients on the station (a partition fault)
+
+
+class ClientHandle:
+    """One client incarnation: its process and its control socket."""
+
+    def __init__(self, launcher: ProcessGroupLauncher, index: int, generation: int, socket_path: str) -> None:
+        if os.path.exists(socket_path):
+            os.unlink(socket_path)      # a killed incarnation's
+        self.index = index
+        self.socket_path = socket_path
+        self.proc = launcher.node('temoto_chaos', 'chaos_client', name='chaos_client_%d_%d' % (index, generation),
+                                  params={'control_socket': socket_path, 'temoto_namespace': ROBOT})
+        deadline = time.monotonic() + 20.0
+        while not os.path.exists(socket_path):
+            if time.monotonic() > deadline or not self.proc.alive():
+                raise RuntimeError('chaos client %d did not open its socket; log:\n%s' % (index, self.proc.log()))
+            time.sleep(0.02)
+
+    def ask(self, **cmd) -> dict:
+        return control_socket.ask(self.socket_path, cmd, CLIENT_CALL_TIMEOUT)
+
+
+class Chaos:
+    def __init__(self, opts: ChaosOptions) -> None:
+        self.opts = opts
+        self.token = 'chaos_' + os.urandom(6).hex()
+        self.master: Optional[RosMaster] = None
+        self.stack = None
+        self.launcher: Optional[ProcessGroupLauncher] = None
+        self.clients: Dict[int, ClientHandle] = {}
+        self.generations: Dict[int, int] = collections.Counter()
+        self.faults: Dict[str, int] = collections.Counter()
+        self.checks = 0
+        self.log: List[dict] = []
+        self.partition_violations: List[str] = []
+        self.hosts: Optional[TwoHosts] = None
+        self._leave_station = None
+
+    # ------------------------------------------------------------------ setup
+    def start(self) -> None:
+        os.makedirs(os.path.join(self.opts.out_dir, 'ros'), exist_ok=True)
+        os.environ['TEMOTO_TEST_SESSION'] = self.token       # every child carries it: the checker's process list
+        launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_action_engine',
+                              'launch', 'robot.launch')
+        logs = os.path.join(self.opts.out_dir, 'logs')
+        clients_dir = os.path.join(self.opts.out_dir, 'clients')
+        os.makedirs(clients_dir, exist_ok=True)
+        if self.opts.hosts == 2:
+            # the robot's stack and master on the robot host; this process and the clients on the station
+            self.hosts = TwoHosts('c' + self.token[-6:]).up()
+            robot, station = self.hosts.robot, self.hosts.operator
+            self.master = self.hosts.master(os.path.join(self.opts.out_dir, 'ros'), self.token).start()
+            env = self.hosts.env(robot, self.master.uri, base=dict(self.master.env, TEMOTO_TEST_SESSION=self.token))
+            env.pop('DISPLAY', None)
+            self._leave_station = self.hosts.enter(station)     # this process talks ROS from the station
+            self.stack = Stack(launch, env, logs, LAUNCH_ARGS, wrap=lambda argv: self.hosts.argv(robot, argv))
+            self.stack.start(60.0)
+            for key, value in self.hosts.env(station, self.master.uri).items():
+                if key.startswith('ROS_'):
+                    os.environ[key] = value
+            os.environ.pop('ROS_HOSTNAME', None)
+            self.launcher = self.hosts.launcher(station, self.master, clients_dir)
+        else:
+            self.master = RosMaster(os.path.join(self.opts.out_dir, 'ros'), session_token=self.token).start()
+            self.master.point_this_process()
+            env = dict(self.master.env, TEMOTO_TEST_SESSION=self.token)
+            env.pop('DISPLAY', None)
+            self.stack = Stack(launch, env, logs, LAUNCH_ARGS)
+            self.stack.start(60.0)
+            self.launcher = ProcessGroupLauncher(env, clients_dir)
+        rospy.init_node('temoto_chaos', disable_signals=True)
+        rospy.wait_for_service('/%s/temoto_sensor_manager/start_sensor' % ROBOT, 30)
+        for i in range(self.opts.clients):
+            self._start_client(i)
+
+    def _start_client(self, index: int) -> None:
+        self.generations[index] += 1
+        path = os.path.join(self.opts.out_dir, 'client_%d.sock' % index)
+        self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path)
+
+    def stop(self) -> List[tuple]:
+        if self.hosts is not None:
+            self.hosts.link(True)        # a run stopped during a partition: the nodes stop over a working link
+        if self.launcher is not None:
+            self.launcher.stop_all()
+        if self.stack is not None:
+            self.stack.stop()
+        if self.master is not None:
+            self.master.stop()
+        if self._leave_station is not None:
+            self._leave_station()       # before down(), which kills every process whose main thread is on a host
+            self._leave_station = None
+        if self.hosts is not None:
+            self.hosts.down()
+        left = leftover_processes(self.token)
+        if left:
+            kill_leftovers(self.token)
+        return left
+
+    # ------------------------------------------------------------------ steps
+    def apply(self, step: Step) -> str:
+        """Do ``step``; a sentence saying what was done (or why nothing was)."""
+        kind, a = step.kind, step.args
+        if kind == 'load_sensor':
+            answer = self.clients[a['client']].ask(op='load_sensor', type=a['type'], keys=a['keys'])
+            return 'client %d: %s' % (a['client'], answer.get('sensor') or 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'unload':
+            held = sorted(self.clients[a['client']].ask(op='state')['held'])
+            if not held:
+                return 'client %d holds nothing' % a['client']
+            rid = held[a['pick'] % len(held)]
+            answer = self.clients[a['client']].ask(op='unload', id=int(rid))
+            return 'client %d unloaded %s%s' % (a['client'], rid, '' if answer['ok'] else ': ' + answer['error'][:100])
+        if kind == 'partition' and self.hosts is None:
+            return 'one host: no link to cut'
+        self.faults[kind] += 1
+        if kind == 'kill_driver':
+            drivers = sorted(pid for pid, _ in self._drivers().items())
+            if not drivers:
+                return 'no driver runs'
+            pid = drivers[a['pick'] % len(drivers)]
+            os.kill(pid, signal.SIGKILL)
+            return 'SIGKILL driver %d' % pid
+        if kind == 'kill_client':
+            old = self.clients[a['client']].proc
+            os.kill(old.pid, signal.SIGKILL)
+            old.stop()          # reaps it (already dead: returns at once)
+            self._start_client(a['client'])
+            return 'SIGKILL client %d, started again' % a['client']
+        if kind in ('kill_manager', 'stop_manager'):
+            name = '/%s%s' % (ROBOT, a['manager'])
+            uri = lookup_node(self.master.uri, name)
+            pid = node_pid(uri) if uri else None
+            if pid is None:
+                return '%s not registered' % name
+            if kind == 'kill_manager':
+                os.kill(pid, signal.SIGKILL)
+                return 'SIGKILL %s (%d)' % (name, pid)
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(a['seconds'])          # the fault itself: stopped this long
+            os.kill(pid, signal.SIGCONT)
+            return 'SIGSTOP %s for %.2f s' % (name, a['seconds'])
+        if kind == 'partition':
+            return self._partition(a['seconds'])
+        if kind == 'unplug':
+            self._cable(a['device'], 'unplugged', a['mode'])
+            return 'unplugged %s (%s)' % (a['device'], a['mode'])
+        self._cable(a['device'], 'plugged', '')
+        return 'plugged %s' % a['device']
+
+    def _partition(self, seconds: float) -> str:
+        """Cut the link for ``seconds`` (at least as long as it takes): every resource a client held, all of
+        them the robot's, must be FAILED at that client within the bound; then plug the cable back."""
+        held = {i: {lid for lid, info in c.ask(op='state')['held'].items() if not info['failed']}
+                for i, c in self.clients.items()}
+        cut = time.monotonic()
+        self.hosts.link(False)
+        try:
+            while True:
+                states = {i: c.ask(op='state') for i, c in self.clients.items()}
+                unheard = ['client %d: %s' % (i, lid) for i, lids in held.items() for lid in lids
+                           if lid in states[i]['held'] and not states[i]['held'][lid]['failed']]
+                down = time.monotonic() - cut
+                if (not unheard and down >= seconds) or down > max(seconds, PARTITION_FAILED_BOUND):
+                    break
+                time.sleep(0.05)
+        finally:
+            self.hosts.link(True)
+        if unheard:
+            self.partition_violations.append('link down: no FAILED heard within %.1f s for %s'
+                                             % (PARTITION_FAILED_BOUND, ', '.join(unheard)))
+        return 'link down for %.2f s; %d held resource(s) FAILED at their clients' % (
+            down, sum(len(v) for v in held.values()))
+
+    def _cable(self, device: str, state: str, mode: str) -> None:
+        resp = rospy.ServiceProxy('/%s/vaultbot_sim/set_device_state' % ROBOT, SetDeviceState)(device, state, mode)
+        if not resp.success:
+            raise RuntimeError('the simulation refused %s %s: %s' % (state, device, resp.message))
+
+    def _drivers(self) -> Dict[int, str]:
+        out = {}
+        for pid, _ in leftover_processes(self.token):
+            try:
+                name = psutil.Process(pid).name()
+            except psutil.Error:
+                continue
+            if name in checker.DRIVERS:
+                out[pid] = name
+        return out
+
+    # ------------------------------------------------------------------ checks
+    def check(self) -> List[str]:
+        """The violations left once the system had ``settle_s`` to settle (none: the step passed)."""
+        deadline = time.monotonic() + self.opts.settle_s
+        while True:
+            states = {i: c.ask(op='state') for i, c in self.clients.items()}
+            snap = checker.take(ROBOT, states, lambda: [pid for pid, _ in leftover_processes(self.token)])
+            violations = self.partition_violations + checker.check(snap)
+            self.checks += 1
+            if not violations or time.monotonic() > deadline:
+                return violations
+            time.sleep(0.1)
+
+    def run(self) -> dict:
+        last = self.opts.steps if self.opts.until is None else min(self.opts.steps, self.opts.until)
+        t0 = time.monotonic()
+        violations: List[str] = []
+        failed_step = None
+        done = 0
+        for step in history(self.opts.seed, last, self.opts.clients):
+            what = self.apply(step)
+            violations = self.check()
+            self.log.append({'step': step.index, 'kind': step.kind, 'args': step.args, 'did': what,
+                             'violations': violations})
+            done += 1
+            print('[step %d] %s: %s%s' % (step.index, step.kind, what, '' if not violations else
+                                          ' -> VIOLATION: ' + '; '.join(violations)), flush=True)
+            if violations:
+                failed_step = step.index
+                break
+        took = time.monotonic() - t0
+        return {'seed': self.opts.seed, 'steps': done, 'faults': dict(self.faults), 'checks': self.checks,
+                'violations': violations, 'failed_step': failed_step, 'seconds': took,
+                'steps_per_s': done / took if took > 0 else 0.0}
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def run_chaos(opts: ChaosOptions) -> int:
+    chaos = Chaos(opts)
+    summary: dict = {}
+    previous = signal.signal(signal.SIGTERM, _interrupt)    # a SIGTERM stops the run as Ctrl-C does, cleanly
+    try:
+        chaos.start()
+        summary = chaos.run()
+    except KeyboardInterrupt:
+        print('temoto chaos: interrupted', flush=True)
+        summary['interrupted'] = True
+    finally:
+        left = chaos.stop()
+        signal.signal(signal.SIGTERM, previous)
+        summary['leftovers'] = len(left)
+        with open(os.path.join(opts.out_dir, 'chaos.json'), 'w') as f:
+            json.dump({'summary': summary, 'log': chaos.log}, f, indent=1, default=str)
+    if summary.get('interrupted'):
+        return 130
+    if summary.get('violations'):
+        print('temoto chaos: VIOLATION at step %d of seed %d: %s\n  replay: temoto chaos --seed %d --until %d'
+              % (summary['failed_step'], opts.seed, '; '.join(summary['violations']), opts.seed,
+                 summary['failed_step'] + 1), flush=True)
+        return 1
+    print('temoto chaos: %d steps, seed %d, faults %s, %d checks, 0 violations, %.1f steps/s'
+          % (summary['steps'], opts.seed, summary['faults'], summary['checks'], summary['steps_per_s']), flush=True)
+    if left:
+        print('temoto chaos: problem: %d process(es) left behind, killed now: %s' % (len(left), left[:5]), flush=True)
+        return 1
+    return 0

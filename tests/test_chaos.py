@@ -1,0 +1,60 @@
+"""``temoto chaos``: a seeded history of client operations and faults against the robot's real managers,
+with the checker after every step (docs/chaos.md). ``make bench`` runs the long history."""
+import json
+import os
+import subprocess
+import sys
+
+from temoto_core.processes import SESSION_ENV, leftover_processes
+from temoto_chaos.history import NEMESIS, history
+
+SEED = 20261125      # a seed whose first 120 steps hold every kind of fault, each at least twice
+STEPS = 120
+TIMEOUT = 900
+
+
+def run_chaos(tmp_path, *args):
+    token = 'test_chaos_' + os.urandom(6).hex()
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_HOME')}
+    env[SESSION_ENV] = token
+    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'chaos', '--out', str(tmp_path)] + list(args),
+                          env=env, capture_output=True, text=True, timeout=TIMEOUT)
+    left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
+    with open(tmp_path / 'chaos.json') as f:
+        return proc, json.load(f), left
+
+
+def test_a_seeded_history_with_every_fault_keeps_every_invariant_and_replays_from_its_seed(tmp_path):
+    proc, result, left = run_chaos(tmp_path / 'full', '--seed', str(SEED), '--steps', str(STEPS))
+    summary = result['summary']
+    assert proc.returncode == 0, 'rc %s\n%s\n%s' % (proc.returncode, proc.stdout[-3000:], proc.stderr[-3000:])
+    assert summary['violations'] == [] and summary['steps'] == STEPS, summary
+    assert set(summary['faults']) == {kind for kind, _ in NEMESIS} - {'partition'}, summary['faults']   # one host
+    assert summary['checks'] >= STEPS and summary['leftovers'] == 0 and left == []
+    assert '0 violations' in proc.stdout.splitlines()[-1]
+    # the log is the seed's history, step by step
+    assert [(e['kind'], e['args']) for e in result['log']] == [(s.kind, s.args) for s in history(SEED, STEPS, 3)]
+    # --until replays the first steps of the same history
+    proc, replay, left = run_chaos(tmp_path / 'replay', '--seed', str(SEED), '--steps', str(STEPS), '--until', '8')
+    assert proc.returncode == 0 and left == [], proc.stdout[-2000:]
+    assert [(e['kind'], e['args']) for e in replay['log']] == [(e['kind'], e['args']) for e in result['log'][:8]]
+
+
+def test_across_two_hosts_a_cut_link_fails_what_the_clients_hold_and_the_heal_keeps_every_invariant(tmp_path):
+    from temoto_core import hosts as hosts_mod
+    assert not hosts_mod.unavailable(), hosts_mod.unavailable()
+    before = set(hosts_mod._ip('netns', 'list').stdout.split())
+    proc, result, left = run_chaos(tmp_path, '--seed', str(SEED), '--steps', '60', '--hosts', '2')
+    summary = result['summary']
+    assert proc.returncode == 0, 'rc %s\n%s\n%s' % (proc.returncode, proc.stdout[-3000:], proc.stderr[-3000:])
+    assert summary['violations'] == [] and summary['faults'].get('partition', 0) >= 1, summary
+    [cut] = [e for e in result['log'] if e['kind'] == 'partition']
+    assert 'FAILED at their clients' in cut['did'], cut
+    assert left == [] and set(hosts_mod._ip('netns', 'list').stdout.split()) <= before
+
+
+def test_bad_arguments_are_refused_in_one_line_and_start_nothing(tmp_path):
+    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'chaos', '--seed', '1', '--steps', '0',
+                           '--out', str(tmp_path / 'x')], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and 'must be positive' in proc.stderr
+    assert not (tmp_path / 'x').exists()

@@ -1,0 +1,98 @@
+"""The chaos checker's invariants on hand-made snapshots: each violation it must see, and a clean system it
+must pass. (The runner's history against the real managers is tests/test_chaos.py.)"""
+import copy
+import os
+
+from temoto_chaos import checker
+from temoto_chaos.history import history, step
+
+ME = os.getpid()      # a pid the kernel has: a "live" process
+
+
+def clean():
+    sm = {'recovering': False, 'server_queries': [
+        {'server': 'start_sensor', 'internal_id': 1, 'state': 'active', 'failure': '',
+         'summary': {'sensor_type': 'lidar'},
+         'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 11}]}]}
+    er = {'recovering': False, 'server_queries': [{'internal_id': 5, 'state': 'active'}]}
+    procs = {'processes': [{'resource_id': 5, 'label': 'vaultbot_sim/sick_driver', 'state': 'running',
+                            'processes': [{'pid': ME, 'state': 'running'}]}]}
+    client = {'node': '/chaos_client_0_1', 'registrar': 'rr0', 'pid': 1, 'held': {'101': {'sensor': 'sick_lms511'}},
+              'statuses': [], 'calls': [{'op': 'load', 'seconds': 0.5, 'ok': True}]}
+    registry = {'client_queries': [{'target': '/chaos/temoto_sensor_manager/start_sensor', 'external_id': 11,
+                                    'local_ids': [101], 'state': 'active'}]}
+    return checker.Snapshot(sm, er, procs, {0: client}, {0: registry}, {ME: 'sick_driver'})
+
+
+def test_a_consistent_system_passes():
+    assert checker.check(clean()) == []
+
+
+def test_an_unsettled_system_is_reported_as_such_and_not_checked_further():
+    snap = clean()
+    snap.sensor_manager['server_queries'][0]['state'] = 'loading'
+    snap.drivers[ME + 1] = 'sick_driver'           # would be a violation, but nothing is checked yet
+    assert checker.check(snap) == ['the Sensor Manager has a load or unload under way']
+    snap = clean()
+    snap.er_manager = None
+    assert checker.check(snap) == ['the ER Manager does not answer']
+
+
+def test_a_driver_that_no_entry_has_and_a_driver_running_twice_are_violations():
+    snap = clean()
+    snap.drivers[ME + 1] = 'sick_driver'
+    found = checker.check(snap)
+    assert 'driver sick_driver (pid %d) runs, but no ER Manager entry has it' % (ME + 1) in found
+    assert any('sick_driver runs 2 times' in v for v in found), found
+
+
+def test_a_dead_process_still_listed_as_running_is_a_violation():
+    snap = clean()
+    dead = 2 ** 22 + 7           # above pid_max's default: no such process
+    snap.er_processes['processes'][0]['processes'][0]['pid'] = dead
+    snap.drivers = {}
+    assert checker.check(snap) == ['the ER Manager lists vaultbot_sim/sick_driver (pid %d) as running, but it is gone'
+                                   % dead]
+
+
+def test_an_acknowledged_load_missing_from_the_client_or_the_manager_is_lost():
+    snap = clean()
+    snap.clients[0]['held']['102'] = {'sensor': 'realsense_d435'}
+    assert checker.check(snap) == ['client 0: acknowledged load 102 (realsense_d435) is not in its registry: lost']
+    snap = clean()
+    snap.sensor_manager['server_queries'][0]['consumers'] = []
+    assert checker.check(snap) == ['client 0 holds /chaos_client_0_1 id 11, which the Sensor Manager does not serve '
+                                   'it: lost']
+
+
+def test_a_reference_nobody_holds_is_a_leak():
+    snap = clean()
+    snap.sensor_manager['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_1_1',
+                                                                  'resource_id': 12})
+    assert checker.check(snap) == ['the Sensor Manager counts /chaos_client_1_1 id 12 as a holder of lidar, which holds '
+                                   'nothing of it: a leaked reference']
+
+
+def test_a_failed_resource_whose_holder_never_heard_it_is_a_violation():
+    snap = clean()
+    snap.sensor_manager['server_queries'][0].update(state='failed', failure='sick_driver died')
+    assert checker.check(snap) == ['client 0 never heard the FAILED of lidar (sick_driver died)']
+    heard = copy.deepcopy(snap)
+    heard.clients[0]['statuses'].append({'id': 101, 'code': 'FAILED', 'message': 'sick_driver died'})
+    assert checker.check(heard) == []
+
+
+def test_a_call_past_its_deadline_is_a_violation():
+    snap = clean()
+    snap.clients[0]['calls'].append({'op': 'unload', 'seconds': 30.0, 'ok': False})
+    assert checker.check(snap) == ['client 0: a unload took 30.0 s, past its deadline']
+
+
+def test_a_history_is_the_same_for_a_seed_and_its_prefix_replays_it():
+    full = list(history(7, 200, 3))
+    assert [s.describe() for s in full] == [s.describe() for s in history(7, 200, 3)]
+    assert [s.describe() for s in history(7, 50, 3)] == [s.describe() for s in full[:50]]
+    assert step(7, 120, 3) == full[120]
+    assert {s.kind for s in full} >= {'load_sensor', 'unload', 'kill_driver', 'kill_client', 'kill_manager',
+                                      'stop_manager', 'unplug', 'replug'}
+    assert [s.describe() for s in history(8, 50, 3)] != [s.describe() for s in full[:50]]
