@@ -41,6 +41,9 @@ MANAGER_INTERFACES = {
     'output_manager': ('temoto_output_manager.interface', 'OutputManagerInterface'),
     'context_manager': ('temoto_context_manager.interface', 'ContextManagerInterface'),
     'er_manager': ('temoto_er_manager.interface', 'ERManagerInterface'),
+    # the Sensor Manager of the operator's station (the engine's own namespace): sensors that are not on a
+    # robot, such as a fixed scanner in the lab, which stay in reach when a robot's link fails
+    'station_sensor_manager': ('temoto_sensor_manager.interface', 'SensorManagerInterface'),
 }
 # the managers that run on a robot (robot.launch): an action's ``robot`` input names their namespace
 ROBOT_MANAGERS = ('sensor_manager', 'er_manager')
@@ -261,6 +264,10 @@ class ActionBase:
     @property
     def sensor_manager(self):
         return self.interface('sensor_manager')
+
+    @property
+    def station_sensor_manager(self):
+        return self.interface('station_sensor_manager')
 
     @property
     def output_manager(self):

@@ -18,6 +18,7 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
+from temoto_core.master_reach import MasterReach
 from temoto_core.node import prime_log_parameter
 
 from temoto_output_manager.msg import DisplayEvent, DisplayInfo
@@ -242,7 +243,7 @@ def main(argv=None) -> int:
             if node is not None:
                 node.publish_event(*args)
         host = RvizHost(app, settings, on_event, get_urdf=_get_urdf(settings.drawn_robots()[0].description),
-                        probe_factory=_probe)
+                        probe_factory=_probe, master_reach=MasterReach())
         stop = []       # set by SIGINT/SIGTERM/rospy shutdown, also while the host is still starting
 
         def request_stop(*_):

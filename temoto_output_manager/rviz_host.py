@@ -25,6 +25,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 from python_qt_binding import QtCore, QtWidgets
 from rviz import bindings as rviz
 
+from temoto_core.master_reach import MasterReach
 from temoto_core.rr.messages import legal_name
 
 from . import display_config
@@ -174,8 +175,11 @@ class RvizHost:
     """Owns the VisualizationFrame and the displays in it."""
 
     def __init__(self, app: QtWidgets.QApplication, settings: HostSettings, on_event: EventSink,
-                 get_urdf: Callable[[], Optional[str]] = lambda: None, probe_factory: Optional[ProbeFactory] = None):
+                 get_urdf: Callable[[], Optional[str]] = lambda: None, probe_factory: Optional[ProbeFactory] = None,
+                 master_reach: Optional[MasterReach] = None):
         self.app = app
+        # None: the master is never asked about (a host without ROS, in the unit tests)
+        self.master_reach = master_reach
         self.probe_factory = probe_factory
         self.settings = settings
         self.on_event = on_event
@@ -183,6 +187,7 @@ class RvizHost:
         self.known_classes = installed_rviz_classes()
         self.displays: Dict[str, HostedDisplay] = {}
         self._image_pool: List[Tuple[Any, list]] = []   # (disabled rviz/Image display, its default values)
+        self.retired: List[HostedDisplay] = []   # removed while the master was out of reach: drawn transparent
         self._pool_serial = 0
         self.frame = None
         self.manager = None
@@ -244,6 +249,7 @@ class RvizHost:
             self._detach_probe(hd)
         self.manager.removeAllDisplays()
         self.displays.clear()
+        self.retired.clear()
         self._image_pool.clear()
         # RViz asks "save changes?" in a modal dialog when its config counts as modified (a display changed
         # after it had drawn a while). Nobody answers it headless: the host sat in it until its supervisor's
@@ -345,10 +351,39 @@ class RvizHost:
         self._detach_probe(hd)
         if hd.cls == IMAGE_CLASS:
             self._to_pool(hd.handle, hd.defaults)
+        elif self._master_down() and self._can_hide(hd):
+            # destroying it would unsubscribe, and roscpp asks the master on this thread, the one that renders:
+            # seconds per call with the master across a cut link. It is drawn transparent now, and destroyed
+            # once the master answers again.
+            if hd.visible:
+                self._hide(hd)
+            self.retired.append(hd)
+            self._ensure_watching()
         else:
-            self.manager.getRootDisplayGroup().takeDisplay(hd.handle)
-            hd.handle.deleteLater()      # the subscription goes at the next event-loop pass
+            self._destroy(hd)
         self.on_event('removed', name, hd.cls, hd.topic, self.frame_count(), 0.0)
+
+    def _destroy(self, hd: HostedDisplay) -> None:
+        self.manager.getRootDisplayGroup().takeDisplay(hd.handle)
+        hd.handle.deleteLater()      # the subscription goes at the next event-loop pass
+
+    def _master_down(self) -> bool:
+        return self.master_reach is not None and self.master_reach.unreachable_now()
+
+    @staticmethod
+    def _can_hide(hd: HostedDisplay) -> bool:
+        try:
+            display_config.resolve(hd.handle, (ALPHA,))
+            return True
+        except display_config.DisplayConfigError:
+            return False
+
+    def _destroy_retired(self) -> None:
+        """The displays removed during a partition, destroyed once the master answers (checked off this thread)."""
+        if self.retired and self.master_reach is not None and self.master_reach.last():
+            retired, self.retired = self.retired, []
+            for hd in retired:
+                self._destroy(hd)
 
     def configure_display(self, name: str, topic: str, config: Dict[str, Any]) -> List[str]:
         hd = self._get(name)
@@ -451,8 +486,9 @@ class RvizHost:
             self._watch_timer.start(self.settings.watch_period_ms)
 
     def _sample_first_frames(self) -> None:
+        self._destroy_retired()
         fc = self.frame_count()
-        pending = False
+        pending = bool(self.retired)
         for hd in list(self.displays.values()):
             if hd.watch.drawn or not hd.visible:     # a hidden display's first frame comes once it is shown
                 continue

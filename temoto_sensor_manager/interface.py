@@ -11,12 +11,12 @@ import dataclasses
 import json
 from typing import Callable, Dict, List, Mapping, Optional, Sequence, Union
 
-import rospy
 from diagnostic_msgs.msg import KeyValue
 
 from temoto_core.errors import Subsystem, TemotoError
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
+from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME, START_SENSOR, START_SENSOR_TYPE
 from temoto_sensor_manager.selection import likely_topics, ranked_rows
@@ -42,10 +42,11 @@ class SensorResult:
 
 
 def fetch_catalogue(namespace: str = 'temoto', timeout: float = 1.0) -> List[dict]:
-    """The running manager's catalogue rows (type, reliability, topics), through its service."""
+    """The running manager's catalogue rows (type, reliability, topics), through its service, within
+    ``timeout`` (look-up, connection and answer: a failover asks it, and must not hang on a stopped manager).
+    Raises ``rospy.ServiceException`` if the manager does not answer in time."""
     name = '/%s/%s/%s' % (namespace.strip('/'), RR_NAME, CATALOGUE)
-    rospy.wait_for_service(name, timeout)
-    return json.loads(rospy.ServiceProxy(name, GetRegistry)().json)['sensors']
+    return json.loads(call_once(name, GetRegistry, GetRegistry._request_class(), timeout).json)['sensors']
 
 
 def _key_values(topics: TopicsArg, what: str) -> List[KeyValue]:

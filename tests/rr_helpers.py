@@ -1,7 +1,6 @@
 """Driving test registrar nodes (tests/temoto_test_nodes/nodes/rr_node) from pytest."""
 import json
 import os
-import socket
 import sys
 
 import rospy
@@ -9,6 +8,7 @@ import rospy
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from temoto_test_nodes.srv import Control  # noqa: E402
 
+from temoto_core import control_socket  # noqa: E402
 from temoto_core.testing import wait_for  # noqa: E402
 
 COMMAND_TIMEOUT = 30.0    # generous: a command that hangs fails the test rather than the session
@@ -46,12 +46,7 @@ class RegistrarNode:
 
     def command(self, **cmd) -> dict:
         if self.control_socket:
-            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-                sock.settimeout(COMMAND_TIMEOUT)
-                sock.connect(self.control_socket)
-                sock.sendall(json.dumps(cmd).encode() + b'\n')
-                with sock.makefile('rb') as answer:
-                    return json.loads(answer.readline())
+            return control_socket.ask(self.control_socket, cmd, COMMAND_TIMEOUT)
         # a fresh connection per command: each runs in its own service thread, so commands can overlap
         proxy = rospy.ServiceProxy('/%s/control' % self.name, Control)
         return json.loads(proxy(json.dumps(cmd)).result)

@@ -13,6 +13,8 @@ from types import SimpleNamespace
 
 import pytest
 
+from temoto_action_engine.action_base import ActionError
+from temoto_action_engine.actions.show_environment.show_environment import DEFAULT_PRIORITY, parse_priority
 from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.testing import FakeRegistrarFactory
@@ -26,16 +28,23 @@ VAULTBOT = [  # name, type, topics
 ]
 
 
+# the operator's station's own sensor (its Sensor Manager, reachable when the robot's link is down)
+STATION = [('site_lidar', 'lidar', {'lidar_data': '/site_lidar/scan'})]
+SITE_ENTRY = {'label': 'site LIDAR scan', 'sensor_type': 'lidar', 'output_topics': ['lidar_data'],
+              'display_type': 'laser scan', 'sensor_manager': 'station'}
+
+
 class Devices:
     """The 'cables' and what both fake managers did."""
 
     def __init__(self):
         self.lock = threading.Lock()
-        self.plugged = {name for name, _, _ in VAULTBOT}
+        self.plugged = {name for name, _, _ in VAULTBOT + STATION}
         self.active = {}             # resource id -> sensor name
         self.shown = {}              # display id -> (type, topic)
         self.hidden = {}             # display id -> (type, topic): subscribed, drawn transparent
         self.configs = {}            # display id -> the RViz properties it was shown with
+        self.names = {}              # display id -> the name it was shown under
         self.log = []
         self.ids = itertools.count(1)
         self.policies = {}           # resource or display id -> the request's on_status
@@ -46,6 +55,7 @@ class Devices:
         self.failed_before = set()           # ranked last by the fake's likely_topics (as reliability does)
         self.guess_override = None           # likely_topics answers this instead
         self.flap_after = {}                 # name -> seconds: the device starts, then fails this long after
+        self.robot_cut = False               # the robot's link is down: its manager cannot be reached
 
     def unplug(self, name):
         with self.lock:
@@ -71,15 +81,32 @@ class Devices:
         with self.lock:
             self.plugged.add(name)
 
+    def cut_robot_link(self):
+        """What a partition does: every robot sensor held FAILED (its owner lost), the manager out of reach."""
+        with self.lock:
+            self.robot_cut = True
+            robot = {name for name, _, _ in VAULTBOT}
+            victims = [(rid, self.policies[rid]) for rid, n in self.active.items() if n in robot]
+        for rid, cb in victims:
+            cb(status(rid, Status.FAILED, 'owner /vaultbot/temoto_sensor_manager unreachable'))
+
 
 class FakeSensorManager:
-    def __init__(self, devices, rr):
+    def __init__(self, devices, rr, catalogue=None, on_robot=True):
         self.d = devices
+        self.catalogue = VAULTBOT if catalogue is None else catalogue
+        self.on_robot = on_robot       # cut off with the robot's link (Devices.robot_cut)
+
+    def _reach(self):
+        if self.on_robot and self.d.robot_cut:
+            raise RuntimeError('service /vaultbot/temoto_sensor_manager/start_sensor is not tried: its owner is '
+                               'unreachable')
 
     def start_sensor(self, sensor_type, output_topics, package_name='', executable='', on_status=None):
         assert self.d.start_gate.wait(10), 'start_sensor gate never opened'
+        self._reach()
         with self.d.lock:
-            for name, stype, topics in VAULTBOT:
+            for name, stype, topics in self.catalogue:
                 if executable and executable != name:
                     continue
                 if stype == sensor_type and name in self.d.plugged and set(output_topics) <= set(topics):
@@ -95,9 +122,10 @@ class FakeSensorManager:
 
     def ranked_sensors(self, sensor_type, keys, timeout=1.0):
         """The real manager's ranking: matches in VAULTBOT's order, a device that failed before last."""
+        self._reach()
         with self.d.lock:
             rows = [{'name': name, 'package': 'fake', 'executable': name, 'type': stype}
-                    for name, stype, topics in VAULTBOT if stype == sensor_type and set(keys) <= set(topics)]
+                    for name, stype, topics in self.catalogue if stype == sensor_type and set(keys) <= set(topics)]
             return sorted(rows, key=lambda r: r['name'] in self.d.failed_before)
 
     def likely_topics(self, sensor_type, keys, timeout=1.0):
@@ -106,7 +134,8 @@ class FakeSensorManager:
             self.d.log.append(('guess', sensor_type))
             if self.d.guess_override is not None:
                 return self.d.guess_override
-        for name, stype, topics in VAULTBOT:
+        self._reach()
+        for name, stype, topics in self.catalogue:
             if stype == sensor_type and set(keys) <= set(topics) and name not in self.d.failed_before:
                 return {k: topics[k] for k in keys}
         return None
@@ -132,6 +161,7 @@ class FakeOutputManager:
             self.d.policies[did] = on_status
             (self.d.hidden if hidden else self.d.shown)[did] = (display_type, topic)
             self.d.configs[did] = config
+            self.d.names[did] = name
             self.d.log.append(('show hidden' if hidden else 'show', display_type, topic))
             return did
 
@@ -156,7 +186,8 @@ def setup():
     engine = ActionEngine(
         idx, rr_factory=FakeRegistrarFactory(), publish_event=events.append, publish_feedback=feedback.append,
         action_config={'show_environment': {'retry_initial_s': 0.05, 'retry_max_s': 0.2}},
-        interface_factories={'sensor_manager': lambda rr: FakeSensorManager(devices, rr),
+        interface_factories={'sensor_manager': lambda rr, namespace=None: FakeSensorManager(devices, rr),
+                             'station_sensor_manager': lambda rr: FakeSensorManager(devices, rr, STATION, False),
                              'output_manager': lambda rr: FakeOutputManager(devices, rr)})
     yield engine, devices, events, feedback
     engine.shutdown(10)
@@ -350,7 +381,6 @@ def test_bad_priority_parameter_fails_the_action_clearly(setup):
 
 def test_display_config_reaches_the_output_manager_as_yaml():
     import yaml
-    from temoto_action_engine.actions.show_environment.show_environment import ActionError, parse_priority
     entry = {'sensor_type': 'lidar', 'output_topics': ['lidar_data'], 'display_type': 'laser scan',
              'display_config': {'Size (m)': 0.05, 'Color': '255; 120; 0'}}
     choice = parse_priority([entry])[0]
@@ -492,6 +522,19 @@ def test_the_view_fails_back_to_a_replugged_better_sensor_after_a_hold(setup, st
     assert run.nodes['show_environment_0'].state == 'RUNNING'
 
 
+def test_each_fail_back_try_that_does_not_start_is_reported_with_its_doubling_wait(setup):
+    engine, devices, events, _ = setup
+    run_with(engine, events)
+    devices.unplug('d435')
+    wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
+    tries = wait_for(lambda: len(of(events, 'failback_unavailable')) >= 3 and of(events, 'failback_unavailable'),
+                     10, 'three fail-back tries while the camera is unplugged')[:3]
+    assert all(t['priority_indexes'] == [0] and 'RGB-D camera cloud' in t['message'] for t in tries), tries
+    waits = [t['retry_in_s'] for t in tries]
+    assert waits[0] < waits[1] < waits[2] <= FAST['failback_max_s'], waits
+    assert of(events, 'failback_abandoned') == [], 'a try that never started is not a flap'
+
+
 def test_a_flapping_sensor_costs_at_most_one_switch_per_backoff_window(setup):
     """A camera that fails again 20 ms after each start (a loose cable) is tried with a doubling wait, then
     quarantined: the view never switches back to it, and each try is reported."""
@@ -510,6 +553,46 @@ def test_a_flapping_sensor_costs_at_most_one_switch_per_backoff_window(setup):
     assert of(events, 'failback') == []
     wait_for(lambda: devices.log.count(('stop', 'd435')) == 3, 10, 'the camera and both tries released')
     assert len(started(devices, 'd435')) == 3, 'quarantined: not tried again'
+
+
+def test_a_cut_robot_link_fails_over_to_the_hot_station_sensor_and_fails_back_after_the_heal(setup):
+    """The entry after the view is served by the station's own Sensor Manager: under hot standby it streams into
+    a hidden display before the cut, so the failover needs nothing from the robot's side (nor its master)."""
+    engine, devices, events, _ = setup
+    priority = [DEFAULT_PRIORITY[0], SITE_ENTRY]
+    run_with(engine, events, standby='hot', sensor_priority=priority)
+    ready = wait_for(lambda: of(events, 'standby_ready'), 10, 'the station sensor ready as the hot spare')[0]
+    assert ready['sensor_name'] == 'site_lidar' and ready['display'] == 'hidden'
+    devices.cut_robot_link()
+    active = wait_for(lambda: len(of(events, 'sensor_active')) == 2 and of(events, 'sensor_active')[1], 10,
+                      'the station sensor on screen')
+    assert active['sensor_name'] == 'site_lidar' and active['via'] == 'standby'
+    assert ('reveal', 'laser scan', '/site_lidar/scan') in devices.log
+    wait_for(lambda: displayed(devices) == [('laser scan', '/site_lidar/scan')], 10, 'the station view alone')
+    # while the link is down, the robot's camera is tried with a doubling wait, and each try is reported
+    tries = wait_for(lambda: len(of(events, 'failback_unavailable')) >= 2 and of(events, 'failback_unavailable'),
+                     10, 'fail-back tries while the robot is out of reach')
+    assert all('unreachable' in t['message'] for t in tries), [t['message'] for t in tries]
+    devices.robot_cut = False             # the link heals; the camera's driver is started afresh
+    back = wait_for(lambda: of(events, 'failback'), 10, 'the fail-back to the robot\'s camera')[0]
+    assert back['sensor_name'] == 'd435' and back['from_sensor'] == 'site_lidar'
+    wait_for(lambda: displayed(devices) == [('point cloud', '/d435/points')], 10, 'the robot\'s view back')
+    assert hidden(devices) == [('laser scan', '/site_lidar/scan')], 'the station sensor is the spare again'
+
+
+def test_a_view_of_a_named_robot_names_its_displays_after_the_robot(setup):
+    """One station shows several robots: two views' displays of the same entry must not share a name."""
+    engine, devices, events, _ = setup
+    run_with(engine, events, say='show the environment of vaultbot_2')
+    wait_for(lambda: devices.names, 10, 'a display shown')
+    assert set(devices.names.values()) == {'RGB-D camera cloud (vaultbot_2)'}, devices.names
+
+
+def test_a_bad_sensor_manager_in_the_priority_list_is_refused_by_name():
+    with pytest.raises(ActionError, match=r"sensor_priority\[1\]\.sensor_manager must be one of robot, station, "
+                                          r"got 'operator'"):
+        parse_priority([DEFAULT_PRIORITY[0], dict(SITE_ENTRY, sensor_manager='operator')])
+    assert [c.station for c in parse_priority([DEFAULT_PRIORITY[0], SITE_ENTRY])] == [False, True]
 
 
 def test_the_failover_configuration_is_checked_and_names_what_is_wrong():

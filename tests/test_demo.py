@@ -217,8 +217,12 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     assert 'rviz_host' in station_er and 'rviz_host' not in robot_er and 'd435_driver' not in station_er
     an = analyse(load_run(str(out / 'failover.bag')))
     # every topic of the robot is in its namespace; the last view is shown again once the cable is plugged back
-    assert [s.topic for s in an.stages] == ['/vaultbot/d435/depth_registered/points', '/vaultbot/laser_stitcher/cloud',
-                                            '/vaultbot/sick/scan', '/vaultbot/sick/scan']
+    topics = [s.topic for s in an.stages]
+    assert topics[:3] == ['/vaultbot/d435/depth_registered/points', '/vaultbot/laser_stitcher/cloud',
+                          '/vaultbot/sick/scan'] and topics[-1] == '/vaultbot/sick/scan', topics
+    # cold: the station's scanner cannot start while the master is across the cut; it may be shown after the
+    # heal, before the view fails back to the better base scan
+    assert topics[3:-1] in ([], ['/site_lidar/scan']), topics
     assert [(f.device, f.mode) for f in an.failures] == [('d435', 'crash'), ('hokuyo', 'stall')]
     for f in an.failures:
         assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
@@ -229,6 +233,34 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     partition = json.loads((out / 'demo.json').read_text())['partition']
     assert partition['failed_heard_s'] < HANG_S, partition
     assert 'its host is cut off or down' in partition['message'], partition
+
+
+def test_demo_across_two_hosts_under_hot_standby_shows_the_station_scanner_while_the_robot_is_cut_off(
+        tmp_path_factory):
+    """The station's own sensor (the lab's fixed scanner, served by the station's Sensor Manager) ends the view's
+    list. Under hot standby it streams into a hidden display before the cut, so when the robot's link fails the
+    view switches to it, with the robot's master out of reach; after the heal the view fails back to the robot."""
+    from temoto_core import hosts as hosts_mod
+    from temoto_action_engine.demo.report import analyse, load_run
+    assert not hosts_mod.unavailable(), hosts_mod.unavailable()
+    proc, out, left = run_demo(tmp_path_factory, '--hosts', '2', '--standby', 'hot')
+    assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
+    assert left == []
+    lines = [line for line in proc.stdout.splitlines() if line.startswith('[')]
+    assert any('link cut: FAILED heard in' in line and 'site LIDAR scan (station) on screen' in line
+               for line in lines), proc.stdout
+    assert any('link plugged back: base LIDAR scan on screen again' in line for line in lines), proc.stdout
+    # the scanner ran on the station, started by the station's own Sensor Manager and ER Manager
+    station_er = (out / 'logs' / 'operator' / 'temoto_er_manager.log').read_text()
+    assert 'started vaultbot_sim/site_lidar.launch for /temoto_sensor_manager' in station_er, station_er[-2000:]
+    an = analyse(load_run(str(out / 'failover.bag')))
+    assert [(s.topic, s.via) for s in an.stages][2:] == [('/vaultbot/sick/scan', 'standby'),
+                                                         ('/site_lidar/scan', 'standby'),
+                                                         ('/vaultbot/sick/scan', 'failback')], an.stages
+    station = an.stages[3]
+    assert station.first_frame_t is not None, 'the station scanner was never drawn'
+    partition = json.loads((out / 'demo.json').read_text())['partition']
+    assert partition['failed_heard_s'] < HANG_S and partition['station_view_s'] < HANG_S, partition
 
 
 def test_demo_on_two_hosts_without_root_says_why_in_one_line(tmp_path):

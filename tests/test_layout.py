@@ -8,7 +8,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIME = ['temoto_core', 'temoto_er_manager', 'temoto_sensor_manager', 'temoto_output_manager',
-           'temoto_context_manager', 'temoto_action_engine', 'vaultbot_sim']
+           'temoto_context_manager', 'temoto_action_engine', 'vaultbot_sim', 'temoto_chaos']
 
 
 def runtime_modules():

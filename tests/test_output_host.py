@@ -90,7 +90,8 @@ def test_point_cloud_is_drawn_in_its_colours_and_unsubscribes_on_remove(host, ev
         client.remove_display('cloud')
         wait_for(lambda: not master_subscriptions('/om_test/cloud'), 10, 'subscription gone at the master')
         assert 'cloud' not in client.display_names()
-        assert any(e.event == DisplayEvent.REMOVED and e.display_name == 'cloud' for e in events)
+        wait_for(lambda: any(e.event == DisplayEvent.REMOVED and e.display_name == 'cloud' for e in events), 10,
+                 'the removed event')
     finally:
         pub.stop()
 
@@ -142,7 +143,8 @@ def test_a_hidden_display_stays_subscribed_and_shows_the_data_it_holds_at_once(h
     info = next(d for d in client.list_displays().displays if d.name == 'standby')
     assert info.visible and info.drawn
     client.set_visible('standby', False)
-    assert any(e.event == DisplayEvent.HIDDEN and e.display_name == 'standby' for e in events)
+    wait_for(lambda: any(e.event == DisplayEvent.HIDDEN and e.display_name == 'standby' for e in events), 10,
+             'the hidden event')          # events arrive on a topic: after the call returns, not with it
     wait_for(lambda: colour_fraction(png_pixels(client.screenshot('view')), (255, 0, 255)) < 0.001, 10,
              'the cloud to leave the screen once hidden again')
     client.remove_display('standby')

@@ -3,6 +3,8 @@
 Shared by the module: roscore, vaultbot_sim, the ER Manager and the Sensor Manager
 (with the VaultBot catalogue plus the fake one, which holds a second depth camera).
 """
+import subprocess
+import sys
 import time
 
 import pytest
@@ -17,6 +19,7 @@ from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.testing import (TopicWatch, catalogue, er_processes, managers_idle, pid_gone, set_cable,
                                            start_er_manager, start_sensor_manager, start_sim)
 
+HOGGED_RUN_S = 15.0        # a bounded run in the suite; bench_stall.py runs 10 minutes
 D435_TOPICS = {'camera_data': '/d435/depth_registered/points', 'camera_info': '/d435/color/camera_info'}
 
 
@@ -126,3 +129,36 @@ def test_two_cameras_of_one_driver_each_publish_every_topic_on_their_own_names(s
     assert publishers_of('/info') == []
     sm.stop_sensor(first.resource_id)
     sm.stop_sensor(second.resource_id)
+
+
+def test_three_rendering_sensors_beside_two_cpu_hogs_raise_no_false_failed(smi):
+    """The adaptive stall limit (arrivals.py) must stay above a loaded machine's own gaps: the three sensors
+    started and held beside two busy loops (their rhythm learnt under that load, as bench_stall.py does),
+    for a bounded run (the benchmark runs 10 minutes)."""
+    sm = smi()
+    events = []
+    sm.register_update_callback(events.append)
+    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(2)]
+    watches = {}
+    try:
+        held = [sm.start_sensor('depth camera', ['camera_data'], executable='d435_driver'),
+                sm.start_sensor('lidar', ['lidar_data'], executable='sick_driver'),
+                sm.start_sensor('lidar', ['lidar_data'], executable='hokuyo.launch')]
+        assert sorted(r.sensor_name for r in held) == ['hokuyo_utm30lx', 'realsense_d435', 'sick_lms511']
+        watches = {topic: TopicWatch(topic) for r in held for topic in r.output_topics.values()}
+        try:
+            wait_for(lambda: events, HOGGED_RUN_S, 'a false FAILED')   # the run: it ends early only on a FAILED
+        except TimeoutError:
+            pass
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    counts = {topic: w.count for topic, w in watches.items()}
+    for w in watches.values():
+        w.close()
+    assert events == [], [e.message for e in events]
+    # every stream ran well past its learning time: the adaptive limits, not the catalogue's caps, were in force
+    assert min(counts.values()) > arrivals.WARMUP, counts
+    for r in held:
+        sm.stop_sensor(r.resource_id)

@@ -4,6 +4,8 @@ namespace, its own simulation, drivers and managers, its TF frames prefixed in t
 Each robot's sensors fail over on their own, and nothing of one robot reaches the other: its topics, its
 statuses, its processes.
 """
+import json
+
 import pytest
 import rosgraph
 from sensor_msgs.msg import LaserScan
@@ -146,3 +148,57 @@ def test_a_robot_fails_over_on_its_own_and_the_other_hears_nothing(make):
     assert still.frames == {'vaultbot_2/' + DEVICES[second.sensor_name][1]}, still.frames
     assert not failed(events_two), events_two
     assert two.result_of(second.resource_id).sensor_name == second.sensor_name
+
+
+class ActionEvents:
+    """The action engine's events (JSON on ``/temoto/action_engine/events``), as they arrive."""
+
+    def __init__(self):
+        import rospy
+        from std_msgs.msg import String
+        self.events = []
+        self._sub = rospy.Subscriber('/temoto/action_engine/events', String,
+                                     lambda msg: self.events.append(json.loads(msg.data)), queue_size=100)
+
+    def of(self, kind, graph=None):
+        return [e for e in list(self.events) if e.get('event') == kind and graph in (None, e.get('graph'))]
+
+    def close(self):
+        self._sub.unregister()
+
+
+def test_one_station_shows_both_robots_and_each_view_fails_over_on_its_own(robots, procs, rospy_client):
+    """Two "show the environment of <robot>" graphs on one operator's station: robot 1's camera crashes, and
+    only robot 1's view fails over, to robot 1's own next sensor; robot 2's view stays on its camera."""
+    from std_msgs.msg import String
+    from temoto_action_engine.srv import StopGraph
+    procs.launch('temoto_action_engine', 'operator.launch',
+                 ['robot:=vaultbot_1', 'robots:=vaultbot_1,vaultbot_2', 'fixed_frame:=world'])
+    rospy_client.wait_for_service('/temoto/action_engine/list_actions', timeout=30)
+    events = ActionEvents()
+    chatter = rospy_client.Publisher('/temoto/human_chatter', String, queue_size=5)
+    wait_for(lambda: chatter.get_num_connections() > 0, 15, 'the engine to hear the chatter')
+    try:
+        chatter.publish(String(data='show the environment of vaultbot_1'))
+        first = wait_for(lambda: events.of('sensor_active'), 60, 'robot 1\'s view')[0]
+        chatter.publish(String(data='show the environment of vaultbot_2'))
+        second = wait_for(lambda: len(events.of('sensor_active')) >= 2 and events.of('sensor_active')[1], 60,
+                          'robot 2\'s view')
+        assert first['topic'] == '/vaultbot_1/d435/depth_registered/points', first
+        assert second['topic'] == '/vaultbot_2/d435/depth_registered/points', [
+            (e.get('event'), e.get('graph'), e.get('message') or e.get('topic')) for e in events.events
+            if e.get('event') != 'state'][-4:]
+        assert first['graph'] != second['graph']
+        set_cable('vaultbot_1', 'd435', 'unplugged', 'crash')
+        moved = wait_for(lambda: len(events.of('sensor_active', first['graph'])) >= 2
+                         and events.of('sensor_active', first['graph'])[1], 30, 'robot 1\'s view failing over')
+        assert moved['topic'].startswith('/vaultbot_1/') and moved['priority_index'] == 1, moved
+        [failed_event] = events.of('sensor_failed')
+        assert failed_event['graph'] == first['graph'] and 'd435_driver' in failed_event['message'], failed_event
+        assert events.of('sensor_active', second['graph']) == [second], 'robot 2\'s view must not move'
+    finally:
+        set_cable('vaultbot_1', 'd435', 'plugged')
+        stop = rospy_client.ServiceProxy('/temoto/action_engine/stop_graph', StopGraph)
+        for graph in {e['graph'] for e in events.of('sensor_active')}:
+            stop(graph_name=graph)
+        events.close()

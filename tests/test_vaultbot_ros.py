@@ -101,7 +101,8 @@ def test_sim_state_tf_and_devices(procs, rospy_client, collect):
     assert 'right_wrist_3_link' in moving and 'person_arm' in moving
     assert all(t.header.frame_id for t in tf.last().transforms)
     assert '<robot name="vaultbot">' in rospy_client.get_param('/robot_description')
-    assert [(d.name, d.plugged) for d in devices.last().devices] == [('d435', True), ('hokuyo', True), ('sick', True)]
+    assert [(d.name, d.plugged) for d in devices.last().devices] == [('d435', True), ('hokuyo', True), ('sick', True),
+                                                                      ('site_lidar', True)]
     # bad requests are refused with a message naming the problem, and change nothing
     from vaultbot_sim.srv import SetDeviceState, SetSweep
     resp = rospy_client.ServiceProxy('/vaultbot_sim/set_device_state', SetDeviceState)('kinect', 'unplugged', 'crash')
@@ -132,7 +133,7 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
     info = collect('/d435/color/camera_info', CameraInfo)
     start_sim(procs)
     drivers = {n: procs.node('vaultbot_sim', n) for n in ('hokuyo_driver', 'sick_driver', 'd435_driver')}
-    wait_for(lambda: hok.msgs and sick.msgs and cloud.msgs and image.msgs and info.msgs, 30, 'first messages')
+    wait_for(lambda: hok.msgs and sick.msgs and cloud.msgs and image.msgs and info.msgs, 60, 'first messages')
     window = 3.0
     t0 = time.monotonic()
     wait_for(lambda: time.monotonic() - t0 > window, window + 1, 'a measuring window')
@@ -306,6 +307,31 @@ def test_unplug_crash_exits_nonzero_and_replug_lets_a_new_driver_work(procs, ros
     procs.node('vaultbot_sim', 'sick_driver', name='sick_driver_3')
     t1 = time.monotonic()
     wait_for(lambda: scans.count_after(t1) >= 5, 30, 'scans after replugging')
+
+
+def test_the_site_lidar_scans_from_its_post_says_where_it_stands_and_obeys_its_cable(procs, rospy_client, collect):
+    """The lab's fixed scanner: its pose is its own (on /tf_static, under the world frame), not a robot link."""
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+    scans = collect('/site_lidar/scan', LaserScan)
+    statics = collect('/tf_static', TFMessage)
+    start_sim(procs)
+    drv = procs.node('vaultbot_sim', 'site_lidar_driver')
+    wait_for(lambda: len(scans.msgs) >= 3, 20, 'site lidar scans')
+    m = scans.last()
+    assert m.header.frame_id == 'site_lidar_link' and len(m.ranges) == spec.SITE_LIDAR.beams == 541
+    assert np.isfinite(np.asarray(m.ranges)).any(), 'the scanner sees nothing of the world'
+    mounts = wait_for(lambda: [t for msg in statics.msgs for t in msg.transforms
+                               if t.child_frame_id == 'site_lidar_link'], 10, 'the scanner\'s pose on /tf_static')
+    x, y, z, yaw = spec.SITE_LIDAR_POSE
+    t = mounts[0].transform
+    assert mounts[0].header.frame_id == 'world'
+    assert (t.translation.x, t.translation.y, t.translation.z) == pytest.approx((x, y, z), abs=1e-6)
+    assert 2 * math.atan2(t.rotation.z, t.rotation.w) == pytest.approx(yaw, abs=1e-6)
+    set_device(rospy_client, 'site_lidar', 'unplugged', 'crash')
+    wait_for(lambda: not drv.alive(), 5, 'the site lidar driver to exit on its cable')
+    assert drv.returncode not in (0, None) and 'device disconnected' in drv.log()
+    set_device(rospy_client, 'site_lidar', 'plugged')
 
 
 def test_unplug_stall_keeps_driver_alive_and_silent(procs, rospy_client, collect):

@@ -1,16 +1,18 @@
-"""The three sensor drivers: D435 (RGB-D), Hokuyo UTM-30LX and SICK LMS511 (2D lasers)."""
+"""The sensor drivers: D435 (RGB-D), Hokuyo UTM-30LX and SICK LMS511 (2D lasers) on the robot, and the
+site LIDAR, a 2D laser fixed in the lab."""
 from __future__ import annotations
 
 import numpy as np
 import rospy
 from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from vaultbot_sim.driver import DriverBase
 from vaultbot_sim.render_worker import RenderWorker
-from vaultbot_sim.rosmsgs import DepthProjector, camera_info, cloud_message, image_message, scan_message
+from vaultbot_sim.rosmsgs import DepthProjector, camera_info, cloud_message, image_message, scan_message, tf_message
 from vaultbot_sim.scene import Intrinsics
-from vaultbot_sim.spec import D435, HOKUYO, SICK, LaserSpec
+from vaultbot_sim.spec import D435, HOKUYO, SICK, SITE_LIDAR, SITE_LIDAR_POSE, LaserSpec
 
 
 class LaserDriver(DriverBase):
@@ -24,8 +26,11 @@ class LaserDriver(DriverBase):
         self.threads = int(rospy.get_param('~ray_threads', 1))
         self.angles = self.spec.angle_min + np.arange(self.spec.beams) * self.spec.angle_increment
 
+    def sensor_pose(self) -> np.ndarray:
+        return self.scene.robot_link_pose(self.spec.frame)
+
     def publish(self, stamp: rospy.Time) -> None:
-        pose = self.scene.robot_link_pose(self.spec.frame)
+        pose = self.sensor_pose()
         ranges = self.scene.laser(pose, self.angles, self.spec.range_min, self.spec.range_max, self.threads)
         self.pub.publish(scan_message(self.spec, ranges, Header(stamp=stamp, frame_id=self.frame_prefix + self.spec.frame)))
 
@@ -40,6 +45,28 @@ class SickDriver(LaserDriver):
     device = 'sick'
     spec = SICK
     topic = 'sick/scan'
+
+
+class SiteLidarDriver(LaserDriver):
+    """A scanner on a post in the lab: its pose is fixed in the world, and it says so on /tf_static itself,
+    so a station that runs it can draw its scans while the robot's link is down (the robot's static frames
+    are latched there already)."""
+    device = 'site_lidar'
+    spec = SITE_LIDAR
+    topic = 'site_lidar/scan'
+
+    def __init__(self):
+        super().__init__()
+        x, y, z, yaw = SITE_LIDAR_POSE
+        self.pose = np.eye(4)
+        self.pose[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+        self.pose[:3, 3] = (x, y, z)
+        self.tf_static = rospy.Publisher('/tf_static', TFMessage, queue_size=1, latch=True)
+        self.tf_static.publish(tf_message([(self.frame_prefix + 'world', self.frame_prefix + self.spec.frame,
+                                            self.pose)], rospy.Time.now()))
+
+    def sensor_pose(self) -> np.ndarray:
+        return self.pose
 
 
 class D435Driver(DriverBase):

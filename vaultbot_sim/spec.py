@@ -24,7 +24,7 @@ HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
 SWEEP_JOINT = 'right_wrist_3_joint'
 PERSON_JOINT = 'person_shoulder_joint'
 
-DEVICES = ('d435', 'hokuyo', 'sick')
+DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar')
 STATES = ('plugged', 'unplugged')
 MODES = ('crash', 'stall')
 
@@ -53,6 +53,10 @@ class LaserSpec:
 
 HOKUYO = LaserSpec('hokuyo_link', 270.0, 0.25, 40.0, 0.1, 30.0)                   # 1081 beams
 SICK = LaserSpec('sick_link', 190.0, 190.0 / 1140, 25.0, 0.1, 80.0)                # 1141 beams (0.1667 deg)
+# Not on the robot: a 2D scanner on a post in the lab's far corner, looking at the robot, wired to the
+# operator's station (two hosts: it stays in reach when the robot's link fails).
+SITE_LIDAR = LaserSpec('site_lidar_link', 270.0, 0.5, 20.0, 0.1, 30.0)             # 541 beams
+SITE_LIDAR_POSE = (4.6, -3.0, 0.5, 2.563)      # x, y, z (m) and yaw (rad) in the robot's world frame
 
 
 @dataclass(frozen=True)

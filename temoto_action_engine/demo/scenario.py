@@ -34,6 +34,8 @@ from . import topics as T
 
 # --priority names -> (index in action_engine.yaml's sensor_priority, device to unplug, screenshot name)
 PRIORITY_ENTRIES = OrderedDict([('rgbd', (0, 'd435')), ('arm_cloud', (1, 'hokuyo')), ('base_scan', (2, 'sick'))])
+# --hosts 2: the station's own sensor (config/station_view.yaml), after the robot's entries
+STATION_ENTRY = 3
 PRIORITY_PARAM = '/temoto_action_engine/actions/show_environment/sensor_priority'
 STANDBY_PARAM = '/temoto_action_engine/actions/show_environment/standby'
 INSTRUCTION = 'show the environment'
@@ -199,7 +201,9 @@ class Demo:
         return env
 
     def _priority_override(self, default: list) -> list:
-        return [default[PRIORITY_ENTRIES[name][0]] for name in self.opts.priority]
+        """The entries of ``--priority``; on two hosts, then the station's own sensor (the lab's fixed scanner)."""
+        robot = [default[PRIORITY_ENTRIES[name][0]] for name in self.opts.priority]
+        return robot + ([default[STATION_ENTRY]] if self.opts.hosts == 2 else [])
 
     def _overrides(self, params: dict) -> dict:
         """The engine's parameters this run sets: the view's priority list and its standby policy."""
@@ -254,7 +258,8 @@ class Demo:
         self._leave_operator_host = self.hosts.enter(operator)
         self.progress.line('two hosts: robot %s (roscore, simulation, drivers), operator %s (engine, RViz)'
                            % (robot.address, operator.address))
-        args = ['robot:=' + self.opts.robot] + launch_args
+        args = ['robot:=' + self.opts.robot, 'station_sensors:=true',
+                'station_catalogue:=' + self._station_catalogue(workdir)] + launch_args
         robot_launch = os.path.join(LAUNCH_DIR, 'robot.launch')
         operator_launch = os.path.join(LAUNCH_DIR, 'operator.launch')
         _, params = load_launch(operator_launch, _declared_args(operator_launch, args))
@@ -265,6 +270,22 @@ class Demo:
             self._stack(operator_launch, self._env(operator), os.path.join('logs', 'operator'),
                         _declared_args(operator_launch, args), overrides,
                         wrap=lambda argv: self.hosts.argv(operator, argv))]
+
+    def _station_catalogue(self, workdir: str) -> str:
+        """The station's catalogue (temoto_sensor_manager config/station.yaml), its scanner joined to this run's
+        robot: the file names the robot whose simulated lab the scanner stands in."""
+        import yaml
+        import temoto_sensor_manager
+        src = os.path.join(os.path.dirname(temoto_sensor_manager.__file__), 'config', 'station.yaml')
+        with open(src) as f:
+            catalogue = yaml.safe_load(f)
+        robot = self.opts.robot
+        for entry in catalogue['sensors']:
+            entry['args'] = 'sim_ns:=/%s/vaultbot_sim joint_states:=/%s/joint_states' % (robot, robot)
+        path = os.path.join(workdir, 'station.yaml')
+        with open(path, 'w') as f:
+            yaml.safe_dump(catalogue, f)
+        return path
 
     def _init_rospy(self, env: Dict[str, str]) -> None:
         for key in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
@@ -338,20 +359,29 @@ class Demo:
         self.screenshots.append(path)
         return path
 
-    def _unplug(self, device: str, mode: str) -> None:
+    def set_device(self, device: str, plugged: bool, mode: str = '') -> None:
+        """Plug ``device``'s cable in or pull it (``mode``: crash or stall) in the simulation."""
         import rospy
         from vaultbot_sim.srv import SetDeviceState
-        resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(device=device, state='unplugged', mode=mode)
+        state = 'plugged' if plugged else 'unplugged'
+        resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(
+            device=device, state=state, mode='' if plugged else mode)
         if not resp.success:
-            raise RuntimeError('the simulation refused to unplug %s: %s' % (device, resp.message))
+            raise RuntimeError('the simulation refused to set %s %s: %s' % (device, state, resp.message))
 
-    def scenario(self) -> None:
+    def show_first_view(self) -> str:
+        """Say the instruction and wait for the first priority entry on screen; its topic."""
         from std_msgs.msg import String
-        timeout = self.opts.stage_timeout
         labels = [e['label'] for e in self._priority_override_labels()]
         since = time.monotonic()
         self._mark('say', text=INSTRUCTION)
         self.chatter.publish(String(data=INSTRUCTION))
+        return self.watcher.wait_stage(0, since, self.opts.stage_timeout, labels[0])
+
+    def scenario(self) -> None:
+        timeout = self.opts.stage_timeout
+        labels = [e['label'] for e in self._priority_override_labels()]
+        since = time.monotonic()
         for k, name in enumerate(self.opts.priority):
             if k > 0:
                 prev = self.opts.priority[k - 1]
@@ -362,14 +392,16 @@ class Demo:
                     what = '%s on screen after unplugging %s (%s) while the Sensor Manager was down' % (
                         labels[k], device, mode)
                 else:
-                    self._wait_standby(k, timeout)
+                    self.wait_standby(k, timeout)
                     since = time.monotonic()
                     self._mark('unplug', device=device, mode=mode)
-                    self._unplug(device, mode)
+                    self.set_device(device, False, mode)
                     what = '%s on screen after unplugging %s (%s)' % (labels[k], device, mode)
-            else:
+            if k == 0:
+                topic = self.show_first_view()
                 what = '%s on screen after "%s"' % (labels[k], INSTRUCTION)
-            topic = self.watcher.wait_stage(k, since, timeout, labels[k])
+            else:
+                topic = self.watcher.wait_stage(k, since, timeout, labels[k])
             self._mark('on_screen', priority_index=k, entry=name, topic=topic)
             self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
             self.progress.line(what)
@@ -385,30 +417,44 @@ class Demo:
         if self.opts.replug:
             self._replug(labels[0], timeout)
         if self.hosts is not None:
-            self._partition(len(self.opts.priority) - 1, labels[-1])
+            last = len(self.opts.priority) - 1
+            self._partition(last, labels[last], labels[last + 1] if last + 1 < len(labels) else '')
         self._empty_view()
 
     # ------------------------------------------------------------------ --hosts 2
-    def _partition(self, index: int, label: str) -> None:
-        """Cut the cable between the hosts while the last view is up: the action must hear FAILED within the
-        owner liveness bound and take the frozen view off screen; plug it back: the view must come back
-        (the action retries from the top of its list, and the cut sensor was released, not kept)."""
+    def _partition(self, index: int, label: str, station_label: str) -> None:
+        """Cut the cable between the hosts while the robot's last view is up: the action must hear FAILED within
+        the owner liveness bound. The station's own scanner (``station_label``) comes next in its list: under
+        hot standby it already streams into a hidden display, and it is shown within the failover; under the
+        other policies it cannot start while the robot's master is across the cut, and the frozen view goes
+        off screen. Plug the cable back: the robot's view must come back (a fail-back, or a retry), and the
+        cut sensor was released, not kept."""
+        hot_station = bool(station_label) and self.opts.standby == 'hot'
+        if hot_station:
+            self.wait_standby(index + 1, self.opts.stage_timeout)
         since = time.monotonic()
         self._mark('link_down')
         self.hosts.link(False)
         failed = self.watcher.wait_action(lambda e: e.get('event') == 'sensor_failed', since, self.opts.stage_timeout,
                                           'the FAILED of the %s after the link was cut' % label)
-        self.watcher.wait_removed(since, self.opts.stage_timeout)
         heard = failed['arrival'] - since
-        self.progress.line('link cut: the action heard FAILED in %.2f s, view taken off screen' % heard)
+        result = {'failed_heard_s': heard, 'message': failed.get('message', '')}
+        if hot_station:
+            self.watcher.wait_stage(index + 1, since, self.opts.stage_timeout, station_label)
+            result['station_view_s'] = time.monotonic() - since
+            self._mark('on_screen', priority_index=index + 1, entry='station')
+            self.progress.line('link cut: FAILED heard in %.2f s; the %s (station) on screen'
+                               % (heard, station_label))
+        else:
+            self.watcher.wait_removed(since, self.opts.stage_timeout)
+            self.progress.line('link cut: the action heard FAILED in %.2f s, view taken off screen' % heard)
         healed = time.monotonic()
         self._mark('link_up')
         self.hosts.link(True)
         self.watcher.wait_stage(index, healed, self.opts.stage_timeout, label)
-        back = time.monotonic() - healed
+        result['view_back_s'] = time.monotonic() - healed
         self._mark('link_restored', priority_index=index)
-        self.results['partition'] = {'failed_heard_s': heard, 'message': failed.get('message', ''),
-                                     'view_back_s': back}
+        self.results['partition'] = result
         self.progress.line('link plugged back: %s on screen again' % label)
 
     # ------------------------------------------------------------------ --kill-managers
@@ -449,7 +495,7 @@ class Demo:
         mode = self.opts.modes.get(device, 'crash')
         self._mark('unplug', device=device, mode=mode, while_down=SENSOR_MANAGER)
         self.unplugged_while_down[device] = time.monotonic()
-        self._unplug(device, mode)
+        self.set_device(device, False, mode)
         self.progress.line('unplugged %s (%s) while %s is down' % (device, mode, SENSOR_MANAGER))
         return device
 
@@ -513,16 +559,11 @@ class Demo:
     def _replug(self, label: str, timeout: float) -> None:
         """Plug the first device back: the action tries it again (its wait doubles up to failback_max_s), holds it
         hidden for failback_hold_s, and shows it again by a visibility change."""
-        import rospy
-        from vaultbot_sim.srv import SetDeviceState
         name = self.opts.priority[0]
         device = PRIORITY_ENTRIES[name][1]
         since = time.monotonic()
         self._mark('replug', device=device)
-        resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(device=device, state='plugged',
-                                                                                   mode='')
-        if not resp.success:
-            raise RuntimeError('the simulation refused to plug %s back: %s' % (device, resp.message))
+        self.set_device(device, True)
         self.watcher.wait_action(lambda e: e.get('event') == 'failback' and e.get('priority_index') == 0, since,
                                  timeout, 'the fail-back to the %s' % label)
         topic = self.watcher.wait_stage(0, since, timeout, label)
@@ -530,7 +571,7 @@ class Demo:
         self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
         self.progress.line('%s on screen again after plugging %s back (fail-back)' % (label, device))
 
-    def _wait_standby(self, index: int, timeout: float) -> None:
+    def wait_standby(self, index: int, timeout: float) -> None:
         """Under warm and hot, unplug only once the spare for entry ``index`` runs (and, hot, its hidden display
         holds data): a failure that comes before the spare is ready is a cold failover, whatever the policy."""
         if self.opts.standby == 'cold':
@@ -594,6 +635,8 @@ class Demo:
     # ------------------------------------------------------------------ teardown
     def stop(self) -> List[tuple]:
         from temoto_core.processes import kill_leftovers, leftover_processes
+        if self.hosts is not None:
+            self.hosts.link(True)     # a stage that failed during a cut: the nodes stop over a working link
         if self.recording is not None:
             try:
                 self.recording.stop()
@@ -633,9 +676,15 @@ class Demo:
         return leftovers
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run_demo(opts: DemoOptions) -> int:
     demo = Demo(opts)
     rc = 0
+    # a SIGTERM (a CI job's timeout, kill) stops the run as Ctrl-C does: every process and namespace goes
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     print('temoto demo: the paper\'s sensor failover; run folder %s (%s)'
           % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
     try:
@@ -655,6 +704,7 @@ def run_demo(opts: DemoOptions) -> int:
     finally:
         if demo.stop():
             rc = rc or 1
+        signal.signal(signal.SIGTERM, previous)
     if opts.report and os.path.exists(demo.bag_path):
         from .report import write_report
         try:

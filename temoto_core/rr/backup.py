@@ -37,7 +37,6 @@ it is only in the journal, which writes it at once.
 import base64
 import dataclasses
 import json
-import socket
 import threading
 import time
 from typing import Callable, Dict, List, Optional, Set, Tuple
@@ -45,6 +44,7 @@ from typing import Callable, Dict, List, Optional, Set, Tuple
 import rosgraph
 import rospy
 
+from temoto_core.rr.deadlines import call_once
 from temoto_core.rr.journal import JournalContents, JournaledConsumer, JournaledHold, JournaledServed
 from temoto_core.rr.messages import as_sent
 from temoto_core.rr.query import ClientQuery, ServerQuery, target_name
@@ -103,7 +103,7 @@ def gather(namespace: str, name: str, node: str, new_id: Callable[[], int], serv
     owner_state: Dict[str, str] = {}
     answered: Set[str] = set()
     wanted = [s for s in services if s.endswith('/registry') and s != mine]
-    for snapshot in _registries(node, wanted, timeout):
+    for snapshot in _registries(wanted, timeout):
         theirs = (snapshot['namespace'], snapshot['name'])
         their_topic = '/%s/%s/status' % theirs
         if not snapshot.get('recovering', False):
@@ -231,16 +231,15 @@ def reconcile(journal: JournalContents, kept: Kept) -> Reconciled:
     return Reconciled(contents, stale, len(added_served), len(added_holds), lost)
 
 
-def _registries(node: str, services: List[str], timeout: float) -> List[dict]:
+def _registries(services: List[str], timeout: float) -> List[dict]:
     """The registries behind ``services``, asked all at once; one that does not answer within ``timeout`` is
     left out. A registration left by a dead registrar is refused at once, so it costs nothing."""
     found: Dict[str, dict] = {}
 
     def ask(service: str) -> None:
         try:
-            host, port = rospy.core.parse_rosrpc_uri(rosgraph.Master(node).lookupService(service))
-            socket.create_connection((host, port), timeout=min(timeout, 0.5)).close()
-            found[service] = json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+            # bounded as a whole, so that a stopped neighbour does not keep this thread for ever
+            found[service] = json.loads(call_once(service, GetRegistry, GetRegistry._request_class(), timeout).json)
         except Exception as err:       # gone, refused, not a registry: nothing to rebuild from there
             rospy.logdebug('rebuilding from neighbours: %s did not answer (%s)', service, err)
     threads = [threading.Thread(target=ask, args=(s,), daemon=True, name='rr-backup-ask') for s in services]

@@ -31,6 +31,7 @@ import itertools
 import socket
 import threading
 import time
+import xmlrpc.client
 from typing import Dict, Iterator, List, Optional, Set, Tuple
 
 import rosgraph
@@ -173,6 +174,31 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
         raise rospy.ServiceException('unable to connect to %s at %s: %s' % (service, uri, err)) from err
     proxy.transport = transport
     return proxy
+
+
+def call_once(service: str, srv_class, request, seconds: float):
+    """One call to ``service`` on a connection of its own, connected and answered within ``seconds``.
+
+    For the few reads that are not registrar calls (a manager's catalogue, say) and so have no pooled
+    connection. Raises ``rospy.ServiceException`` if the service is unknown, out of reach or late.
+    """
+    deadline = time.monotonic() + seconds
+    try:
+        proxy = connect(service, srv_class, deadline)
+    except (OSError, xmlrpc.client.Error) as err:
+        raise rospy.ServiceException('%s could not be reached within %.2f s: %s' % (service, seconds, err)) from err
+    if proxy is None:
+        raise rospy.ServiceException('%s is not known to the master' % service)
+    guard = None
+    try:
+        with WATCH.guard(proxy.transport.socket, deadline, '') as guard:
+            return proxy.call(request)
+    except (rospy.ServiceException, rospy.ROSException, OSError) as err:
+        if guard is not None and guard.expired:
+            raise rospy.ServiceException('%s did not answer within %.2f s' % (service, seconds)) from err
+        raise
+    finally:
+        proxy.close()
 
 
 # ---------------------------------------------------------------------------------------------- per type

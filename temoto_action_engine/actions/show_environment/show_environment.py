@@ -48,6 +48,9 @@ from temoto_core.fallback import NoCandidateLeft, first_that_works
 RELEASE_JOIN_S = 30.0   # on_stop waits this long for each background release (an unload is bounded itself)
 GUESS_JOIN_S = 30.0     # how long the right guess may still take once the sensor is up
 CATALOGUE_TIMEOUT_S = 0.5
+# where an entry's sensor is asked for: the robot's Sensor Manager (the action's robot, or the engine's own when
+# there is none), or the station's (the engine's own namespace: a sensor wired to the operator's station)
+SENSOR_MANAGERS = ('robot', 'station')
 
 # what the run loop holds, and its timers
 ACTIVE, SPARE, BETTER = 'active', 'standby', 'failback candidate'
@@ -73,6 +76,7 @@ class SensorChoice:
     display_type: str
     display_key: str
     display_config: str = ''     # RViz properties (YAML) for the display, e.g. point size and colour
+    station: bool = False        # served by the operator's station's Sensor Manager, not the robot's
 
 
 @dataclass
@@ -182,8 +186,12 @@ def parse_priority(raw) -> list[SensorChoice]:
         elif not isinstance(config, str):
             raise ActionError('sensor_priority[%d].display_config must be a mapping of RViz properties or YAML, '
                               'got %r' % (i, config))
+        where = e.get('sensor_manager', 'robot')
+        if where not in SENSOR_MANAGERS:
+            raise ActionError('sensor_priority[%d].sensor_manager must be one of %s, got %r'
+                              % (i, ', '.join(SENSOR_MANAGERS), where))
         out.append(SensorChoice(str(e.get('label', e['sensor_type'])), e['sensor_type'], tuple(keys),
-                                e['display_type'], key, config))
+                                e['display_type'], key, config, where == 'station'))
     return out
 
 
@@ -205,7 +213,6 @@ class ShowEnvironment(ActionBase):
         self.source_backoff = [Backoff(self.policy.failback_check_s, self.policy.failback_max_s,
                                        self.policy.quarantine_after, self.policy.quarantine_s) for _ in self.priority]
         self.releases: list[threading.Thread] = []   # background releases of failed sensors
-        self.smi = self.sensor_manager
         self.omi = self.output_manager
         self.activate_from(0, 'start')     # sets the output 'topic' when a sensor is up (children start after this)
 
@@ -449,14 +456,15 @@ class ShowEnvironment(ActionBase):
         """
         choice = self.priority[i]
         keys = list(choice.output_topics)
-        rows = [r for r in self.smi.ranked_sensors(choice.sensor_type, keys, CATALOGUE_TIMEOUT_S)
+        smi = self.smi_for(choice)
+        rows = [r for r in smi.ranked_sensors(choice.sensor_type, keys, CATALOGUE_TIMEOUT_S)
                 if r.get('name') not in avoid]
         if not rows:
             raise ActionError('no %s with %s other than %s' % (choice.sensor_type, ', '.join(keys),
                                                                ', '.join(sorted(avoid)) or 'none'))
-        result = self.smi.start_sensor(choice.sensor_type, output_topics={k: '' for k in keys},
-                                       package_name=str(rows[0].get('package', '')),
-                                       executable=str(rows[0].get('executable', '')), on_status=self.post)
+        result = smi.start_sensor(choice.sensor_type, output_topics={k: '' for k in keys},
+                                  package_name=str(rows[0].get('package', '')),
+                                  executable=str(rows[0].get('executable', '')), on_status=self.post)
         topic = dict(result.output_topics).get(choice.display_key, '')
         display_id = None
         try:
@@ -467,7 +475,7 @@ class ShowEnvironment(ActionBase):
             if hidden:
                 display_id = self.show(choice, topic, hidden=True)
         except Exception:
-            self._stop_sensor(result.resource_id)
+            self._stop_sensor(choice, result.resource_id)
             raise
         return Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
 
@@ -480,7 +488,10 @@ class ShowEnvironment(ActionBase):
         held, a = p.held, self.active
         if held is None:
             if p.role == BETTER:
-                self.log_info('no better sensor works yet (%s)' % p.why)
+                # each try is told, so the timeline shows the backoff at work (a flapping cable, a dead one)
+                self.event('failback_unavailable', message=p.why, priority_indexes=list(p.failed),
+                           retry_in_s=round(max(0.0, min((self.source_backoff[i].not_before for i in p.failed),
+                                                         default=now) - now), 3))
             if p.role == SPARE:
                 self.event('standby_unavailable', message=p.why, standby=self.policy.standby.value)
                 self._retry_spare_later()
@@ -522,8 +533,15 @@ class ShowEnvironment(ActionBase):
 
     def show(self, choice: SensorChoice, topic: str, hidden: bool = False):
         """A display of ``topic`` whose failures come to this action's run loop."""
-        return self.omi.show_in_rviz(choice.display_type, topic, name=choice.label, config=choice.display_config,
-                                     on_status=self.post, hidden=hidden)
+        return self.omi.show_in_rviz(choice.display_type, topic, name=self.display_name(choice),
+                                     config=choice.display_config, on_status=self.post, hidden=hidden)
+
+    def display_name(self, choice: SensorChoice) -> str:
+        """The entry's label, and the robot's name when the view is of a named robot: one station shows
+        several robots, and RViz's display names must differ (the Output Manager refuses a taken name)."""
+        robot = self.input('robot')
+        return '%s (%s)' % (choice.label, robot.strip('/')) if isinstance(robot, str) and robot.strip('/') \
+            else choice.label
 
     def activate_from(self, start: int, via: str) -> None:
         """Bring up the first entry from ``start`` on that works (``via``: why, for the event); on none,
@@ -567,8 +585,8 @@ class ShowEnvironment(ActionBase):
         choice = self.priority[i]
         guess = SpeculativeDisplay(self, choice) if self.speculative else None
         try:
-            result = self.smi.start_sensor(choice.sensor_type, output_topics={k: '' for k in choice.output_topics},
-                                           on_status=self.post)
+            result = self.smi_for(choice).start_sensor(
+                choice.sensor_type, output_topics={k: '' for k in choice.output_topics}, on_status=self.post)
         except Exception as e:
             if guess is not None:
                 guess.discard()
@@ -585,7 +603,7 @@ class ShowEnvironment(ActionBase):
         except Exception as e:
             self.event('display_failed', sensor_name=result.sensor_name, label=choice.label,
                        priority_index=i, message=str(e))
-            self._stop_sensor(result.resource_id)
+            self._stop_sensor(choice, result.resource_id)
             raise
         return Active(i, choice, result.sensor_name, result.resource_id, topic, display_id)
 
@@ -621,7 +639,7 @@ class ShowEnvironment(ActionBase):
     def _release(self, a: Active) -> None:
         if a.display_id is not None:
             self.hide_display(a.display_id, '%s (%s)' % (a.choice.label, a.sensor_name))
-        self._stop_sensor(a.resource_id)
+        self._stop_sensor(a.choice, a.resource_id)
 
     def hide_display(self, display_id, what: str) -> None:
         try:
@@ -631,11 +649,16 @@ class ShowEnvironment(ActionBase):
 
     def likely_topic(self, choice: SensorChoice) -> str:
         """The topic ``choice``'s display will most likely show: the Sensor Manager's catalogue ranking."""
-        topics = self.smi.likely_topics(choice.sensor_type, list(choice.output_topics), CATALOGUE_TIMEOUT_S)
+        topics = self.smi_for(choice).likely_topics(choice.sensor_type, list(choice.output_topics),
+                                                    CATALOGUE_TIMEOUT_S)
         return (topics or {}).get(choice.display_key, '')
 
-    def _stop_sensor(self, resource_id) -> None:
+    def smi_for(self, choice: SensorChoice):
+        """The Sensor Manager interface that serves ``choice``: the robot's or the station's."""
+        return self.station_sensor_manager if choice.station else self.sensor_manager
+
+    def _stop_sensor(self, choice: SensorChoice, resource_id) -> None:
         try:
-            self.smi.stop_sensor(resource_id)
+            self.smi_for(choice).stop_sensor(resource_id)
         except Exception as e:
             self.log_warn('stopping sensor resource %s: %s' % (resource_id, e))
