@@ -60,6 +60,18 @@ class Operator:
         with self.lock:
             return [e for e in self.events if e.get('event') == kind and e.get('graph') == graph]
 
+    def wait_event(self, kind: str, graph: str, timeout: float, what: str) -> list:
+        """The graph's ``kind`` events, once there is one. A graph that ends first fails the test at once
+        with its reason and the events it sent, rather than as a bare timeout."""
+        def seen():
+            got = self.of(kind, graph)
+            if not got and self.of('graph_finished', graph):
+                with self.lock:
+                    sent = [e for e in self.events if e.get('graph') == graph]
+                raise AssertionError('the graph ended before %s: %s' % (what, sent))
+            return got
+        return wait_for(seen, timeout, what)
+
     def close(self):
         for sub in self.subs:
             sub.unregister()
@@ -110,7 +122,7 @@ def test_track_the_hand_and_show_it_on_the_screen_draws_the_hand_pose(clean, tmp
     """The README's example: the pose display exists, and the hand's pose arrow is on screen."""
     op = clean
     graph = op.say('track the hand and show it on the screen')
-    showing = wait_for(lambda: op.of('showing', graph), 60, 'the show action to put the pose on screen')
+    showing = op.wait_event('showing', graph, 60, 'the show action to put the pose on screen')
     assert showing[0]['display_type'] == 'pose'
     tracking = op.of('tracking', graph)[0]
     assert showing[0]['topic'] == tracking['topic']
@@ -132,7 +144,7 @@ def test_a_camera_crash_under_track_object_ends_the_graph_failed_with_the_reason
     used to stay RUNNING after the interface's reload gave up in a log line)."""
     op = clean
     graph = op.say('track the hand')
-    wait_for(lambda: op.of('tracking', graph), 60, 'tracking')
+    op.wait_event('tracking', graph, 60, 'tracking')
     set_cable('d435', 'unplugged', 'crash')
     finished = wait_for(lambda: (lambda g: g['state'] != 'RUNNING' and g)(op.graph(graph)), 60,
                         'the graph to end')
@@ -153,10 +165,10 @@ def test_an_rviz_host_crash_reaches_show_environment_which_shows_the_same_sensor
     action holds nothing stale afterwards."""
     op = clean
     graph = op.say('show the environment')
-    active = wait_for(lambda: op.of('sensor_active', graph), 60, 'the first view')
+    active = op.wait_event('sensor_active', graph, 60, 'the first view')
     pid = wait_for(host_pid, 30, 'the RViz host')
     os.kill(pid, signal.SIGKILL)
-    restored = wait_for(lambda: op.of('display_restored', graph), 60, 'the display shown again')
+    restored = op.wait_event('display_restored', graph, 60, 'the display shown again')
     assert restored[0]['sensor_name'] == active[0]['sensor_name']
     failed = op.of('sensor_failed', graph)
     assert failed and failed[0]['failed_part'] == 'display'

@@ -131,6 +131,7 @@ def test_two_cameras_of_one_driver_each_publish_every_topic_on_their_own_names(s
     sm.stop_sensor(second.resource_id)
 
 
+@pytest.mark.alone
 def test_three_rendering_sensors_beside_two_cpu_hogs_raise_no_false_failed(smi):
     """The adaptive stall limit (arrivals.py) must stay above a loaded machine's own gaps: the three sensors
     started and held beside two busy loops (their rhythm learnt under that load, as bench_stall.py does),
