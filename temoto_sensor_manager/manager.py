@@ -47,6 +47,9 @@ SUB = Subsystem.SENSOR_MANAGER
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
 SENSOR_KEY = 'sensor/%d'              # owner state: the driver process of a served sensor, by internal id
+# seconds beyond its stall limit that a driver already seen stalling (and shared again) gets to show data
+# again: the new subscription's connection on a loaded machine; its start-up allowance does not apply
+STALLED_RECHECK_S = 1.0
 
 
 def probe_of(spec: TopicSpec, topic: str, on_first=None) -> TopicProbe:
@@ -80,10 +83,12 @@ class _Attempt:
 class _Held:
     """An active sensor query: what runs it and what watches it."""
 
-    def __init__(self, internal_id: int, entry: SensorEntry, process_id: int, probes: List[TopicProbe]) -> None:
+    def __init__(self, internal_id: int, entry: SensorEntry, process_id: int, probes: List[TopicProbe],
+                 pid: int = 0) -> None:
         self.internal_id = internal_id
         self.entry = entry
         self.process_id = process_id
+        self.pid = pid              # the driver's pid (0: not known, a sensor taken back after a restart)
         self.probes = probes
         self.failed = False
         for probe in probes:
@@ -106,6 +111,9 @@ class SensorManager:
         self._by_process: Dict[int, _Held] = {}      # load_process local id -> held sensor
         self._attempts: Dict[int, _Attempt] = {}     # load_process local id -> candidate being started
         self._early_failures: Dict[int, str] = {}    # FAILED that overtook our bookkeeping
+        # driver pid -> the stall it showed, while it runs and has sent nothing here since: a load that is
+        # given that driver again (an equal request shares it) waits its stall limit, not its start-up
+        self._stalled: Dict[int, str] = {}
         self.watchdog = Watchdog(self._on_stall)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
@@ -186,9 +194,14 @@ class SensorManager:
             early = self._early_failures.pop(process_id, None)
         if early is not None:
             attempt.fail(early)
+        with self._lock:
+            stalled = self._stalled.get(started.pid, '')
         try:
             limit = max(entry.output_topics[key].first_data_limit(self.first_data_allowance, self.first_data_timeout)
                         for key in launch.topics)
+            if stalled:
+                limit = min(limit, STALLED_RECHECK_S + max(entry.output_topics[key].silence_limit()
+                                                           for key in launch.topics))
             deadline = time.monotonic() + limit
             with attempt.cond:
                 while not attempt.failure and not all(p.first.is_set() for p in probes):
@@ -200,6 +213,10 @@ class SensorManager:
                 raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed before '
                                   'data arrived: %s' % (entry.name, started.pid, attempt.failure))
             silent = [p.topic for p in probes if not p.first.is_set()]
+            if silent and stalled:
+                raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s; its driver (pid %d) '
+                                  'runs, and has sent nothing since it stalled (%s)' % (
+                                      entry.name, ', '.join(silent), limit, started.pid, stalled))
             if silent:
                 raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
                                   '(pid %d) started' % (entry.name, ', '.join(silent), limit,
@@ -216,9 +233,10 @@ class SensorManager:
                 self._attempts.pop(process_id, None)
             self._release(process_id, 'stopping failed candidate %s' % entry.name)
             raise
-        held = _Held(internal_id, entry, process_id, probes)
+        held = _Held(internal_id, entry, process_id, probes, pid=started.pid)
         with self._lock:
             # in one step, so a FAILED of the process finds either the attempt or the held sensor
+            self._stalled.pop(started.pid, None)        # its data flows again
             self._attempts.pop(process_id, None)
             self._held[internal_id] = held
             self._by_process[process_id] = held
@@ -236,6 +254,8 @@ class SensorManager:
             held = self._held.pop(res.trr.resource_id, None)
             if held is not None:
                 self._by_process.pop(held.process_id, None)
+                if not any(h.pid == held.pid for h in self._held.values()):
+                    self._stalled.pop(held.pid, None)     # its driver goes: a later one is a new process
         self.rr.drop_owner_state(SENSOR_KEY % res.trr.resource_id)
         if held is None:
             return
@@ -290,6 +310,8 @@ class SensorManager:
             held = self._by_process.get(event.resource_id)
             if attempt is None and held is None:
                 self._early_failures[event.resource_id] = event.message
+            if held is not None:
+                self._stalled.pop(held.pid, None)         # it exited: not a stalled driver any more
         if attempt is not None:
             attempt.fail(event.message)
         if held is not None:
@@ -301,6 +323,9 @@ class SensorManager:
             return
         message = ('sensor %s stalled: no message on %s for %.3f s (%s)'
                    % (held.entry.name, probe.topic, silence, probe.describe_limit(limit)))
+        if held.pid:
+            with self._lock:
+                self._stalled[held.pid] = message
         self._mark_failed(held, message, report=True)
 
     def _mark_failed(self, held: _Held, message: str, report: bool) -> None:

@@ -147,6 +147,32 @@ def test_stall_is_reported_within_its_limit_and_the_stalled_driver_is_stopped(sm
     wait_for(lambda: pid_gone(pid), 10, 'the stalled driver to be stopped')  # ... until its consumer lets go
 
 
+def test_a_driver_seen_stalling_is_refused_within_its_stall_limit_until_its_data_comes_back(smi):
+    """An equal request shares the stalled driver that a holder keeps: it is not given the driver's start-up
+    allowance again (it used to wait 4.3 s for the D435 each time), but its stall limit and a
+    connection's second; once the device publishes again, the same request is served by the same driver."""
+    holder, asker = smi(), smi()
+    events = []
+    holder.register_update_callback(events.append)        # keeps the failed sensor
+    res = holder.start_sensor('fake solo', ['lidar_data'])
+    pid = er_processes()[0]['pid']
+    cables = FakeCables()
+    cables.send('stall', 'solo')
+    wait_for(lambda: failed_events(events), 10, 'the stall FAILED at the holder')
+    with pytest.raises(TemotoError) as refused:
+        asker.start_sensor('fake solo', ['lidar_data'])
+    message = str(refused.value)
+    assert 'has sent nothing since it stalled' in message and 'pid %d' % pid in message, message
+    # waited its stall limit and a connection's second, not the first-data limit (3 s in this module)
+    stall_limit = catalogue()['fake_solo']['output_topics']['lidar_data']['stall_limit']
+    assert 'within %.1f s' % (stall_limit + 1.0) in message, message
+    cables.send('resume', 'solo')
+    again = asker.start_sensor('fake solo', ['lidar_data'])
+    assert er_processes()[0]['pid'] == pid and len(er_processes()) == 1
+    asker.stop_sensor(again.resource_id)
+    holder.stop_sensor(res.resource_id)
+
+
 def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_limit(smi, capsys):
     sm = smi()
     events = []
