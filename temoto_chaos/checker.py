@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List, Optional, Tuple
 
 import psutil
 import rospy
@@ -18,11 +18,14 @@ import rospy
 from temoto_core.srv import GetRegistry
 
 DRIVERS = ('d435_driver', 'hokuyo_driver', 'sick_driver', 'laser_stitcher')
+CONSUMERS = ('throttle',)                  # the clients' own processes (topic_tools), by the kernel's name
+CLIENT_NODE_PREFIX = 'chaos_client_'       # the clients' node names (the runner names each incarnation)
+# the servers whose consumers the clients are: (owner, server, what it serves)
+SERVED = (('sensor_manager', 'start_sensor', 'sensor'), ('er_manager', 'load_process', 'process'))
 READ_TIMEOUT = 2.0
 # a call's deadline (the managers' contracts) and the slack a loaded machine gets before it is a violation
 DEADLINES = {'load': 40.0, 'unload': 15.0}
 DEADLINE_SLACK = 2.0
-START_SENSOR = 'start_sensor'
 
 
 def read_json(service: str, timeout: float = READ_TIMEOUT) -> Optional[dict]:
@@ -48,23 +51,30 @@ class Snapshot:
     er_processes: Optional[dict]
     clients: Dict[int, dict]                 # client index -> its state (the socket's answer)
     client_registries: Dict[int, Optional[dict]]
-    drivers: Dict[int, str]                  # live driver pid -> its name (the kernel's comm)
+    resources: Dict[int, Tuple[str, str]]    # live resource process pid -> (its name, its command line)
+
+
+def resource_processes(pids: List[int]) -> Dict[int, Tuple[str, str]]:
+    """Of ``pids``, the drivers and consumer processes: pid -> (the kernel's name, the command line)."""
+    found = {}
+    for pid in pids:
+        try:
+            proc = psutil.Process(pid)
+            name = proc.name()
+            if name in DRIVERS or name in CONSUMERS:
+                found[pid] = (name, ' '.join(proc.cmdline()))
+        except psutil.Error:
+            continue
+    return found
 
 
 def take(namespace: str, client_states: Dict[int, dict], session_processes: Callable[[], List[int]]) -> Snapshot:
     base = '/%s' % namespace.strip('/')
-    drivers = {}
-    for pid in session_processes():
-        try:
-            name = psutil.Process(pid).name()
-        except psutil.Error:
-            continue
-        if name in DRIVERS:
-            drivers[pid] = name
+    resources = resource_processes(session_processes())
     return Snapshot(read_json(base + '/temoto_sensor_manager/registry'), read_json(base + '/temoto_er_manager/registry'),
                     read_json(base + '/temoto_er_manager/processes'), client_states,
                     {i: read_json('%s/%s/registry' % (base, s['registrar'])) for i, s in client_states.items()},
-                    drivers)
+                    resources)
 
 
 def _settled(snap: Snapshot) -> List[str]:
@@ -86,15 +96,16 @@ def check(snap: Snapshot) -> List[str]:
         return unsettled or ['the ER Manager does not list its processes']
     out: List[str] = []
     listed = {p['pid']: (row, p) for row in snap.er_processes['processes'] for p in row['processes']}
-    # every live driver belongs to a registry entry, and no driver runs twice
-    for pid, name in snap.drivers.items():
+    # every live driver or consumer process belongs to a registry entry, and none runs twice: a driver is one
+    # per device (a forked driver shows its zygote's command line), a consumer one per command line
+    same: Dict[str, List[int]] = {}
+    for pid, (name, cmdline) in snap.resources.items():
         if pid not in listed:
-            out.append('driver %s (pid %d) runs, but no ER Manager entry has it' % (name, pid))
-    names = sorted(snap.drivers.values())
-    for name in set(names):
-        if names.count(name) > 1:
-            out.append('%s runs %d times: %s' % (name, names.count(name), sorted(
-                pid for pid, n in snap.drivers.items() if n == name)))
+            out.append('%s (pid %d) runs, but no ER Manager entry has it' % (name, pid))
+        same.setdefault(name if name in DRIVERS else cmdline, []).append(pid)
+    for what, pids in sorted(same.items()):
+        if len(pids) > 1:
+            out.append('%s runs %d times: %s' % (what, len(pids), sorted(pids)))
     # every ER entry is alive or FAILED: a process the kernel no longer has is known to have exited, and the
     # resource of a process that exited is FAILED (or gone) in the ER Manager's registry
     active_er = {q['internal_id'] for q in snap.er_manager['server_queries'] if q['state'] == 'active'}
@@ -109,44 +120,60 @@ def check(snap: Snapshot) -> List[str]:
     return out
 
 
+def _is_client(node: str) -> bool:
+    return node.rsplit('/', 1)[-1].startswith(CLIENT_NODE_PREFIX)
+
+
 def _holders(snap: Snapshot) -> List[str]:
-    """Acknowledged loads, references and FAILED deliveries, between the Sensor Manager and its consumers."""
+    """Acknowledged loads, references and FAILED deliveries, between the managers and the clients."""
     out = []
-    served = {}          # (client node, external id) -> the Sensor Manager's entry
-    for q in snap.sensor_manager['server_queries']:
-        if q['server'] != START_SENSOR:
-            continue
-        for c in q['consumers']:
-            served[(c['client_name'], c['resource_id'])] = q
-    held = {}            # (client node, external id) -> (client index, local ids, the client's entry state)
     for i, state in snap.clients.items():
         reg = snap.client_registries.get(i)
         if reg is None:
             out.append('client %d (%s) does not answer for its registry' % (i, state['node']))
             continue
-        for cq in reg['client_queries']:
-            if cq['target'].endswith('/' + START_SENSOR):
-                held[(state['node'], cq['external_id'])] = (i, cq['local_ids'], cq['state'])
-        heard_failed = {s['id'] for s in state['statuses'] if s['code'] == 'FAILED'}
         local = {lid for cq in reg['client_queries'] for lid in cq['local_ids']}
         for lid, info in state['held'].items():
             if int(lid) not in local:
                 out.append('client %d: acknowledged load %s (%s) is not in its registry: lost' % (i, lid, info['sensor']))
-        for key, (ci, lids, cstate) in list(held.items()):
-            if ci != i:
+    for owner, server, what in SERVED:
+        out += _served_holders(snap, getattr(snap, owner), server, what)
+    return out
+
+
+def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> List[str]:
+    """One server's references to the clients, against what each client holds of it."""
+    out = []
+    served = {}          # (client node, external id) -> the owner's entry
+    for q in registry['server_queries']:
+        if q['server'] != server:
+            continue
+        for c in q['consumers']:
+            if _is_client(c['client_name']):
+                served[(c['client_name'], c['resource_id'])] = q
+    held = {}            # (client node, external id) -> (client index, local ids, the client's entry state)
+    for i, state in snap.clients.items():
+        reg = snap.client_registries.get(i)
+        if reg is None:
+            continue
+        heard_failed = {s['id'] for s in state['statuses'] if s['code'] == 'FAILED'}
+        for cq in reg['client_queries']:
+            if not cq['target'].endswith('/' + server):
                 continue
+            key = (state['node'], cq['external_id'])
+            held[key] = cq
             q = served.get(key)
             if q is None:
-                if cstate != 'failed':
-                    out.append('client %d holds %s id %d, which the Sensor Manager does not serve it: lost'
-                               % (i, key[0], key[1]))
-            elif q['state'] == 'failed' and not any(lid in heard_failed for lid in lids):
-                out.append('client %d never heard the FAILED of %s (%s)' % (i, q['summary'].get('sensor_type', '?'),
-                                                                          q.get('failure', '')[:120]))
+                if cq['state'] != 'failed':
+                    out.append('client %d holds %s id %d, which is not served to it: lost' % (i, what, key[1]))
+            elif q['state'] == 'failed' and not any(lid in heard_failed for lid in cq['local_ids']):
+                out.append('client %d never heard the FAILED of its %s %s (%s)' % (
+                    i, what, q['summary'].get('sensor_type') or q['summary'].get('executable', '?'),
+                    q.get('failure', '')[:120]))
     for key, q in served.items():
         if key not in held:
-            out.append('the Sensor Manager counts %s id %d as a holder of %s, which holds nothing of it: a leaked '
-                       'reference' % (key[0], key[1], q['summary'].get('sensor_type', '?')))
+            out.append('%s id %d of %s is counted as held by %s, which holds nothing of it: a leaked reference'
+                       % (what, key[1], server, key[0]))
     return out
 
 

@@ -1,4 +1,4 @@
-"""``temoto chaos --seed S --steps N [--until STEP] [--clients K] [--out DIR]``."""
+"""``temoto chaos --seed S --steps N [--until STEP] [--clients K] [--hosts 2] [--history V] [--out DIR]``."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +9,7 @@ from typing import List, Optional
 
 from temoto_core.hosts import unavailable
 
+from .history import CLIENT_OPS, VERSION
 from .runner import ChaosOptions, run_chaos
 
 
@@ -23,6 +24,9 @@ def chaos_main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--hosts', type=int, choices=(1, 2), default=1,
                    help='2: the robot on one host and the clients on the station (network namespaces; needs root), '
                         'with the link cut and healed as a fault')
+    p.add_argument('--history', type=int, default=VERSION, choices=sorted(CLIENT_OPS),
+                   help='how steps are drawn from the seed (%d: the latest; older versions replay older reports)'
+                        % VERSION)
     p.add_argument('--out', default='', help='run folder (logs, chaos.json); default: a new temporary one')
     args = p.parse_args(argv)
     if args.steps < 1 or args.clients < 1 or args.settle <= 0 or (args.until is not None and args.until < 1):
@@ -36,7 +40,8 @@ def chaos_main(argv: Optional[List[str]] = None) -> int:
     print('temoto chaos: seed %d, %d steps, %d clients; run folder %s' % (args.seed, args.steps, args.clients, out),
           flush=True)
     return run_chaos(ChaosOptions(seed=args.seed, steps=args.steps, out_dir=out, clients=args.clients,
-                                  settle_s=args.settle, until=args.until, hosts=args.hosts))
+                                  settle_s=args.settle, until=args.until, hosts=args.hosts,
+                                  version=args.history))
 
 
 if __name__ == '__main__':

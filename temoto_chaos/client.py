@@ -1,4 +1,5 @@
-"""A chaos client: a registrar of its own in its own process, loading and unloading sensors when told.
+"""A chaos client: a registrar of its own in its own process, loading and unloading sensors and processes
+when told.
 
 The runner drives it over a Unix socket (one JSON object per line, one answer per line), so it reaches the
 client whatever the ROS graph is doing. The client acknowledges what the Sensor Manager acknowledged, and
@@ -21,9 +22,11 @@ import rospy
 from temoto_core.errors import TemotoError
 from temoto_core.node import init_node, spin
 from temoto_core.rr import StatusEvent
+from temoto_er_manager.interface import ERManagerInterface
 from temoto_sensor_manager.interface import SensorManagerInterface
 
 NODE_NAME = 'chaos_client'     # the runner names each incarnation (__name:=chaos_client_<client>_<generation>)
+THROTTLE = '/usr/lib/topic_tools/throttle'     # the process a client runs (the chaos ER config allows it)
 
 
 class ChaosClient:
@@ -31,8 +34,9 @@ class ChaosClient:
 
     def __init__(self, namespace: str) -> None:
         self.sensors = SensorManagerInterface(namespace=namespace)
+        self.processes = ERManagerInterface(rr=self.sensors.rr, namespace=namespace)     # one registrar
         self.lock = threading.Lock()
-        self.held: Dict[int, dict] = {}        # local id -> {'type', 'sensor', 'failed': message or ''}
+        self.held: Dict[int, dict] = {}        # local id -> {'kind', 'type', 'sensor', 'failed': message or ''}
         self.statuses: List[dict] = []         # every status heard, in order
         self.calls: List[dict] = []            # {'op', 'seconds', 'ok'}: the checker holds them to their deadline
 
@@ -51,13 +55,35 @@ class ChaosClient:
             return {'ok': False, 'error': str(e)}
         self._call('load', t0, True)
         with self.lock:
-            self.held[result.resource_id] = {'type': sensor_type, 'sensor': result.sensor_name, 'failed': ''}
+            self.held[result.resource_id] = {'kind': 'sensor', 'type': sensor_type, 'sensor': result.sensor_name,
+                                             'failed': ''}
         return {'ok': True, 'id': result.resource_id, 'sensor': result.sensor_name}
+
+    def load_throttle(self, topic: str, rate: float) -> dict:
+        """A process of its own: ``topic`` throttled to ``rate`` Hz on ``<topic>_throttled`` (equal requests
+        share one process)."""
+        t0 = time.monotonic()
+        args = 'messages %s %g %s_throttled' % (topic, rate, topic)
+        try:
+            result = self.processes.load_command(THROTTLE, args, on_status=self._on_status)
+        except TemotoError as e:
+            self._call('load', t0, False)
+            return {'ok': False, 'error': str(e)}
+        self._call('load', t0, True)
+        rid = result.trr.resource_id
+        with self.lock:
+            self.held[rid] = {'kind': 'process', 'type': 'throttle', 'sensor': args, 'failed': ''}
+        return {'ok': True, 'id': rid, 'pid': result.pid}
 
     def unload(self, resource_id: int) -> dict:
         t0 = time.monotonic()
+        with self.lock:
+            kind = self.held.get(resource_id, {}).get('kind', 'sensor')
         try:
-            self.sensors.stop_sensor(resource_id)
+            if kind == 'process':
+                self.processes.unload(resource_id)
+            else:
+                self.sensors.stop_sensor(resource_id)
             ok, error = True, ''
         except TemotoError as e:
             ok, error = False, str(e)
@@ -80,11 +106,13 @@ class ChaosClient:
         op = cmd.get('op')
         if op == 'load_sensor':
             return self.load_sensor(str(cmd['type']), [str(k) for k in cmd['keys']])
+        if op == 'load_process':
+            return self.load_throttle(str(cmd['topic']), float(cmd['rate']))
         if op == 'unload':
             return self.unload(int(cmd['id']))
         if op == 'state':
             return self.state()
-        return {'ok': False, 'error': 'unknown op %r: load_sensor, unload or state' % (op,)}
+        return {'ok': False, 'error': 'unknown op %r: load_sensor, load_process, unload or state' % (op,)}
 
 
 class _Handler(socketserver.StreamRequestHandler):

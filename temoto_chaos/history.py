@@ -11,14 +11,27 @@ import dataclasses
 import random
 from typing import Dict, Iterator, List, Tuple
 
-# (kind, weight): client operations are the bulk of a history, faults the rest
-CLIENT_OPS: List[Tuple[str, int]] = [('load_sensor', 6), ('unload', 5)]
-NEMESIS: List[Tuple[str, int]] = [('kill_driver', 1), ('kill_client', 1), ('kill_manager', 1), ('stop_manager', 1),
-                                  ('unplug', 1), ('replug', 2), ('partition', 1)]   # partition: two hosts only
+VERSION = 2
+# (kind, weight) by history version: client operations are the bulk of a history, faults the rest. A new
+# version draws other steps from the same seed; the older ones stay, so that every seed ever reported
+# replays (version 1: sensors only, no consumer processes and no power loss of the robot).
+CLIENT_OPS: Dict[int, List[Tuple[str, float]]] = {
+    1: [('load_sensor', 6), ('unload', 5)],
+    2: [('load_sensor', 5), ('load_process', 2), ('unload', 6)],
+}
+NEMESIS: Dict[int, List[Tuple[str, float]]] = {
+    1: [('kill_driver', 1), ('kill_client', 1), ('kill_manager', 1), ('stop_manager', 1), ('unplug', 1),
+        ('replug', 2), ('partition', 1)],                                               # partition: two hosts only
+    2: [('kill_driver', 1), ('kill_consumer', 1), ('kill_client', 1), ('kill_manager', 1), ('stop_manager', 1),
+        ('unplug', 1), ('replug', 2), ('partition', 1),
+        ('kill_robot', 0.25)],                         # the slowest fault (the robot boots again): the rarest
+}
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
                                                        ('lidar', ('lidar_data', 'cloud_data'))]
+# the process a client runs: a sensor topic (relative to the robot's namespace) throttled to a rate, in Hz
+THROTTLE_REQUESTS: List[Tuple[str, float]] = [('sick/scan', 2.0), ('hokuyo/scan', 2.0), ('d435/color/camera_info', 1.0)]
 MANAGERS = ('/temoto_sensor_manager', '/temoto_er_manager')
 DEVICES = ('d435', 'hokuyo', 'sick')
 MODES = ('crash', 'stall')
@@ -34,24 +47,29 @@ class Step:
         return '%d %s %s' % (self.index, self.kind, ' '.join('%s=%s' % kv for kv in sorted(self.args.items())))
 
 
-def _weighted(rng: random.Random, table: List[Tuple[str, int]]) -> str:
+def _weighted(rng: random.Random, table: List[Tuple[str, float]]) -> str:
     return rng.choices([k for k, _ in table], [w for _, w in table])[0]
 
 
-def step(seed: int, index: int, clients: int) -> Step:
-    """Step ``index`` of the history of ``seed``: the same for every run."""
+def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
+    """Step ``index`` of the history of ``seed`` (drawn as history ``version`` draws): the same in every run."""
+    if version not in CLIENT_OPS:
+        raise ValueError('history version %r does not exist (%s)' % (version, ', '.join(map(str, sorted(CLIENT_OPS)))))
     rng = random.Random('%d/%d' % (seed, index))
     if rng.random() >= FAULT_SHARE:
-        kind = _weighted(rng, CLIENT_OPS)
+        kind = _weighted(rng, CLIENT_OPS[version])
         args: Dict[str, object] = {'client': rng.randrange(clients)}
         if kind == 'load_sensor':
             sensor_type, keys = rng.choice(SENSOR_REQUESTS)
             args.update(type=sensor_type, keys=list(keys))
+        elif kind == 'load_process':
+            topic, rate = rng.choice(THROTTLE_REQUESTS)
+            args.update(topic=topic, rate=rate)
         else:
             args['pick'] = rng.randrange(1 << 30)
         return Step(index, kind, args)
-    kind = _weighted(rng, NEMESIS)
-    if kind == 'kill_driver':
+    kind = _weighted(rng, NEMESIS[version])
+    if kind in ('kill_driver', 'kill_consumer'):
         return Step(index, kind, {'pick': rng.randrange(1 << 30)})
     if kind == 'kill_client':
         return Step(index, kind, {'client': rng.randrange(clients)})
@@ -63,9 +81,11 @@ def step(seed: int, index: int, clients: int) -> Step:
         return Step(index, kind, {'device': rng.choice(DEVICES), 'mode': rng.choice(MODES)})
     if kind == 'partition':
         return Step(index, kind, {'seconds': round(rng.uniform(1.0, 3.0), 2)})
+    if kind == 'kill_robot':
+        return Step(index, kind, {})
     return Step(index, 'replug', {'device': rng.choice(DEVICES)})
 
 
-def history(seed: int, steps: int, clients: int) -> Iterator[Step]:
+def history(seed: int, steps: int, clients: int, version: int = VERSION) -> Iterator[Step]:
     for index in range(steps):
-        yield step(seed, index, clients)
+        yield step(seed, index, clients, version)

@@ -27,14 +27,17 @@ from temoto_core.hosts import TwoHosts
 from temoto_core.master import RosMaster
 from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.processes import ProcessGroupLauncher, kill_leftovers, leftover_processes
+from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
 
 from . import checker
-from .history import Step, history
+from .history import MANAGERS, VERSION, Step, history
 
 ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
-LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true']
+ER_CONFIG = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'config', 'er_chaos.yaml')
+LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true', 'er_config:=' + ER_CONFIG]
 CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
+STACK_START_S = 60.0           # s: the robot's nodes to register (at boot and after a power loss)
 PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
 
 
@@ -47,6 +50,7 @@ class ChaosOptions:
     settle_s: float = 20.0
     until: Optional[int] = None     # replay only the steps before this one
     hosts: int = 1                  # 2: the robot's stack on one host, the clients on the station (a partition fault)
+    version: int = VERSION          # how steps are drawn from the seed (history.py)
 
 
 class ClientHandle:
@@ -57,7 +61,7 @@ class ClientHandle:
             os.unlink(socket_path)      # a killed incarnation's
         self.index = index
         self.socket_path = socket_path
-        self.proc = launcher.node('temoto_chaos', 'chaos_client', name='chaos_client_%d_%d' % (index, generation),
+        self.proc = launcher.node('temoto_chaos', 'chaos_client', name='%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation),
                                   params={'control_socket': socket_path, 'temoto_namespace': ROBOT})
         deadline = time.monotonic() + 20.0
         while not os.path.exists(socket_path):
@@ -102,8 +106,9 @@ class Chaos:
             env = self.hosts.env(robot, self.master.uri, base=dict(self.master.env, TEMOTO_TEST_SESSION=self.token))
             env.pop('DISPLAY', None)
             self._leave_station = self.hosts.enter(station)     # this process talks ROS from the station
-            self.stack = Stack(launch, env, logs, LAUNCH_ARGS, wrap=lambda argv: self.hosts.argv(robot, argv))
-            self.stack.start(60.0)
+            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS, wrap=lambda argv: self.hosts.argv(robot, argv))
+            self.stack = self._new_stack()
+            self.stack.start(STACK_START_S)
             for key, value in self.hosts.env(station, self.master.uri).items():
                 if key.startswith('ROS_'):
                     os.environ[key] = value
@@ -114,13 +119,19 @@ class Chaos:
             self.master.point_this_process()
             env = dict(self.master.env, TEMOTO_TEST_SESSION=self.token)
             env.pop('DISPLAY', None)
-            self.stack = Stack(launch, env, logs, LAUNCH_ARGS)
-            self.stack.start(60.0)
+            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS)
+            self.stack = self._new_stack()
+            self.stack.start(STACK_START_S)
             self.launcher = ProcessGroupLauncher(env, clients_dir)
         rospy.init_node('temoto_chaos', disable_signals=True)
-        rospy.wait_for_service('/%s/temoto_sensor_manager/start_sensor' % ROBOT, 30)
+        self._wait_managers()
         for i in range(self.opts.clients):
             self._start_client(i)
+
+    def _wait_managers(self) -> None:
+        """Until both managers answer for their registries (a dead incarnation's service may still be listed)."""
+        wait_for(lambda: all(checker.read_json('/%s%s/registry' % (ROBOT, m)) is not None for m in MANAGERS),
+                 STACK_START_S, "the robot's managers to answer")
 
     def _start_client(self, index: int) -> None:
         self.generations[index] += 1
@@ -153,6 +164,10 @@ class Chaos:
         if kind == 'load_sensor':
             answer = self.clients[a['client']].ask(op='load_sensor', type=a['type'], keys=a['keys'])
             return 'client %d: %s' % (a['client'], answer.get('sensor') or 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'load_process':
+            answer = self.clients[a['client']].ask(op='load_process', topic=a['topic'], rate=a['rate'])
+            return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
         if kind == 'unload':
             held = sorted(self.clients[a['client']].ask(op='state')['held'])
             if not held:
@@ -163,13 +178,14 @@ class Chaos:
         if kind == 'partition' and self.hosts is None:
             return 'one host: no link to cut'
         self.faults[kind] += 1
-        if kind == 'kill_driver':
-            drivers = sorted(pid for pid, _ in self._drivers().items())
-            if not drivers:
-                return 'no driver runs'
-            pid = drivers[a['pick'] % len(drivers)]
+        if kind in ('kill_driver', 'kill_consumer'):
+            wanted = checker.DRIVERS if kind == 'kill_driver' else checker.CONSUMERS
+            pids = sorted(pid for pid, name in self._resources().items() if name in wanted)
+            if not pids:
+                return 'none runs'
+            pid = pids[a['pick'] % len(pids)]
             os.kill(pid, signal.SIGKILL)
-            return 'SIGKILL driver %d' % pid
+            return 'SIGKILL %s %d' % (kind.split('_')[1], pid)
         if kind == 'kill_client':
             old = self.clients[a['client']].proc
             os.kill(old.pid, signal.SIGKILL)
@@ -191,6 +207,8 @@ class Chaos:
             return 'SIGSTOP %s for %.2f s' % (name, a['seconds'])
         if kind == 'partition':
             return self._partition(a['seconds'])
+        if kind == 'kill_robot':
+            return self._kill_robot()
         if kind == 'unplug':
             self._cable(a['device'], 'unplugged', a['mode'])
             return 'unplugged %s (%s)' % (a['device'], a['mode'])
@@ -221,21 +239,35 @@ class Chaos:
         return 'link down for %.2f s; %d held resource(s) FAILED at their clients' % (
             down, sum(len(v) for v in held.values()))
 
+    def _kill_robot(self) -> str:
+        """Every process of the robot SIGKILLed at once, as a robot that loses power, then the robot boots
+        again (its managers take their registries back from their journals). On two hosts that is the
+        robot host, its master included; on one host the stack and every process its ER Manager started,
+        while the master, the clients and this runner stay."""
+        t0 = time.monotonic()
+        self.stack.kill()
+        if self.hosts is not None:
+            self.hosts.kill_all(self.hosts.robot)
+            self.master.stop()                  # reaps it
+            self.master.start()                 # the robot boots: a new master at the same address
+        else:
+            keep = {self.master.proc.pid, *(c.proc.pid for c in self.clients.values())}
+            keep.update(child.pid for child in psutil.Process(self.master.proc.pid).children(recursive=True))
+            kill_leftovers(self.token, exclude=sorted(keep))
+        self.stack = self._new_stack()
+        self.stack.start(STACK_START_S)
+        self._wait_managers()
+        return 'the robot lost power and booted again in %.1f s%s' % (
+            time.monotonic() - t0, ' (its master too)' if self.hosts is not None else '')
+
     def _cable(self, device: str, state: str, mode: str) -> None:
         resp = rospy.ServiceProxy('/%s/vaultbot_sim/set_device_state' % ROBOT, SetDeviceState)(device, state, mode)
         if not resp.success:
             raise RuntimeError('the simulation refused %s %s: %s' % (state, device, resp.message))
 
-    def _drivers(self) -> Dict[int, str]:
-        out = {}
-        for pid, _ in leftover_processes(self.token):
-            try:
-                name = psutil.Process(pid).name()
-            except psutil.Error:
-                continue
-            if name in checker.DRIVERS:
-                out[pid] = name
-        return out
+    def _resources(self) -> Dict[int, str]:
+        """The live processes that are resources (drivers and the clients' own processes), by pid: their names."""
+        return checker.resource_processes([pid for pid, _ in leftover_processes(self.token)])
 
     # ------------------------------------------------------------------ checks
     def check(self) -> List[str]:
@@ -256,11 +288,14 @@ class Chaos:
         violations: List[str] = []
         failed_step = None
         done = 0
-        for step in history(self.opts.seed, last, self.opts.clients):
+        for step in history(self.opts.seed, last, self.opts.clients, self.opts.version):
+            started = time.monotonic()
             what = self.apply(step)
+            applied = time.monotonic()
             violations = self.check()
             self.log.append({'step': step.index, 'kind': step.kind, 'args': step.args, 'did': what,
-                             'violations': violations})
+                             'violations': violations, 'apply_s': round(applied - started, 3),
+                             'check_s': round(time.monotonic() - applied, 3)})
             done += 1
             print('[step %d] %s: %s%s' % (step.index, step.kind, what, '' if not violations else
                                           ' -> VIOLATION: ' + '; '.join(violations)), flush=True)
@@ -268,9 +303,16 @@ class Chaos:
                 failed_step = step.index
                 break
         took = time.monotonic() - t0
-        return {'seed': self.opts.seed, 'steps': done, 'faults': dict(self.faults), 'checks': self.checks,
+        return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done, 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': violations, 'failed_step': failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
+
+
+def replay_command(opts: ChaosOptions, until: int) -> str:
+    """The command that runs the same first ``until`` steps again."""
+    extra = [('--clients', opts.clients, 3), ('--hosts', opts.hosts, 1), ('--history', opts.version, VERSION)]
+    return 'temoto chaos --seed %d --until %d%s' % (opts.seed, until, ''.join(
+        ' %s %s' % (flag, value) for flag, value, default in extra if value != default))
 
 
 def _interrupt(signum, frame) -> None:
@@ -296,9 +338,9 @@ def run_chaos(opts: ChaosOptions) -> int:
     if summary.get('interrupted'):
         return 130
     if summary.get('violations'):
-        print('temoto chaos: VIOLATION at step %d of seed %d: %s\n  replay: temoto chaos --seed %d --until %d'
-              % (summary['failed_step'], opts.seed, '; '.join(summary['violations']), opts.seed,
-                 summary['failed_step'] + 1), flush=True)
+        print('temoto chaos: VIOLATION at step %d of seed %d: %s\n  replay: %s'
+              % (summary['failed_step'], opts.seed, '; '.join(summary['violations']),
+                 replay_command(opts, summary['failed_step'] + 1)), flush=True)
         return 1
     print('temoto chaos: %d steps, seed %d, faults %s, %d checks, 0 violations, %.1f steps/s'
           % (summary['steps'], opts.seed, summary['faults'], summary['checks'], summary['steps_per_s']), flush=True)

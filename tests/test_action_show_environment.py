@@ -499,6 +499,8 @@ def test_a_failed_standby_is_reported_and_replaced(setup):
 def test_the_view_fails_back_to_a_replugged_better_sensor_after_a_hold(setup, standby):
     engine, devices, events, feedback = setup
     run = run_with(engine, events, standby=standby)
+    if standby != 'cold':     # the spare must be up before the failure, or the failover starts it a second time
+        wait_for(lambda: of(events, 'standby_ready'), 10, 'the spare running')
     devices.unplug('d435')
     wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
     devices.plug('d435')

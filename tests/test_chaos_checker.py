@@ -4,7 +4,7 @@ import copy
 import os
 
 from temoto_chaos import checker
-from temoto_chaos.history import history, step
+from temoto_chaos.history import NEMESIS, VERSION, history, step
 
 ME = os.getpid()      # a pid the kernel has: a "live" process
 
@@ -14,14 +14,30 @@ def clean():
         {'server': 'start_sensor', 'internal_id': 1, 'state': 'active', 'failure': '',
          'summary': {'sensor_type': 'lidar'},
          'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 11}]}]}
-    er = {'recovering': False, 'server_queries': [{'internal_id': 5, 'state': 'active'}]}
+    # the driver is the Sensor Manager's (not a client's: not checked against the clients)
+    er = {'recovering': False, 'server_queries': [
+        {'server': 'load_process', 'internal_id': 5, 'state': 'active', 'failure': '',
+         'summary': {'executable': 'sick_driver'},
+         'consumers': [{'client_name': '/chaos/temoto_sensor_manager', 'resource_id': 21}]}]}
     procs = {'processes': [{'resource_id': 5, 'label': 'vaultbot_sim/sick_driver', 'state': 'running',
                             'processes': [{'pid': ME, 'state': 'running'}]}]}
     client = {'node': '/chaos_client_0_1', 'registrar': 'rr0', 'pid': 1, 'held': {'101': {'sensor': 'sick_lms511'}},
               'statuses': [], 'calls': [{'op': 'load', 'seconds': 0.5, 'ok': True}]}
     registry = {'client_queries': [{'target': '/chaos/temoto_sensor_manager/start_sensor', 'external_id': 11,
                                     'local_ids': [101], 'state': 'active'}]}
-    return checker.Snapshot(sm, er, procs, {0: client}, {0: registry}, {ME: 'sick_driver'})
+    return checker.Snapshot(sm, er, procs, {0: client}, {0: registry}, {ME: ('sick_driver', 'python3 -m zygote')})
+
+
+def with_throttle(snap):
+    """``snap`` where client 0 also holds a throttle process of its own, served by the ER Manager."""
+    snap.er_manager['server_queries'].append(
+        {'server': 'load_process', 'internal_id': 6, 'state': 'active', 'failure': '',
+         'summary': {'executable': '/usr/lib/topic_tools/throttle'},
+         'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 31}]})
+    snap.clients[0]['held']['103'] = {'kind': 'process', 'sensor': 'messages sick/scan 2 sick/scan_throttled'}
+    snap.client_registries[0]['client_queries'].append(
+        {'target': '/chaos/temoto_er_manager/load_process', 'external_id': 31, 'local_ids': [103], 'state': 'active'})
+    return snap
 
 
 def test_a_consistent_system_passes():
@@ -31,7 +47,7 @@ def test_a_consistent_system_passes():
 def test_an_unsettled_system_is_reported_as_such_and_not_checked_further():
     snap = clean()
     snap.sensor_manager['server_queries'][0]['state'] = 'loading'
-    snap.drivers[ME + 1] = 'sick_driver'           # would be a violation, but nothing is checked yet
+    snap.resources[ME + 1] = ('sick_driver', '')   # would be a violation, but nothing is checked yet
     assert checker.check(snap) == ['the Sensor Manager has a load or unload under way']
     snap = clean()
     snap.er_manager = None
@@ -40,17 +56,29 @@ def test_an_unsettled_system_is_reported_as_such_and_not_checked_further():
 
 def test_a_driver_that_no_entry_has_and_a_driver_running_twice_are_violations():
     snap = clean()
-    snap.drivers[ME + 1] = 'sick_driver'
+    snap.resources[ME + 1] = ('sick_driver', 'python3 -m zygote')
     found = checker.check(snap)
-    assert 'driver sick_driver (pid %d) runs, but no ER Manager entry has it' % (ME + 1) in found
+    assert 'sick_driver (pid %d) runs, but no ER Manager entry has it' % (ME + 1) in found
     assert any('sick_driver runs 2 times' in v for v in found), found
+
+
+def test_consumer_processes_run_once_per_command_line():
+    snap = clean()
+    snap.er_processes['processes'][0]['processes'].append({'pid': ME + 1, 'state': 'running'})
+    snap.er_processes['processes'][0]['processes'].append({'pid': ME + 2, 'state': 'running'})
+    snap.resources = {ME: ('sick_driver', ''), ME + 1: ('throttle', 'throttle messages a 2 a_throttled'),
+                      ME + 2: ('throttle', 'throttle messages b 2 b_throttled')}
+    assert [v for v in checker.check(snap) if 'runs' in v] == []
+    snap.resources[ME + 2] = ('throttle', 'throttle messages a 2 a_throttled')
+    assert [v for v in checker.check(snap) if 'runs' in v] == [
+        'throttle messages a 2 a_throttled runs 2 times: [%d, %d]' % (ME + 1, ME + 2)]
 
 
 def test_a_dead_process_still_listed_as_running_is_a_violation():
     snap = clean()
     dead = 2 ** 22 + 7           # above pid_max's default: no such process
     snap.er_processes['processes'][0]['processes'][0]['pid'] = dead
-    snap.drivers = {}
+    snap.resources = {}
     assert checker.check(snap) == ['the ER Manager lists vaultbot_sim/sick_driver (pid %d) as running, but it is gone'
                                    % dead]
 
@@ -61,25 +89,36 @@ def test_an_acknowledged_load_missing_from_the_client_or_the_manager_is_lost():
     assert checker.check(snap) == ['client 0: acknowledged load 102 (realsense_d435) is not in its registry: lost']
     snap = clean()
     snap.sensor_manager['server_queries'][0]['consumers'] = []
-    assert checker.check(snap) == ['client 0 holds /chaos_client_0_1 id 11, which the Sensor Manager does not serve '
-                                   'it: lost']
+    assert checker.check(snap) == ['client 0 holds sensor id 11, which is not served to it: lost']
+    snap = with_throttle(clean())
+    assert checker.check(snap) == []
+    snap.er_manager['server_queries'][1]['consumers'] = []
+    assert checker.check(snap) == ['client 0 holds process id 31, which is not served to it: lost']
 
 
 def test_a_reference_nobody_holds_is_a_leak():
     snap = clean()
     snap.sensor_manager['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_1_1',
                                                                   'resource_id': 12})
-    assert checker.check(snap) == ['the Sensor Manager counts /chaos_client_1_1 id 12 as a holder of lidar, which holds '
+    assert checker.check(snap) == ['sensor id 12 of start_sensor is counted as held by /chaos_client_1_1, which holds '
                                    'nothing of it: a leaked reference']
+    snap = clean()           # the Sensor Manager's own references to its drivers are not the clients' to hold
+    snap.er_manager['server_queries'][0]['consumers'].append({'client_name': '/chaos/temoto_sensor_manager',
+                                                              'resource_id': 22})
+    assert checker.check(snap) == []
 
 
 def test_a_failed_resource_whose_holder_never_heard_it_is_a_violation():
     snap = clean()
     snap.sensor_manager['server_queries'][0].update(state='failed', failure='sick_driver died')
-    assert checker.check(snap) == ['client 0 never heard the FAILED of lidar (sick_driver died)']
+    assert checker.check(snap) == ['client 0 never heard the FAILED of its sensor lidar (sick_driver died)']
     heard = copy.deepcopy(snap)
     heard.clients[0]['statuses'].append({'id': 101, 'code': 'FAILED', 'message': 'sick_driver died'})
     assert checker.check(heard) == []
+    snap = with_throttle(clean())
+    snap.er_manager['server_queries'][1].update(state='failed', failure='throttle killed')
+    assert checker.check(snap) == ['client 0 never heard the FAILED of its process /usr/lib/topic_tools/throttle '
+                                   '(throttle killed)']
 
 
 def test_a_call_past_its_deadline_is_a_violation():
@@ -93,6 +132,15 @@ def test_a_history_is_the_same_for_a_seed_and_its_prefix_replays_it():
     assert [s.describe() for s in full] == [s.describe() for s in history(7, 200, 3)]
     assert [s.describe() for s in history(7, 50, 3)] == [s.describe() for s in full[:50]]
     assert step(7, 120, 3) == full[120]
-    assert {s.kind for s in full} >= {'load_sensor', 'unload', 'kill_driver', 'kill_client', 'kill_manager',
-                                      'stop_manager', 'unplug', 'replug'}
+    assert {s.kind for s in full} >= {'load_sensor', 'load_process', 'unload', 'kill_driver', 'kill_consumer',
+                                      'kill_client', 'kill_manager', 'stop_manager', 'unplug', 'replug'}
     assert [s.describe() for s in history(8, 50, 3)] != [s.describe() for s in full[:50]]
+
+
+def test_every_fault_kind_is_drawn_and_an_older_history_version_still_replays_its_seeds():
+    kinds = {s.kind for s in history(7, 3000, 3)}
+    assert kinds >= {kind for kind, _ in NEMESIS[VERSION]}
+    # version 1 (sensors only): seed 17's step 132 was the cut link that found the owner-watch race
+    assert step(17, 132, 3, version=1).kind == 'partition'
+    assert {s.kind for s in history(17, 300, 3, version=1)}.isdisjoint({'load_process', 'kill_consumer',
+                                                                         'kill_robot'})

@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import select
 import shlex
+import signal
 import sys
 import threading
 import time
@@ -179,15 +180,31 @@ class Stack:
     def dead(self) -> List[str]:
         return ['%s (rc %s)' % (s.name, p.returncode) for s, p in self.running if not p.alive()]
 
-    def stop(self, on_step=None) -> List[tuple]:
-        """The action engine first (its actions release what they hold through the managers), then the
-        managers and the simulation together: each stops its own children, and rospy's shutdown takes
-        most of a second per node, which in series added up to ~10 s. Returns (name, rc)."""
+    def kill(self) -> None:
+        """A power loss: every node's process group SIGKILLed at once and reaped, nothing respawned, no grace.
+        Processes in other groups (what the ER Manager started) are the caller's; a new Stack boots again."""
+        self._halt_respawns()
+        for _, proc in self.running:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        for _, proc in self.running:
+            proc.proc.wait(10.0)
+        self.running.clear()
+
+    def _halt_respawns(self) -> None:
         with self._lock:
             self._stopping = True
         os.write(self._wake_w, b'x')
         if self._respawner is not None:
             self._respawner.join(10.0)
+
+    def stop(self, on_step=None) -> List[tuple]:
+        """The action engine first (its actions release what they hold through the managers), then the
+        managers and the simulation together: each stops its own children, and rospy's shutdown takes
+        most of a second per node, which in series added up to ~10 s. Returns (name, rc)."""
+        self._halt_respawns()
         results = []
         lock = threading.Lock()
 
