@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
+import time
 from typing import Callable, Dict, List, Optional, Tuple
 
 import psutil
@@ -28,20 +29,29 @@ DEADLINES = {'load': 40.0, 'unload': 15.0}
 DEADLINE_SLACK = 2.0
 
 
-def read_json(service: str, timeout: float = READ_TIMEOUT) -> Optional[dict]:
-    """A GetRegistry-typed service's JSON, or None if it does not answer within ``timeout`` (a thread is
-    left behind only when the server hangs, which the caller then reports)."""
-    box: Dict[str, object] = {}
+def read_all(services: List[str], timeout: float = READ_TIMEOUT) -> Dict[str, Optional[dict]]:
+    """Each GetRegistry-typed service's JSON, all asked at once (a snapshot closer to one moment, and the
+    slowest answer's time rather than the sum), or None for one that does not answer within ``timeout``.
+    A thread is left behind only when a server hangs, which the caller then reports."""
+    boxes: Dict[str, Dict[str, object]] = {service: {} for service in services}
 
-    def ask() -> None:
+    def ask(service: str, box: Dict[str, object]) -> None:
         try:
             box['json'] = json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
         except Exception as e:        # not up, refused, stopped: the caller reports no answer
             box['error'] = e
-    thread = threading.Thread(target=ask, daemon=True, name='chaos-read')
-    thread.start()
-    thread.join(timeout)
-    return box.get('json')
+    threads = [threading.Thread(target=ask, args=item, daemon=True, name='chaos-read') for item in boxes.items()]
+    for thread in threads:
+        thread.start()
+    deadline = time.monotonic() + timeout
+    for thread in threads:
+        thread.join(max(0.0, deadline - time.monotonic()))
+    return {service: box.get('json') for service, box in boxes.items()}
+
+
+def read_json(service: str, timeout: float = READ_TIMEOUT) -> Optional[dict]:
+    """One GetRegistry-typed service's JSON (see :func:`read_all`)."""
+    return read_all([service], timeout)[service]
 
 
 @dataclasses.dataclass
@@ -71,10 +81,11 @@ def resource_processes(pids: List[int]) -> Dict[int, Tuple[str, str]]:
 def take(namespace: str, client_states: Dict[int, dict], session_processes: Callable[[], List[int]]) -> Snapshot:
     base = '/%s' % namespace.strip('/')
     resources = resource_processes(session_processes())
-    return Snapshot(read_json(base + '/temoto_sensor_manager/registry'), read_json(base + '/temoto_er_manager/registry'),
-                    read_json(base + '/temoto_er_manager/processes'), client_states,
-                    {i: read_json('%s/%s/registry' % (base, s['registrar'])) for i, s in client_states.items()},
-                    resources)
+    managers = [base + '/temoto_sensor_manager/registry', base + '/temoto_er_manager/registry',
+                base + '/temoto_er_manager/processes']
+    clients = {i: '%s/%s/registry' % (base, s['registrar']) for i, s in client_states.items()}
+    read = read_all(managers + list(clients.values()))
+    return Snapshot(*(read[m] for m in managers), client_states, {i: read[c] for i, c in clients.items()}, resources)
 
 
 def _settled(snap: Snapshot) -> List[str]:
@@ -156,7 +167,7 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
         reg = snap.client_registries.get(i)
         if reg is None:
             continue
-        heard_failed = {s['id'] for s in state['statuses'] if s['code'] == 'FAILED'}
+        heard_failed = {int(lid) for lid in state['failed_heard']}
         for cq in reg['client_queries']:
             if not cq['target'].endswith('/' + server):
                 continue
@@ -180,8 +191,8 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
 def _deadlines(snap: Snapshot) -> List[str]:
     out = []
     for i, state in snap.clients.items():
-        for call in state['calls']:
-            limit = DEADLINES.get(call['op'], 1.0) + DEADLINE_SLACK
-            if call['seconds'] > limit:
-                out.append('client %d: a %s took %.1f s, past its deadline' % (i, call['op'], call['seconds']))
+        for op, seen in sorted(state['calls'].items()):
+            limit = DEADLINES.get(op, 1.0) + DEADLINE_SLACK
+            if seen['max_s'] > limit:
+                out.append('client %d: a %s took %.1f s, past its deadline' % (i, op, seen['max_s']))
     return out

@@ -10,12 +10,13 @@ its policy runs.
 """
 from __future__ import annotations
 
+import collections
 import json
 import os
 import socketserver
 import threading
 import time
-from typing import Dict, List
+from typing import Deque, Dict, List
 
 import rospy
 
@@ -26,6 +27,7 @@ from temoto_er_manager.interface import ERManagerInterface
 from temoto_sensor_manager.interface import SensorManagerInterface
 
 NODE_NAME = 'chaos_client'     # the runner names each incarnation (__name:=chaos_client_<client>_<generation>)
+RECENT_STATUSES = 20
 THROTTLE = '/usr/lib/topic_tools/throttle'     # the process a client runs (the chaos ER config allows it)
 
 
@@ -37,14 +39,19 @@ class ChaosClient:
         self.processes = ERManagerInterface(rr=self.sensors.rr, namespace=namespace)     # one registrar
         self.lock = threading.Lock()
         self.held: Dict[int, dict] = {}        # local id -> {'kind', 'type', 'sensor', 'failed': message or ''}
-        self.statuses: List[dict] = []         # every status heard, in order
-        self.calls: List[dict] = []            # {'op', 'seconds', 'ok'}: the checker holds them to their deadline
+        # what the checker needs stays bounded over a history of any length: the FAILED heard for what is
+        # still held, the last statuses (to read a report), and per operation its count and slowest call
+        self.failed_heard: Dict[int, str] = {}     # local id -> the FAILED's message, until it is unloaded
+        self.recent: Deque[dict] = collections.deque(maxlen=RECENT_STATUSES)
+        self.calls: Dict[str, dict] = {}           # op -> {'count', 'failed', 'max_s'}: held to its deadline
 
     def _on_status(self, ev: StatusEvent) -> None:
         with self.lock:
-            self.statuses.append({'id': ev.resource_id, 'code': ev.code.name, 'message': ev.message})
-            if ev.failed and ev.resource_id in self.held:
-                self.held[ev.resource_id]['failed'] = ev.message or 'FAILED'
+            self.recent.append({'id': ev.resource_id, 'code': ev.code.name, 'message': ev.message})
+            if ev.failed:
+                self.failed_heard[ev.resource_id] = ev.message or 'FAILED'
+                if ev.resource_id in self.held:
+                    self.held[ev.resource_id]['failed'] = ev.message or 'FAILED'
 
     def load_sensor(self, sensor_type: str, keys: List[str]) -> dict:
         t0 = time.monotonic()
@@ -90,17 +97,23 @@ class ChaosClient:
         self._call('unload', t0, ok)
         with self.lock:
             self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
+            self.failed_heard.pop(resource_id, None)
         return {'ok': ok, 'error': error}
 
     def _call(self, op: str, t0: float, ok: bool) -> None:
         with self.lock:
-            self.calls.append({'op': op, 'seconds': time.monotonic() - t0, 'ok': ok})
+            took = time.monotonic() - t0
+            seen = self.calls.setdefault(op, {'count': 0, 'failed': 0, 'max_s': 0.0})
+            seen['count'] += 1
+            seen['failed'] += 0 if ok else 1
+            seen['max_s'] = max(seen['max_s'], took)
 
     def state(self) -> dict:
         with self.lock:
             return {'node': rospy.get_name(), 'registrar': self.sensors.rr.name, 'pid': os.getpid(),
-                    'held': {str(k): dict(v) for k, v in self.held.items()}, 'statuses': list(self.statuses),
-                    'calls': list(self.calls)}
+                    'held': {str(k): dict(v) for k, v in self.held.items()},
+                    'failed_heard': {str(k): v for k, v in self.failed_heard.items()},
+                    'recent_statuses': list(self.recent), 'calls': {op: dict(v) for op, v in self.calls.items()}}
 
     def handle(self, cmd: dict) -> dict:
         op = cmd.get('op')

@@ -22,7 +22,7 @@ def clean():
     procs = {'processes': [{'resource_id': 5, 'label': 'vaultbot_sim/sick_driver', 'state': 'running',
                             'processes': [{'pid': ME, 'state': 'running'}]}]}
     client = {'node': '/chaos_client_0_1', 'registrar': 'rr0', 'pid': 1, 'held': {'101': {'sensor': 'sick_lms511'}},
-              'statuses': [], 'calls': [{'op': 'load', 'seconds': 0.5, 'ok': True}]}
+              'failed_heard': {}, 'calls': {'load': {'count': 1, 'failed': 0, 'max_s': 0.5}}}
     registry = {'client_queries': [{'target': '/chaos/temoto_sensor_manager/start_sensor', 'external_id': 11,
                                     'local_ids': [101], 'state': 'active'}]}
     return checker.Snapshot(sm, er, procs, {0: client}, {0: registry}, {ME: ('sick_driver', 'python3 -m zygote')})
@@ -113,7 +113,7 @@ def test_a_failed_resource_whose_holder_never_heard_it_is_a_violation():
     snap.sensor_manager['server_queries'][0].update(state='failed', failure='sick_driver died')
     assert checker.check(snap) == ['client 0 never heard the FAILED of its sensor lidar (sick_driver died)']
     heard = copy.deepcopy(snap)
-    heard.clients[0]['statuses'].append({'id': 101, 'code': 'FAILED', 'message': 'sick_driver died'})
+    heard.clients[0]['failed_heard']['101'] = 'sick_driver died'
     assert checker.check(heard) == []
     snap = with_throttle(clean())
     snap.er_manager['server_queries'][1].update(state='failed', failure='throttle killed')
@@ -123,7 +123,7 @@ def test_a_failed_resource_whose_holder_never_heard_it_is_a_violation():
 
 def test_a_call_past_its_deadline_is_a_violation():
     snap = clean()
-    snap.clients[0]['calls'].append({'op': 'unload', 'seconds': 30.0, 'ok': False})
+    snap.clients[0]['calls']['unload'] = {'count': 3, 'failed': 1, 'max_s': 30.0}
     assert checker.check(snap) == ['client 0: a unload took 30.0 s, past its deadline']
 
 
