@@ -146,7 +146,8 @@ def _holders(snap: Snapshot) -> List[str]:
         local = {lid for cq in reg['client_queries'] for lid in cq['local_ids']}
         for lid, info in state['held'].items():
             if int(lid) not in local:
-                out.append('client %d: acknowledged load %s (%s) is not in its registry: lost' % (i, lid, info['sensor']))
+                out.append('client %d: acknowledged load %s (%s) is not in its registry: lost'
+                           % (i, lid, info['sensor']))
     for owner, server, what in SERVED:
         out += _served_holders(snap, getattr(snap, owner), server, what)
     return out

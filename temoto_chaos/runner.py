@@ -2,11 +2,12 @@
 
 The stack is ``robot.launch`` with journals and respawn (``recovery:=true``): the simulated VaultBot, its
 ER Manager and its Sensor Manager, under their own roscore. Each client is a process of its own
-(``chaos_client``) with its own registrar. A step is a client operation (a sensor loaded or unloaded;
-equal requests are shared) or a fault (a driver, a client or a manager SIGKILLed; a manager SIGSTOPped
-for a while; a cable pulled, crash or stall, or plugged back; with two hosts, the link between them cut
-for a while). After each step the checker reads the system from outside and the step passes once no
-invariant is violated, within ``settle_s``.
+(``chaos_client``) with its own registrar. A step is a client operation (a sensor or a process loaded, or
+something held unloaded; equal requests are shared) or a fault (a driver, a consumer process, a client or
+a manager SIGKILLed; a manager SIGSTOPped for a while; a cable pulled, crash or stall, or plugged back;
+with two hosts, the link between them cut for a while; every process of the robot killed, then booted
+again). After each step the checker reads the system from outside and the step passes once no invariant
+is violated, within ``settle_s``.
 """
 from __future__ import annotations
 
@@ -61,7 +62,8 @@ class ClientHandle:
             os.unlink(socket_path)      # a killed incarnation's
         self.index = index
         self.socket_path = socket_path
-        self.proc = launcher.node('temoto_chaos', 'chaos_client', name='%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation),
+        name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
+        self.proc = launcher.node('temoto_chaos', 'chaos_client', name=name,
                                   params={'control_socket': socket_path, 'temoto_namespace': ROBOT})
         deadline = time.monotonic() + 20.0
         while not os.path.exists(socket_path):
@@ -106,7 +108,8 @@ class Chaos:
             env = self.hosts.env(robot, self.master.uri, base=dict(self.master.env, TEMOTO_TEST_SESSION=self.token))
             env.pop('DISPLAY', None)
             self._leave_station = self.hosts.enter(station)     # this process talks ROS from the station
-            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS, wrap=lambda argv: self.hosts.argv(robot, argv))
+            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS,
+                                            wrap=lambda argv: self.hosts.argv(robot, argv))
             self.stack = self._new_stack()
             self.stack.start(STACK_START_S)
             for key, value in self.hosts.env(station, self.master.uri).items():
@@ -163,7 +166,8 @@ class Chaos:
         kind, a = step.kind, step.args
         if kind == 'load_sensor':
             answer = self.clients[a['client']].ask(op='load_sensor', type=a['type'], keys=a['keys'])
-            return 'client %d: %s' % (a['client'], answer.get('sensor') or 'refused: %s' % answer.get('error', '')[:100])
+            return 'client %d: %s' % (a['client'], answer.get('sensor') or
+                                      'refused: %s' % answer.get('error', '')[:100])
         if kind == 'load_process':
             answer = self.clients[a['client']].ask(op='load_process', topic=a['topic'], rate=a['rate'])
             return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
@@ -303,7 +307,8 @@ class Chaos:
                 failed_step = step.index
                 break
         took = time.monotonic() - t0
-        return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done, 'faults': dict(self.faults), 'checks': self.checks,
+        return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done,
+                'faults': dict(self.faults), 'checks': self.checks,
                 'violations': violations, 'failed_step': failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
 
