@@ -8,6 +8,7 @@ import concurrent.futures
 import os
 import signal
 import sqlite3
+import time
 
 import pytest
 import rospy
@@ -16,6 +17,8 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.srv import Reclaim
 from temoto_core.testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
+
+STATUS_CONNECT_TIMEOUT = 2.0     # the registrar's default wait for a consumer's status channel to connect
 
 
 def _kill(node: RegistrarNode) -> None:
@@ -90,6 +93,32 @@ def test_a_failure_while_the_registrar_is_down_reaches_the_action_after_recovery
     assert any('was failed when' in m for m in events[0]['stack']), events[0]['stack']
     assert a.unload(res['id']) == {}
     wait_for(lambda: c.counts()['unloads'] == {'driver': 1}, 10, 'the failed driver released')
+
+
+def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the_owner_s_registry(chain):
+    """The chaos history of seed 17 (two hosts, step 543): the robot lost power and booted again; its Sensor
+    Manager rebuilt its registry and sent the FAILED of a camera whose driver had died, before the clients had
+    joined the new master, so the status went nowhere and the clients held a dead camera as healthy. Here the
+    holder is stopped while the owner comes back, so it cannot connect to the new incarnation in time."""
+    a, b, c, restart = chain
+    res = a.call('rr_rb', 'mortal_cam')
+    assert 'error' not in res, res
+    _kill(b)
+    os.kill(a.process.pid, signal.SIGSTOP)
+    try:
+        b = restart()
+        wait_for(lambda: [q['state'] for q in b.registry()['server_queries']] == ['failed'], 20,
+                 'the new incarnation to find mortal_cam dead')
+        # the fault: the holder stays stopped while the FAILED goes out (after the status channel's 2 s wait for a
+        # connection), so nobody is connected to hear it
+        time.sleep(STATUS_CONNECT_TIMEOUT + 1.0)
+    finally:
+        os.kill(a.process.pid, signal.SIGCONT)
+    events = a.wait_events(1, timeout=20)
+    assert events[0]['id'] == res['id'] and events[0]['code'] == ResourceStatus.FAILED, events
+    assert 'its status never reached this node' in events[0]['message'], events[0]
+    assert a.unload(res['id']) == {}
+    wait_for(lambda: registry_empty(b), 10, 'an empty registry at B')
 
 
 def test_a_resource_found_dead_on_recovery_is_reported_failed_to_its_consumer(chain):

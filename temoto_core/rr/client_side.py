@@ -52,6 +52,8 @@ class ClientSide:
         self.owners: Optional[OwnerWatch] = None      # set by the registrar: the owners this side depends on
         self.take_parked: Callable[[Target, int], list] = lambda target, external_id: []
         self.deliver: Callable[[object], None] = lambda msg: None
+        # set by the registrar: a FAILED found in an owner's registry, handled as if its status had arrived
+        self.failed_at_owner: Callable[[Target, int, str], None] = lambda target, external_id, message: None
 
     # ------------------------------------------------------------------------------------------ call
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[StatusCallback],
@@ -331,17 +333,24 @@ class ClientSide:
         if any(query.get('state') == LOADING.value for query in snapshot.get('server_queries', [])):
             return False              # a load the caller gave up on may still be running there: later
         mine = self._header.client_uri
-        strays = [((ns, rr_name, query['server']), consumer['resource_id'])
+        served = [((ns, rr_name, query['server']), consumer['resource_id'], query)
                   for query in snapshot.get('server_queries', []) for consumer in query.get('consumers', [])
                   if consumer.get('client_uri') == mine and consumer.get('client_name') == self._header.client_name]
         with core.lock:
-            strays = [s for s in strays if s not in self.by_external]
+            strays = [(t, e) for t, e, _ in served if (t, e) not in self.by_external]
+            unheard = [(t, e, q.get('failure') or '') for t, e, q in served if q.get('state') == FAILED.value
+                       and (t, e) in self.by_external and self.by_external[(t, e)].state is not FAILED]
         if not quiet():
             return False
         for target, external_id in strays:
             rospy.logwarn('%s: %s holds resource %d for this node, which does not know of it: releasing it',
                           core.prefix, target_name(target), external_id)
             self.resend_unload(target, external_id)
+        for target, external_id, why in unheard:
+            message = '%s: FAILED at its owner%s; its status never reached this node' % (
+                target_name(target), ' (%s)' % why if why else '')
+            rospy.logwarn('%s: %s', core.prefix, message)
+            self.failed_at_owner(target, external_id, message)
         return True
 
     def holds_from(self, node: str) -> bool:

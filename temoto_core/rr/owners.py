@@ -31,7 +31,10 @@ An owner may also hold references this side never learnt of: a load it answered
 after the caller's deadline had cut the call, or anything from before a
 partition. Such an owner is *suspect*; once it answers and no call to it is in
 flight, its registry is read, and whatever it says this node incarnation holds
-that this side does not know of is released (``ClientSide.reconcile_with``).
+that this side does not know of is released (``ClientSide.reconcile_with``). So is an owner that comes
+back as a new incarnation; and whatever its registry says has FAILED for this node, while this side never
+heard the status, is handled as that FAILED arriving now (a status is a topic message, and one sent before
+this node could connect to the new incarnation is lost).
 """
 import threading
 import time
@@ -292,6 +295,11 @@ class OwnerWatch:
             if owner.incarnation > 0:
                 rospy.loginfo('%s: owner %s is back at %s', self._core.prefix, owner.node, uri)
                 owner.uri, owner.last_ok, owner.refused_since, owner.lost = uri, now, None, ''
+                # its new incarnation rebuilt its registry and sent a FAILED for what it could not vouch for,
+                # which is lost if this node was not connected to it yet (after a power loss of the robot,
+                # before this node joined the new master): its registry is read (chaos seed 17, step 543)
+                with self._lock:
+                    owner.suspect = True
                 self._settle(owner)
                 return
             self._lose(owner, '%s restarted without a journal: what it served is gone' % owner.node, dead=True)

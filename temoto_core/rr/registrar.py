@@ -131,6 +131,7 @@ class ResourceRegistrar:
         self._client = ClientSide(core, self._links, header, recorder, call_deadline)
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
+        self._client.failed_at_owner = self._receiver.lost
         self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
         try:
             self._owners = OwnerWatch(core, self._client.holds_from, self._client.held_from, self._receiver.lost,
