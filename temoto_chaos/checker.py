@@ -196,4 +196,6 @@ def _deadlines(snap: Snapshot) -> List[str]:
             limit = DEADLINES.get(op, 1.0) + DEADLINE_SLACK
             if seen['max_s'] > limit:
                 out.append('client %d: a %s took %.1f s, past its deadline' % (i, op, seen['max_s']))
+        for text in state.get('unexpected', []):
+            out.append('client %d: a call failed with no TemotoError: %s' % (i, text[:300]))
     return out

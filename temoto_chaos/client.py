@@ -44,6 +44,7 @@ class ChaosClient:
         self.failed_heard: Dict[int, str] = {}     # local id -> the FAILED's message, until it is unloaded
         self.recent: Deque[dict] = collections.deque(maxlen=RECENT_STATUSES)
         self.calls: Dict[str, dict] = {}           # op -> {'count', 'failed', 'max_s'}: held to its deadline
+        self.unexpected: List[str] = []            # a call that raised something other than a TemotoError
 
     def _on_status(self, ev: StatusEvent) -> None:
         with self.lock:
@@ -108,12 +109,21 @@ class ChaosClient:
             seen['failed'] += 0 if ok else 1
             seen['max_s'] = max(seen['max_s'], took)
 
+    def unexpected_error(self, line: bytes, err: Exception) -> dict:
+        """An operation raised what no caller is told to expect: kept for the checker, and answered."""
+        text = '%r raised %s: %s' % (line[:200], type(err).__name__, err)
+        rospy.logerr('%s: %s', NODE_NAME, text)
+        with self.lock:
+            self.unexpected.append(text)
+        return {'ok': False, 'error': text}
+
     def state(self) -> dict:
         with self.lock:
             return {'node': rospy.get_name(), 'registrar': self.sensors.rr.name, 'pid': os.getpid(),
                     'held': {str(k): dict(v) for k, v in self.held.items()},
                     'failed_heard': {str(k): v for k, v in self.failed_heard.items()},
-                    'recent_statuses': list(self.recent), 'calls': {op: dict(v) for op, v in self.calls.items()}}
+                    'recent_statuses': list(self.recent), 'calls': {op: dict(v) for op, v in self.calls.items()},
+                    'unexpected': list(self.unexpected)}
 
     def handle(self, cmd: dict) -> dict:
         op = cmd.get('op')
@@ -135,6 +145,8 @@ class _Handler(socketserver.StreamRequestHandler):
                 answer = self.server.client.handle(json.loads(line))
             except (ValueError, KeyError, TypeError) as e:
                 answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
+            except Exception as e:      # an interface that raised something other than a TemotoError: reported
+                answer = self.server.client.unexpected_error(line, e)
             self.wfile.write(json.dumps(answer).encode() + b'\n')
             self.wfile.flush()
 

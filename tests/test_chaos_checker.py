@@ -144,3 +144,10 @@ def test_every_fault_kind_is_drawn_and_an_older_history_version_still_replays_it
     assert step(17, 132, 3, version=1).kind == 'partition'
     assert {s.kind for s in history(17, 300, 3, version=1)}.isdisjoint({'load_process', 'kill_consumer',
                                                                          'kill_robot'})
+
+
+def test_a_call_that_raised_no_temoto_error_is_a_violation():
+    snap = clean()
+    snap.clients[0]['unexpected'] = ["b'load_process' raised TransportTerminated: 32Broken pipe"]
+    assert checker.check(snap) == ["client 0: a call failed with no TemotoError: b'load_process' raised "
+                                   "TransportTerminated: 32Broken pipe"]

@@ -9,6 +9,7 @@ import contextlib
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -19,10 +20,10 @@ import rospy
 
 from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
-from temoto_core.rr import owners
+from temoto_core.rr import ResourceRegistrar, owners
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.deadlines import call_once
-from temoto_core.srv import GetRegistry
+from temoto_core.srv import GetRegistry, LoadTestResource
 from temoto_core.testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
@@ -189,3 +190,22 @@ def test_an_owner_answering_a_load_while_its_watch_reads_the_holds_stays_watched
             time.sleep(0.05)
     finally:
         watch.stop()
+
+
+def test_a_pooled_connection_broken_while_sending_is_retried_not_raised(rospy_client, procs):
+    """rospy raises TransportTerminated, which is not a ROSException, when the socket fails while a request is
+    sent: a pooled connection to an owner that had died broke a chaos client's load with an exception that
+    was not a TemotoError (seed 17, two hosts, step 1506). The call is retried on a new connection."""
+    RegistrarNode(procs, 'rr_dp')
+    rr = ResourceRegistrar('rr_pool_test', namespace='temoto')
+    try:
+        first = rr.call('rr_dp', 'load_test', LoadTestResource._request_class(name='cam'))
+        [service] = [s for s in rr._client._proxies if s.endswith('/rr_dp/load_test')]
+        [pooled] = rr._client._proxies[service]
+        pooled.transport.socket.shutdown(socket.SHUT_WR)      # the next request cannot be sent on it
+        second = rr.call('rr_dp', 'load_test', LoadTestResource._request_class(name='cam_2'))
+        assert second.trr.code == 0 and second.trr.resource_id != first.trr.resource_id
+        for response in (first, second):
+            rr.unload(response.trr.resource_id)
+    finally:
+        rr.shutdown()
