@@ -95,18 +95,21 @@ def test_a_failure_while_the_registrar_is_down_reaches_the_action_after_recovery
     wait_for(lambda: c.counts()['unloads'] == {'driver': 1}, 10, 'the failed driver released')
 
 
-def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the_owner_s_registry(chain):
+def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the_owner_s_registry(chain, procs,
+                                                                                                   tmp_path):
     """The chaos history of seed 17 (two hosts, step 543): the robot lost power and booted again; its Sensor
     Manager rebuilt its registry and sent the FAILED of a camera whose driver had died, before the clients had
     joined the new master, so the status went nowhere and the clients held a dead camera as healthy. Here the
     holder is stopped while the owner comes back, so it cannot connect to the new incarnation in time."""
-    a, b, c, restart = chain
+    a, b, c, _restart = chain
     res = a.call('rr_rb', 'mortal_cam')
     assert 'error' not in res, res
     _kill(b)
     os.kill(a.process.pid, signal.SIGSTOP)
     try:
-        b = restart()
+        # a stopped consumer does not answer the owner's check: the new incarnation keeps it as a consumer for
+        # a minute (its recovery grace) rather than dropping it while the test holds it stopped
+        b = RegistrarNode(procs, 'rr_rb', journal=str(tmp_path / 'rr_rb.sqlite3'), recovery_grace=60.0)
         wait_for(lambda: [q['state'] for q in b.registry()['server_queries']] == ['failed'], 20,
                  'the new incarnation to find mortal_cam dead')
         # the fault: the holder stays stopped while the FAILED goes out (after the status channel's 2 s wait for a
