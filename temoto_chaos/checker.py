@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
@@ -18,14 +19,41 @@ import rospy
 
 from temoto_core.srv import GetRegistry
 
-DRIVERS = ('d435_driver', 'hokuyo_driver', 'sick_driver', 'laser_stitcher')
-CONSUMERS = ('throttle',)                  # the clients' own processes (topic_tools), by the kernel's name
+# processes that are resources, by the kernel's name (15 characters at most):
+# a device's driver, one at most (and the station's screen, one RViz host)
+DRIVERS = ('d435_driver', 'hokuyo_driver', 'sick_driver', 'laser_stitcher', 'rviz_host')
+CONSUMERS = ('throttle',)                  # the clients' own processes (topic_tools): one per command line
+# a tracker's algorithm (color_blob_tracker), one per tracker loaded: a tracker that FAILED keeps its own
+# until its holder releases it, and an equal request meanwhile gets a new one
+ALGORITHMS = ('color_blob_trac',)
 CLIENT_NODE_PREFIX = 'chaos_client_'       # the clients' node names (the runner names each incarnation)
-# the servers whose consumers the clients are: (owner, server, what it serves)
-SERVED = (('sensor_manager', 'start_sensor', 'sensor'), ('er_manager', 'load_process', 'process'))
+
+
+@dataclasses.dataclass(frozen=True)
+class Manager:
+    """A manager the checker reads: its name in reports, its registrar's path, and the servers whose
+    consumers the clients are (server, what it serves)."""
+    label: str
+    path: str                                  # /<namespace>/<registrar>
+    serves: Tuple[Tuple[str, str], ...] = ()
+    lists_processes: bool = False              # an ER Manager: its processes are read too
+
+
+def managers(robot: str, station: Optional[str] = None) -> List[Manager]:
+    """The managers of the robot's stack, and of the station's when it runs one (history 3 and later)."""
+    out = [Manager('Sensor Manager', '/%s/temoto_sensor_manager' % robot, (('start_sensor', 'sensor'),)),
+           Manager('ER Manager', '/%s/temoto_er_manager' % robot, (('load_process', 'process'),), True)]
+    if station:
+        out += [Manager('Context Manager', '/%s/temoto_context_manager' % robot, (('track_object', 'tracked object'),)),
+                Manager("station's ER Manager", '/%s/temoto_er_manager' % station, (), True),
+                Manager('Output Manager', '/%s/temoto_output_manager' % station, (('load_rviz_plugin', 'display'),))]
+    return out
+
+
 READ_TIMEOUT = 2.0
-# a call's deadline (the managers' contracts) and the slack a loaded machine gets before it is a violation
-DEADLINES = {'load': 40.0, 'unload': 15.0}
+# a call's deadlines, load and unload (the managers' contracts), by the kind of resource a client holds (it
+# counts its calls as '<load|unload> <kind>'), and the slack a loaded machine gets before it is a violation
+DEADLINES = {'sensor': (40.0, 15.0), 'process': (15.0, 10.0), 'tracked': (70.0, 25.0), 'display': (60.0, 15.0)}
 DEADLINE_SLACK = 2.0
 
 
@@ -56,41 +84,53 @@ def read_json(service: str, timeout: float = READ_TIMEOUT) -> Optional[dict]:
 
 @dataclasses.dataclass
 class Snapshot:
-    sensor_manager: Optional[dict]
-    er_manager: Optional[dict]
-    er_processes: Optional[dict]
+    managers: List[Manager]
+    registries: Dict[str, Optional[dict]]    # manager label -> its registry (None: no answer)
+    processes: Dict[str, Optional[dict]]     # an ER Manager's label -> its process list
     clients: Dict[int, dict]                 # client index -> its state (the socket's answer)
     client_registries: Dict[int, Optional[dict]]
     resources: Dict[int, Tuple[str, str]]    # live resource process pid -> (its name, its command line)
 
 
+def resource_name(name: str, cmdline: List[str]) -> Optional[str]:
+    """Which driver or consumer a process is, if any: by the kernel's name (a node forked from the ER
+    Manager's zygote is named after its script, and shows the zygote's command line), else by the program
+    or script its command line runs (a plain start is named after its interpreter)."""
+    candidates = [name] + [os.path.basename(arg)[:15] for arg in cmdline[:2]]
+    return next((c for c in candidates if c in DRIVERS + CONSUMERS + ALGORITHMS), None)
+
+
 def resource_processes(pids: List[int]) -> Dict[int, Tuple[str, str]]:
-    """Of ``pids``, the drivers and consumer processes: pid -> (the kernel's name, the command line)."""
+    """Of ``pids``, the drivers and consumer processes: pid -> (which one, the command line)."""
     found = {}
     for pid in pids:
         try:
             proc = psutil.Process(pid)
-            name = proc.name()
-            if name in DRIVERS or name in CONSUMERS:
-                found[pid] = (name, ' '.join(proc.cmdline()))
+            cmdline = proc.cmdline()
+            which = resource_name(proc.name(), cmdline)
         except psutil.Error:
             continue
+        if which is not None:
+            found[pid] = (which, ' '.join(cmdline))
     return found
 
 
-def take(namespace: str, client_states: Dict[int, dict], session_processes: Callable[[], List[int]]) -> Snapshot:
-    base = '/%s' % namespace.strip('/')
+def take(read: List[Manager], client_namespace: str, client_states: Dict[int, dict],
+         session_processes: Callable[[], List[int]]) -> Snapshot:
+    """Everything at once: the managers' registries (and ER Managers' processes), the clients' registries
+    (their registrars are in ``client_namespace``) and the resource processes the kernel has."""
     resources = resource_processes(session_processes())
-    managers = [base + '/temoto_sensor_manager/registry', base + '/temoto_er_manager/registry',
-                base + '/temoto_er_manager/processes']
-    clients = {i: '%s/%s/registry' % (base, s['registrar']) for i, s in client_states.items()}
-    read = read_all(managers + list(clients.values()))
-    return Snapshot(*(read[m] for m in managers), client_states, {i: read[c] for i, c in clients.items()}, resources)
+    clients = {i: '/%s/%s/registry' % (client_namespace.strip('/'), s['registrar']) for i, s in client_states.items()}
+    services = [m.path + '/registry' for m in read] + [m.path + '/processes' for m in read if m.lists_processes]
+    answers = read_all(services + list(clients.values()))
+    return Snapshot(read, {m.label: answers[m.path + '/registry'] for m in read},
+                    {m.label: answers[m.path + '/processes'] for m in read if m.lists_processes},
+                    client_states, {i: answers[c] for i, c in clients.items()}, resources)
 
 
 def _settled(snap: Snapshot) -> List[str]:
     out = []
-    for name, reg in (('Sensor Manager', snap.sensor_manager), ('ER Manager', snap.er_manager)):
+    for name, reg in snap.registries.items():
         if reg is None:
             out.append('the %s does not answer' % name)
         elif reg.get('recovering'):
@@ -102,30 +142,35 @@ def _settled(snap: Snapshot) -> List[str]:
 
 def check(snap: Snapshot) -> List[str]:
     """Every violation this snapshot shows (an unsettled system is reported as such, not checked)."""
-    unsettled = _settled(snap)
-    if unsettled or snap.er_processes is None:
-        return unsettled or ['the ER Manager does not list its processes']
+    unsettled = _settled(snap) + ['the %s does not list its processes' % name
+                                  for name, procs in snap.processes.items() if procs is None]
+    if unsettled:
+        return unsettled
     out: List[str] = []
-    listed = {p['pid']: (row, p) for row in snap.er_processes['processes'] for p in row['processes']}
-    # every live driver or consumer process belongs to a registry entry, and none runs twice: a driver is one
-    # per device (a forked driver shows its zygote's command line), a consumer one per command line
+    listed = {p['pid']: (name, row, p) for name, procs in snap.processes.items()
+              for row in procs['processes'] for p in row['processes']}
+    # every live resource process belongs to a registry entry, and none runs twice: a driver is one per
+    # device (a forked driver shows its zygote's command line), a consumer one per command line; a tracker's
+    # algorithm runs once per tracker entry (the entry is what is checked)
     same: Dict[str, List[int]] = {}
     for pid, (name, cmdline) in snap.resources.items():
         if pid not in listed:
             out.append('%s (pid %d) runs, but no ER Manager entry has it' % (name, pid))
-        same.setdefault(name if name in DRIVERS else cmdline, []).append(pid)
+        if name not in ALGORITHMS:
+            same.setdefault(name if name in DRIVERS else cmdline, []).append(pid)
     for what, pids in sorted(same.items()):
         if len(pids) > 1:
             out.append('%s runs %d times: %s' % (what, len(pids), sorted(pids)))
     # every ER entry is alive or FAILED: a process the kernel no longer has is known to have exited, and the
     # resource of a process that exited is FAILED (or gone) in the ER Manager's registry
-    active_er = {q['internal_id'] for q in snap.er_manager['server_queries'] if q['state'] == 'active'}
-    for pid, (row, proc) in listed.items():
+    for pid, (name, row, proc) in listed.items():
         if not psutil.pid_exists(pid) and proc['state'] != 'exited':
-            out.append('the ER Manager lists %s (pid %d) as %s, but it is gone' % (row['label'], pid, proc['state']))
-    for row in snap.er_processes['processes']:
-        if row['state'] == 'exited' and row['resource_id'] in active_er:
-            out.append('the ER Manager\'s %s exited, but its resource is still active' % row['label'])
+            out.append('the %s lists %s (pid %d) as %s, but it is gone' % (name, row['label'], pid, proc['state']))
+    for name, procs in snap.processes.items():
+        active = {q['internal_id'] for q in snap.registries[name]['server_queries'] if q['state'] == 'active'}
+        for row in procs['processes']:
+            if row['state'] == 'exited' and row['resource_id'] in active:
+                out.append('the %s\'s %s exited, but its resource is still active' % (name, row['label']))
     out += _holders(snap)
     out += _deadlines(snap)
     return out
@@ -147,9 +192,10 @@ def _holders(snap: Snapshot) -> List[str]:
         for lid, info in state['held'].items():
             if int(lid) not in local:
                 out.append('client %d: acknowledged load %s (%s) is not in its registry: lost'
-                           % (i, lid, info['sensor']))
-    for owner, server, what in SERVED:
-        out += _served_holders(snap, getattr(snap, owner), server, what)
+                           % (i, lid, info['what']))
+    for manager in snap.managers:
+        for server, what in manager.serves:
+            out += _served_holders(snap, snap.registries[manager.label], server, what)
     return out
 
 
@@ -180,8 +226,7 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
                     out.append('client %d holds %s id %d, which is not served to it: lost' % (i, what, key[1]))
             elif q['state'] == 'failed' and not any(lid in heard_failed for lid in cq['local_ids']):
                 out.append('client %d never heard the FAILED of its %s %s (%s)' % (
-                    i, what, q['summary'].get('sensor_type') or q['summary'].get('executable', '?'),
-                    q.get('failure', '')[:120]))
+                    i, what, _describe(q['summary']), q.get('failure', '')[:120]))
     for key, q in served.items():
         if key not in held:
             out.append('%s id %d of %s is counted as held by %s, which holds nothing of it: a leaked reference'
@@ -189,11 +234,20 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
     return out
 
 
+def _describe(summary: dict) -> str:
+    for key in ('sensor_type', 'executable', 'object_name', 'topic', 'type'):
+        if summary.get(key):
+            return str(summary[key])
+    return '?'
+
+
 def _deadlines(snap: Snapshot) -> List[str]:
     out = []
     for i, state in snap.clients.items():
         for op, seen in sorted(state['calls'].items()):
-            limit = DEADLINES.get(op, 1.0) + DEADLINE_SLACK
+            verb, _, kind = op.partition(' ')
+            load, unload = DEADLINES.get(kind, (1.0, 1.0))
+            limit = (load if verb == 'load' else unload) + DEADLINE_SLACK
             if seen['max_s'] > limit:
                 out.append('client %d: a %s took %.1f s, past its deadline' % (i, op, seen['max_s']))
         for text in state.get('unexpected', []):

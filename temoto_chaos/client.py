@@ -1,5 +1,5 @@
-"""A chaos client: a registrar of its own in its own process, loading and unloading sensors and processes
-when told.
+"""A chaos client: a registrar of its own in its own process, loading and unloading sensors, processes,
+tracked objects and displays when told.
 
 The runner drives it over a Unix socket (one JSON object per line, one answer per line), so it reaches the
 client whatever the ROS graph is doing. The client acknowledges what the Sensor Manager acknowledged, and
@@ -16,14 +16,16 @@ import os
 import socketserver
 import threading
 import time
-from typing import Deque, Dict, List
+from typing import Callable, Deque, Dict, List
 
 import rospy
 
 from temoto_core.errors import TemotoError
 from temoto_core.node import init_node, spin
 from temoto_core.rr import StatusEvent
+from temoto_context_manager.interface import ContextManagerInterface
 from temoto_er_manager.interface import ERManagerInterface
+from temoto_output_manager.interface import OutputManagerInterface
 from temoto_sensor_manager.interface import SensorManagerInterface
 
 NODE_NAME = 'chaos_client'     # the runner names each incarnation (__name:=chaos_client_<client>_<generation>)
@@ -34,11 +36,18 @@ THROTTLE = '/usr/lib/topic_tools/throttle'     # the process a client runs (the 
 class ChaosClient:
     """The state a consumer knows, and the operations the runner asks of it."""
 
-    def __init__(self, namespace: str) -> None:
+    def __init__(self, namespace: str, station_namespace: str = '') -> None:
+        self.namespace = namespace
         self.sensors = SensorManagerInterface(namespace=namespace)
-        self.processes = ERManagerInterface(rr=self.sensors.rr, namespace=namespace)     # one registrar
+        rr = self.sensors.rr         # one registrar for every manager's resources
+        self.processes = ERManagerInterface(rr=rr, namespace=namespace)
+        self.context = ContextManagerInterface(rr=rr, namespace=namespace)
+        self.screen = OutputManagerInterface(rr=rr, namespace=station_namespace) if station_namespace else None
+        # how each kind of held resource is released
+        self.releases = {'sensor': self.sensors.stop_sensor, 'process': self.processes.unload,
+                         'tracked': self.context.stop, 'display': self.screen.hide if self.screen else None}
         self.lock = threading.Lock()
-        self.held: Dict[int, dict] = {}        # local id -> {'kind', 'type', 'sensor', 'failed': message or ''}
+        self.held: Dict[int, dict] = {}        # local id -> {'kind', 'what' (its request), 'failed': message or ''}
         # what the checker needs stays bounded over a history of any length: the FAILED heard for what is
         # still held, the last statuses (to read a report), and per operation its count and slowest call
         self.failed_heard: Dict[int, str] = {}     # local id -> the FAILED's message, until it is unloaded
@@ -54,48 +63,58 @@ class ChaosClient:
                 if ev.resource_id in self.held:
                     self.held[ev.resource_id]['failed'] = ev.message or 'FAILED'
 
-    def load_sensor(self, sensor_type: str, keys: List[str]) -> dict:
+    def _load(self, kind: str, what: str, load: Callable[[], object], resource_id: Callable[[object], int],
+              answer: Callable[[object], dict]) -> dict:
+        """One load through an interface: acknowledged (held, answered with ``answer``) or refused."""
         t0 = time.monotonic()
         try:
-            result = self.sensors.start_sensor(sensor_type, output_topics=keys, on_status=self._on_status)
+            result = load()
         except TemotoError as e:
-            self._call('load', t0, False)
+            self._call('load ' + kind, t0, False)
             return {'ok': False, 'error': str(e)}
-        self._call('load', t0, True)
+        self._call('load ' + kind, t0, True)
+        rid = resource_id(result)
         with self.lock:
-            self.held[result.resource_id] = {'kind': 'sensor', 'type': sensor_type, 'sensor': result.sensor_name,
-                                             'failed': ''}
-        return {'ok': True, 'id': result.resource_id, 'sensor': result.sensor_name}
+            self.held[rid] = {'kind': kind, 'what': what, 'failed': ''}
+        return dict(answer(result), ok=True, id=rid)
+
+    def load_sensor(self, sensor_type: str, keys: List[str]) -> dict:
+        return self._load('sensor', sensor_type,
+                          lambda: self.sensors.start_sensor(sensor_type, output_topics=keys, on_status=self._on_status),
+                          lambda r: r.resource_id, lambda r: {'sensor': r.sensor_name})
 
     def load_throttle(self, topic: str, rate: float) -> dict:
         """A process of its own: ``topic`` throttled to ``rate`` Hz on ``<topic>_throttled`` (equal requests
         share one process)."""
-        t0 = time.monotonic()
         args = 'messages %s %g %s_throttled' % (topic, rate, topic)
-        try:
-            result = self.processes.load_command(THROTTLE, args, on_status=self._on_status)
-        except TemotoError as e:
-            self._call('load', t0, False)
-            return {'ok': False, 'error': str(e)}
-        self._call('load', t0, True)
-        rid = result.trr.resource_id
-        with self.lock:
-            self.held[rid] = {'kind': 'process', 'type': 'throttle', 'sensor': args, 'failed': ''}
-        return {'ok': True, 'id': rid, 'pid': result.pid}
+        return self._load('process', args,
+                          lambda: self.processes.load_command(THROTTLE, args, on_status=self._on_status),
+                          lambda r: r.trr.resource_id, lambda r: {'pid': r.pid})
+
+    def track_object(self, name: str) -> dict:
+        """An object tracked by the robot's Context Manager (its tracker reads a sensor's data)."""
+        return self._load('tracked', name, lambda: self.context.track_object(name, on_status=self._on_status),
+                          lambda r: r.resource_id, lambda r: {'tracker': r.tracker_name, 'topic': r.topic})
+
+    def show_display(self, display_type: str, topic: str) -> dict:
+        """A display of the robot's ``topic`` (relative to its namespace) on the station's screen."""
+        if self.screen is None:
+            return {'ok': False, 'error': 'this client has no station (no ~station_namespace)'}
+        full = '/%s/%s' % (self.namespace, topic)
+        return self._load('display', '%s %s' % (display_type, full),
+                          lambda: self.screen.show(display_type, full, on_status=self._on_status),
+                          lambda r: r.trr.resource_id, lambda r: {'display': r.display_name})
 
     def unload(self, resource_id: int) -> dict:
         t0 = time.monotonic()
         with self.lock:
             kind = self.held.get(resource_id, {}).get('kind', 'sensor')
         try:
-            if kind == 'process':
-                self.processes.unload(resource_id)
-            else:
-                self.sensors.stop_sensor(resource_id)
+            self.releases[kind](resource_id)
             ok, error = True, ''
         except TemotoError as e:
             ok, error = False, str(e)
-        self._call('unload', t0, ok)
+        self._call('unload ' + kind, t0, ok)
         with self.lock:
             self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
             self.failed_heard.pop(resource_id, None)
@@ -131,11 +150,16 @@ class ChaosClient:
             return self.load_sensor(str(cmd['type']), [str(k) for k in cmd['keys']])
         if op == 'load_process':
             return self.load_throttle(str(cmd['topic']), float(cmd['rate']))
+        if op == 'track_object':
+            return self.track_object(str(cmd['object']))
+        if op == 'show_display':
+            return self.show_display(str(cmd['type']), str(cmd['topic']))
         if op == 'unload':
             return self.unload(int(cmd['id']))
         if op == 'state':
             return self.state()
-        return {'ok': False, 'error': 'unknown op %r: load_sensor, load_process, unload or state' % (op,)}
+        return {'ok': False, 'error': 'unknown op %r: load_sensor, load_process, track_object, show_display, '
+                                      'unload or state' % (op,)}
 
 
 class _Handler(socketserver.StreamRequestHandler):
@@ -159,7 +183,7 @@ def main() -> None:
     init_node(NODE_NAME)
     namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
     socket_path = str(rospy.get_param('~control_socket'))
-    client = ChaosClient(namespace)
+    client = ChaosClient(namespace, str(rospy.get_param('~station_namespace', '')))
     server = _Server(socket_path, _Handler)
     server.client = client
     threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()

@@ -11,13 +11,15 @@ import dataclasses
 import random
 from typing import Dict, Iterator, List, Tuple
 
-VERSION = 2
+VERSION = 3
 # (kind, weight) by history version: client operations are the bulk of a history, faults the rest. A new
 # version draws other steps from the same seed; the older ones stay, so that every seed ever reported
-# replays (version 1: sensors only, no consumer processes and no power loss of the robot).
+# replays (version 1: sensors only, no consumer processes and no power loss of the robot; version 2: no
+# tracked objects, no displays, and only the robot's Sensor and ER Managers).
 CLIENT_OPS: Dict[int, List[Tuple[str, float]]] = {
     1: [('load_sensor', 6), ('unload', 5)],
     2: [('load_sensor', 5), ('load_process', 2), ('unload', 6)],
+    3: [('load_sensor', 4), ('load_process', 1.5), ('track_object', 1.5), ('show_display', 2), ('unload', 8)],
 }
 NEMESIS: Dict[int, List[Tuple[str, float]]] = {
     1: [('kill_driver', 1), ('kill_client', 1), ('kill_manager', 1), ('stop_manager', 1), ('unplug', 1),
@@ -26,13 +28,25 @@ NEMESIS: Dict[int, List[Tuple[str, float]]] = {
         ('unplug', 1), ('replug', 2), ('partition', 1),
         ('kill_robot', 0.25)],                         # the slowest fault (the robot boots again): the rarest
 }
+NEMESIS[3] = NEMESIS[2]
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
                                                        ('lidar', ('lidar_data', 'cloud_data'))]
 # the process a client runs: a sensor topic (relative to the robot's namespace) throttled to a rate, in Hz
 THROTTLE_REQUESTS: List[Tuple[str, float]] = [('sick/scan', 2.0), ('hokuyo/scan', 2.0), ('d435/color/camera_info', 1.0)]
-MANAGERS = ('/temoto_sensor_manager', '/temoto_er_manager')
+# what a client shows on the station's screen: a display type and a topic of the robot's (relative)
+DISPLAY_REQUESTS: List[Tuple[str, str]] = [('laser scan', 'hokuyo/scan'), ('laser scan', 'sick/scan'),
+                                           ('image', 'd435/color/image_raw')]
+OBJECTS = ('hand',)            # what a client asks the Context Manager to track (trackers.yaml)
+# the managers a fault may kill or stop, by history version: relative to the robot's namespace, or to the
+# station's ('station/...')
+MANAGERS: Dict[int, Tuple[str, ...]] = {
+    1: ('/temoto_sensor_manager', '/temoto_er_manager'),
+    3: ('/temoto_sensor_manager', '/temoto_er_manager', '/temoto_context_manager', 'station/temoto_output_manager',
+        'station/temoto_er_manager'),
+}
+MANAGERS[2] = MANAGERS[1]
 DEVICES = ('d435', 'hokuyo', 'sick')
 MODES = ('crash', 'stall')
 
@@ -65,6 +79,11 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
         elif kind == 'load_process':
             topic, rate = rng.choice(THROTTLE_REQUESTS)
             args.update(topic=topic, rate=rate)
+        elif kind == 'track_object':
+            args['object'] = rng.choice(OBJECTS)
+        elif kind == 'show_display':
+            display_type, topic = rng.choice(DISPLAY_REQUESTS)
+            args.update(type=display_type, topic=topic)
         else:
             args['pick'] = rng.randrange(1 << 30)
         return Step(index, kind, args)
@@ -74,9 +93,10 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
     if kind == 'kill_client':
         return Step(index, kind, {'client': rng.randrange(clients)})
     if kind == 'kill_manager':
-        return Step(index, kind, {'manager': rng.choice(MANAGERS)})
+        return Step(index, kind, {'manager': rng.choice(MANAGERS[version])})
     if kind == 'stop_manager':
-        return Step(index, kind, {'manager': rng.choice(MANAGERS), 'seconds': round(rng.uniform(0.2, 2.0), 2)})
+        return Step(index, kind, {'manager': rng.choice(MANAGERS[version]),
+                                  'seconds': round(rng.uniform(0.2, 2.0), 2)})
     if kind == 'unplug':
         return Step(index, kind, {'device': rng.choice(DEVICES), 'mode': rng.choice(MODES)})
     if kind == 'partition':

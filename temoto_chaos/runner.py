@@ -1,8 +1,10 @@
 """``temoto chaos``: run a seeded history against the robot's real managers and check it after every step.
 
-The stack is ``robot.launch`` with journals and respawn (``recovery:=true``): the simulated VaultBot, its
-ER Manager and its Sensor Manager, under their own roscore. Each client is a process of its own
-(``chaos_client``) with its own registrar. A step is a client operation (a sensor or a process loaded, or
+The robot's stack is ``robot.launch`` with journals and respawn (``recovery:=true``): the simulated
+VaultBot, its ER Manager, its Sensor Manager and (history 3 and later) its Context Manager, under their own
+roscore. From history 3 the operator's station runs a stack too (``launch/station.launch``: an ER Manager
+and the Output Manager with its RViz host). Each client is a process of its own (``chaos_client``) with its
+own registrar. A step is a client operation (a sensor, a process, a tracked object or a display loaded, or
 something held unloaded; equal requests are shared) or a fault (a driver, a consumer process, a client or
 a manager SIGKILLed; a manager SIGSTOPped for a while; a cable pulled, crash or stall, or plugged back;
 with two hosts, the link between them cut for a while; every process of the robot killed, then booted
@@ -17,7 +19,7 @@ import json
 import os
 import signal
 import time
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import psutil
 import rospy
@@ -32,11 +34,15 @@ from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
 
 from . import checker
-from .history import MANAGERS, VERSION, Step, history
+from .history import VERSION, Step, history
 
 ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
-ER_CONFIG = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'config', 'er_chaos.yaml')
+STATION = 'chaos_station'      # the station's, from history 3
+HERE = os.path.dirname(os.path.abspath(__file__))
+ER_CONFIG = os.path.join(HERE, 'config', 'er_chaos.yaml')
 LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true', 'er_config:=' + ER_CONFIG]
+STATION_LAUNCH = os.path.join(HERE, 'launch', 'station.launch')
+STATION_ARGS = ['temoto_namespace:=' + STATION, 'robot:=' + ROBOT]
 CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
 STACK_START_S = 60.0           # s: the robot's nodes to register (at boot and after a power loss)
 PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
@@ -53,18 +59,25 @@ class ChaosOptions:
     hosts: int = 1                  # 2: the robot's stack on one host, the clients on the station (a partition fault)
     version: int = VERSION          # how steps are drawn from the seed (history.py)
 
+    @property
+    def station(self) -> bool:
+        """History 3 and later: trackers on the robot, displays on a station stack of its own."""
+        return self.version >= 3
+
 
 class ClientHandle:
     """One client incarnation: its process and its control socket."""
 
-    def __init__(self, launcher: ProcessGroupLauncher, index: int, generation: int, socket_path: str) -> None:
+    def __init__(self, launcher: ProcessGroupLauncher, index: int, generation: int, socket_path: str,
+                 station: str = '') -> None:
         if os.path.exists(socket_path):
             os.unlink(socket_path)      # a killed incarnation's
         self.index = index
         self.socket_path = socket_path
         name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
         self.proc = launcher.node('temoto_chaos', 'chaos_client', name=name,
-                                  params={'control_socket': socket_path, 'temoto_namespace': ROBOT})
+                                  params={'control_socket': socket_path, 'temoto_namespace': ROBOT,
+                                          'station_namespace': station})
         deadline = time.monotonic() + 20.0
         while not os.path.exists(socket_path):
             if time.monotonic() > deadline or not self.proc.alive():
@@ -81,6 +94,9 @@ class Chaos:
         self.token = 'chaos_' + os.urandom(6).hex()
         self.master: Optional[RosMaster] = None
         self.stack = None
+        self.station_stack = None
+        self.managers = checker.managers(ROBOT, STATION if opts.station else None)
+        self.launch_args = LAUNCH_ARGS + (['context_manager:=true'] if opts.station else [])
         self.launcher: Optional[ProcessGroupLauncher] = None
         self.clients: Dict[int, ClientHandle] = {}
         self.generations: Dict[int, int] = collections.Counter()
@@ -108,10 +124,14 @@ class Chaos:
             env = self.hosts.env(robot, self.master.uri, base=dict(self.master.env, TEMOTO_TEST_SESSION=self.token))
             env.pop('DISPLAY', None)
             self._leave_station = self.hosts.enter(station)     # this process talks ROS from the station
-            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS,
+            self._new_stack = lambda: Stack(launch, env, logs, self.launch_args,
                                             wrap=lambda argv: self.hosts.argv(robot, argv))
             self.stack = self._new_stack()
             self.stack.start(STACK_START_S)
+            if self.opts.station:
+                self.station_stack = Stack(STATION_LAUNCH, self.hosts.env(station, self.master.uri, base=env), logs,
+                                           STATION_ARGS, wrap=lambda argv: self.hosts.argv(station, argv))
+                self.station_stack.start(STACK_START_S)
             for key, value in self.hosts.env(station, self.master.uri).items():
                 if key.startswith('ROS_'):
                     os.environ[key] = value
@@ -122,9 +142,12 @@ class Chaos:
             self.master.point_this_process()
             env = dict(self.master.env, TEMOTO_TEST_SESSION=self.token)
             env.pop('DISPLAY', None)
-            self._new_stack = lambda: Stack(launch, env, logs, LAUNCH_ARGS)
+            self._new_stack = lambda: Stack(launch, env, logs, self.launch_args)
             self.stack = self._new_stack()
             self.stack.start(STACK_START_S)
+            if self.opts.station:
+                self.station_stack = Stack(STATION_LAUNCH, env, logs, STATION_ARGS)
+                self.station_stack.start(STACK_START_S)
             self.launcher = ProcessGroupLauncher(env, clients_dir)
         rospy.init_node('temoto_chaos', disable_signals=True)
         self._wait_managers()
@@ -132,20 +155,24 @@ class Chaos:
             self._start_client(i)
 
     def _wait_managers(self) -> None:
-        """Until both managers answer for their registries (a dead incarnation's service may still be listed)."""
-        wait_for(lambda: all(checker.read_json('/%s%s/registry' % (ROBOT, m)) is not None for m in MANAGERS),
-                 STACK_START_S, "the robot's managers to answer")
+        """Until every manager answers for its registry (a dead incarnation's service may still be listed)."""
+        services = [m.path + '/registry' for m in self.managers]
+        wait_for(lambda: all(reg is not None for reg in checker.read_all(services).values()),
+                 STACK_START_S, 'the managers to answer')
 
     def _start_client(self, index: int) -> None:
         self.generations[index] += 1
         path = os.path.join(self.opts.out_dir, 'client_%d.sock' % index)
-        self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path)
+        self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path,
+                                           STATION if self.opts.station else '')
 
     def stop(self) -> List[tuple]:
         if self.hosts is not None:
             self.hosts.link(True)        # a run stopped during a partition: the nodes stop over a working link
         if self.launcher is not None:
             self.launcher.stop_all()
+        if self.station_stack is not None:
+            self.station_stack.stop()
         if self.stack is not None:
             self.stack.stop()
         if self.master is not None:
@@ -172,6 +199,14 @@ class Chaos:
             answer = self.clients[a['client']].ask(op='load_process', topic=a['topic'], rate=a['rate'])
             return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
                                       else 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'track_object':
+            answer = self.clients[a['client']].ask(op='track_object', object=a['object'])
+            return 'client %d: %s' % (a['client'], '%s by %s' % (a['object'], answer['tracker']) if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'show_display':
+            answer = self.clients[a['client']].ask(op='show_display', type=a['type'], topic=a['topic'])
+            return 'client %d: %s' % (a['client'], 'display %s' % answer['display'] if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
         if kind == 'unload':
             held = sorted(self.clients[a['client']].ask(op='state')['held'])
             if not held:
@@ -183,13 +218,13 @@ class Chaos:
             return 'one host: no link to cut'
         self.faults[kind] += 1
         if kind in ('kill_driver', 'kill_consumer'):
-            wanted = checker.DRIVERS if kind == 'kill_driver' else checker.CONSUMERS
-            pids = sorted(pid for pid, name in self._resources().items() if name in wanted)
-            if not pids:
+            wanted = checker.DRIVERS if kind == 'kill_driver' else checker.CONSUMERS + checker.ALGORITHMS
+            running = sorted((pid, name) for pid, (name, _) in self._resources().items() if name in wanted)
+            if not running:
                 return 'none runs'
-            pid = pids[a['pick'] % len(pids)]
+            pid, name = running[a['pick'] % len(running)]
             os.kill(pid, signal.SIGKILL)
-            return 'SIGKILL %s %d' % (kind.split('_')[1], pid)
+            return 'SIGKILL %s %s (pid %d)' % (kind.split('_')[1], name, pid)
         if kind == 'kill_client':
             old = self.clients[a['client']].proc
             os.kill(old.pid, signal.SIGKILL)
@@ -197,7 +232,7 @@ class Chaos:
             self._start_client(a['client'])
             return 'SIGKILL client %d, started again' % a['client']
         if kind in ('kill_manager', 'stop_manager'):
-            name = '/%s%s' % (ROBOT, a['manager'])
+            name = manager_node(a['manager'])
             uri = lookup_node(self.master.uri, name)
             pid = node_pid(uri) if uri else None
             if pid is None:
@@ -255,21 +290,42 @@ class Chaos:
             self.master.stop()                  # reaps it
             self.master.start()                 # the robot boots: a new master at the same address
         else:
-            keep = {self.master.proc.pid, *(c.proc.pid for c in self.clients.values())}
-            keep.update(child.pid for child in psutil.Process(self.master.proc.pid).children(recursive=True))
-            kill_leftovers(self.token, exclude=sorted(keep))
+            # the master, the clients and the station's stack stay, with whatever they started
+            roots = [self.master.proc.pid, *(c.proc.pid for c in self.clients.values()),
+                     *(self.station_stack.pids if self.station_stack is not None else [])]
+            keep = set(roots)
+            for pid in roots:
+                try:
+                    keep.update(child.pid for child in psutil.Process(pid).children(recursive=True))
+                except psutil.NoSuchProcess:
+                    continue
+            kill_leftovers(self.token, exclude=sorted(keep) + self._station_processes())
         self.stack = self._new_stack()
         self.stack.start(STACK_START_S)
         self._wait_managers()
         return 'the robot lost power and booted again in %.1f s%s' % (
             time.monotonic() - t0, ' (its master too)' if self.hosts is not None else '')
 
+    def _station_processes(self) -> List[int]:
+        """What the station's ER Manager runs (its RViz host): with a journal its children outlive it, so
+        they are not always its descendants."""
+        if self.station_stack is None:
+            return []
+        procs = checker.read_json('/%s/temoto_er_manager/processes' % STATION) or {'processes': []}
+        pids = [p['pid'] for row in procs['processes'] for p in row['processes']]
+        for pid in list(pids):
+            try:
+                pids += [child.pid for child in psutil.Process(pid).children(recursive=True)]
+            except psutil.NoSuchProcess:
+                continue
+        return pids
+
     def _cable(self, device: str, state: str, mode: str) -> None:
         resp = rospy.ServiceProxy('/%s/vaultbot_sim/set_device_state' % ROBOT, SetDeviceState)(device, state, mode)
         if not resp.success:
             raise RuntimeError('the simulation refused %s %s: %s' % (state, device, resp.message))
 
-    def _resources(self) -> Dict[int, str]:
+    def _resources(self) -> Dict[int, Tuple[str, str]]:
         """The live processes that are resources (drivers and the clients' own processes), by pid: their names."""
         return checker.resource_processes([pid for pid, _ in leftover_processes(self.token)])
 
@@ -279,7 +335,8 @@ class Chaos:
         deadline = time.monotonic() + self.opts.settle_s
         while True:
             states = {i: c.ask(op='state') for i, c in self.clients.items()}
-            snap = checker.take(ROBOT, states, lambda: [pid for pid, _ in leftover_processes(self.token)])
+            snap = checker.take(self.managers, ROBOT, states,
+                                lambda: [pid for pid, _ in leftover_processes(self.token)])
             violations = self.partition_violations + checker.check(snap)
             self.checks += 1
             if not violations or time.monotonic() > deadline:
@@ -315,6 +372,13 @@ class Chaos:
                 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': violations, 'failed_step': failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
+
+
+def manager_node(manager: str) -> str:
+    """A history's manager (relative to the robot's namespace, or 'station/...') as its node's name."""
+    if manager.startswith('station/'):
+        return '/%s/%s' % (STATION, manager.split('/', 1)[1])
+    return '/%s%s' % (ROBOT, manager)
 
 
 def replay_command(opts: ChaosOptions, until: int) -> str:

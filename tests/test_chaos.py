@@ -10,7 +10,7 @@ import pytest
 from temoto_core.processes import SESSION_ENV, leftover_processes
 from temoto_chaos.history import NEMESIS, VERSION, history
 
-SEED = 20261125      # a seed whose first 300 steps hold every kind of fault, the robot's power loss 3 times
+SEED = 20261131      # a seed whose first 300 steps hold every kind of fault, the robot's power loss once
 STEPS = 300
 TWO_HOSTS_SEED = 6   # a seed whose first 60 steps cut the link once and kill the robot host once
 TIMEOUT = 900
@@ -39,6 +39,16 @@ def test_a_seeded_history_with_every_fault_keeps_every_invariant_and_replays_fro
     assert set(summary['faults']) == {kind for kind, _ in NEMESIS[VERSION]} - {'partition'}, summary['faults']
     assert summary['checks'] >= STEPS and summary['leftovers'] == 0 and left == []
     assert '0 violations' in proc.stdout.splitlines()[-1]
+    # the faults hit something (a kill that finds nothing to kill is no fault), and every kind of resource
+    # was acknowledged at least once
+    did = {}
+    for e in result['log']:
+        did.setdefault(e['kind'], []).append(e['did'])
+    for kind in ('kill_driver', 'kill_consumer', 'kill_client', 'kill_manager'):
+        assert any(text.startswith('SIGKILL') for text in did[kind]), (kind, did[kind])
+    for kind, acknowledged in (('load_sensor', ': realsense_d435'), ('load_process', 'throttle pid'),
+                               ('track_object', 'hand by green_hand_rgbd'), ('show_display', 'display ')):
+        assert any(acknowledged in text for text in did[kind]), (kind, did[kind])
     # the log is the seed's history, step by step
     assert [(e['kind'], e['args']) for e in result['log']] == [(s.kind, s.args) for s in history(SEED, STEPS, 3)]
     # --until replays the first steps of the same history

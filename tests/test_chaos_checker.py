@@ -2,6 +2,8 @@
 must pass. (The runner's history against the real managers is tests/test_chaos.py.)"""
 import copy
 import os
+import subprocess
+import sys
 
 from temoto_chaos import checker
 from temoto_chaos.history import NEMESIS, VERSION, history, step
@@ -10,31 +12,44 @@ ME = os.getpid()      # a pid the kernel has: a "live" process
 
 
 def clean():
-    sm = {'recovering': False, 'server_queries': [
+    sensor_manager = {'recovering': False, 'server_queries': [
         {'server': 'start_sensor', 'internal_id': 1, 'state': 'active', 'failure': '',
          'summary': {'sensor_type': 'lidar'},
          'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 11}]}]}
     # the driver is the Sensor Manager's (not a client's: not checked against the clients)
-    er = {'recovering': False, 'server_queries': [
+    er_manager = {'recovering': False, 'server_queries': [
         {'server': 'load_process', 'internal_id': 5, 'state': 'active', 'failure': '',
          'summary': {'executable': 'sick_driver'},
          'consumers': [{'client_name': '/chaos/temoto_sensor_manager', 'resource_id': 21}]}]}
     procs = {'processes': [{'resource_id': 5, 'label': 'vaultbot_sim/sick_driver', 'state': 'running',
                             'processes': [{'pid': ME, 'state': 'running'}]}]}
-    client = {'node': '/chaos_client_0_1', 'registrar': 'rr0', 'pid': 1, 'held': {'101': {'sensor': 'sick_lms511'}},
+    client = {'node': '/chaos_client_0_1', 'registrar': 'rr0', 'pid': 1, 'held': {'101': {'kind': 'sensor', 'what': 'lidar'}},
               'failed_heard': {}, 'calls': {'load': {'count': 1, 'failed': 0, 'max_s': 0.5}}}
     registry = {'client_queries': [{'target': '/chaos/temoto_sensor_manager/start_sensor', 'external_id': 11,
                                     'local_ids': [101], 'state': 'active'}]}
-    return checker.Snapshot(sm, er, procs, {0: client}, {0: registry}, {ME: ('sick_driver', 'python3 -m zygote')})
+    return checker.Snapshot(checker.managers('chaos'), {'Sensor Manager': sensor_manager, 'ER Manager': er_manager}, {'ER Manager': procs},
+                            {0: client}, {0: registry}, {ME: ('sick_driver', 'python3 -m zygote')})
+
+
+def sm(snap):
+    return snap.registries['Sensor Manager']
+
+
+def er(snap):
+    return snap.registries['ER Manager']
+
+
+def er_processes(snap):
+    return snap.processes['ER Manager']
 
 
 def with_throttle(snap):
     """``snap`` where client 0 also holds a throttle process of its own, served by the ER Manager."""
-    snap.er_manager['server_queries'].append(
+    er(snap)['server_queries'].append(
         {'server': 'load_process', 'internal_id': 6, 'state': 'active', 'failure': '',
          'summary': {'executable': '/usr/lib/topic_tools/throttle'},
          'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 31}]})
-    snap.clients[0]['held']['103'] = {'kind': 'process', 'sensor': 'messages sick/scan 2 sick/scan_throttled'}
+    snap.clients[0]['held']['103'] = {'kind': 'process', 'what': 'messages sick/scan 2 sick/scan_throttled'}
     snap.client_registries[0]['client_queries'].append(
         {'target': '/chaos/temoto_er_manager/load_process', 'external_id': 31, 'local_ids': [103], 'state': 'active'})
     return snap
@@ -46,11 +61,11 @@ def test_a_consistent_system_passes():
 
 def test_an_unsettled_system_is_reported_as_such_and_not_checked_further():
     snap = clean()
-    snap.sensor_manager['server_queries'][0]['state'] = 'loading'
+    sm(snap)['server_queries'][0]['state'] = 'loading'
     snap.resources[ME + 1] = ('sick_driver', '')   # would be a violation, but nothing is checked yet
     assert checker.check(snap) == ['the Sensor Manager has a load or unload under way']
     snap = clean()
-    snap.er_manager = None
+    snap.registries['ER Manager'] = None
     assert checker.check(snap) == ['the ER Manager does not answer']
 
 
@@ -64,8 +79,8 @@ def test_a_driver_that_no_entry_has_and_a_driver_running_twice_are_violations():
 
 def test_consumer_processes_run_once_per_command_line():
     snap = clean()
-    snap.er_processes['processes'][0]['processes'].append({'pid': ME + 1, 'state': 'running'})
-    snap.er_processes['processes'][0]['processes'].append({'pid': ME + 2, 'state': 'running'})
+    er_processes(snap)['processes'][0]['processes'].append({'pid': ME + 1, 'state': 'running'})
+    er_processes(snap)['processes'][0]['processes'].append({'pid': ME + 2, 'state': 'running'})
     snap.resources = {ME: ('sick_driver', ''), ME + 1: ('throttle', 'throttle messages a 2 a_throttled'),
                       ME + 2: ('throttle', 'throttle messages b 2 b_throttled')}
     assert [v for v in checker.check(snap) if 'runs' in v] == []
@@ -77,7 +92,7 @@ def test_consumer_processes_run_once_per_command_line():
 def test_a_dead_process_still_listed_as_running_is_a_violation():
     snap = clean()
     dead = 2 ** 22 + 7           # above pid_max's default: no such process
-    snap.er_processes['processes'][0]['processes'][0]['pid'] = dead
+    er_processes(snap)['processes'][0]['processes'][0]['pid'] = dead
     snap.resources = {}
     assert checker.check(snap) == ['the ER Manager lists vaultbot_sim/sick_driver (pid %d) as running, but it is gone'
                                    % dead]
@@ -85,38 +100,38 @@ def test_a_dead_process_still_listed_as_running_is_a_violation():
 
 def test_an_acknowledged_load_missing_from_the_client_or_the_manager_is_lost():
     snap = clean()
-    snap.clients[0]['held']['102'] = {'sensor': 'realsense_d435'}
-    assert checker.check(snap) == ['client 0: acknowledged load 102 (realsense_d435) is not in its registry: lost']
+    snap.clients[0]['held']['102'] = {'kind': 'sensor', 'what': 'depth camera'}
+    assert checker.check(snap) == ['client 0: acknowledged load 102 (depth camera) is not in its registry: lost']
     snap = clean()
-    snap.sensor_manager['server_queries'][0]['consumers'] = []
+    sm(snap)['server_queries'][0]['consumers'] = []
     assert checker.check(snap) == ['client 0 holds sensor id 11, which is not served to it: lost']
     snap = with_throttle(clean())
     assert checker.check(snap) == []
-    snap.er_manager['server_queries'][1]['consumers'] = []
+    er(snap)['server_queries'][1]['consumers'] = []
     assert checker.check(snap) == ['client 0 holds process id 31, which is not served to it: lost']
 
 
 def test_a_reference_nobody_holds_is_a_leak():
     snap = clean()
-    snap.sensor_manager['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_1_1',
+    sm(snap)['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_1_1',
                                                                   'resource_id': 12})
     assert checker.check(snap) == ['sensor id 12 of start_sensor is counted as held by /chaos_client_1_1, which holds '
                                    'nothing of it: a leaked reference']
     snap = clean()           # the Sensor Manager's own references to its drivers are not the clients' to hold
-    snap.er_manager['server_queries'][0]['consumers'].append({'client_name': '/chaos/temoto_sensor_manager',
+    er(snap)['server_queries'][0]['consumers'].append({'client_name': '/chaos/temoto_sensor_manager',
                                                               'resource_id': 22})
     assert checker.check(snap) == []
 
 
 def test_a_failed_resource_whose_holder_never_heard_it_is_a_violation():
     snap = clean()
-    snap.sensor_manager['server_queries'][0].update(state='failed', failure='sick_driver died')
+    sm(snap)['server_queries'][0].update(state='failed', failure='sick_driver died')
     assert checker.check(snap) == ['client 0 never heard the FAILED of its sensor lidar (sick_driver died)']
     heard = copy.deepcopy(snap)
     heard.clients[0]['failed_heard']['101'] = 'sick_driver died'
     assert checker.check(heard) == []
     snap = with_throttle(clean())
-    snap.er_manager['server_queries'][1].update(state='failed', failure='throttle killed')
+    er(snap)['server_queries'][1].update(state='failed', failure='throttle killed')
     assert checker.check(snap) == ['client 0 never heard the FAILED of its process /usr/lib/topic_tools/throttle '
                                    '(throttle killed)']
 
@@ -151,3 +166,60 @@ def test_a_call_that_raised_no_temoto_error_is_a_violation():
     snap.clients[0]['unexpected'] = ["b'load_process' raised TransportTerminated: 32Broken pipe"]
     assert checker.check(snap) == ["client 0: a call failed with no TemotoError: b'load_process' raised "
                                    "TransportTerminated: 32Broken pipe"]
+
+
+def test_a_driver_is_found_whether_it_was_forked_by_the_zygote_or_started_plainly(tmp_path):
+    """A plain start is named after its interpreter ('python'): found by its script (history 2's robot started
+    its drivers plainly, and the checker, which looked at the kernel's name only, saw none of them)."""
+    script = tmp_path / 'd435_driver'
+    script.write_text('import sys\nsys.stdin.read()\n')
+    plain = subprocess.Popen([sys.executable, str(script), 'd435/depth'], stdin=subprocess.PIPE)
+    try:
+        assert checker.resource_processes([plain.pid]) == {
+            plain.pid: ('d435_driver', '%s %s d435/depth' % (sys.executable, script))}
+        assert checker.resource_processes([os.getpid()]) == {}       # pytest: not a resource
+    finally:
+        plain.communicate(b'', timeout=10)
+    # forked from the zygote: the kernel's name (the script's, cut to 15 characters) and the zygote's cmdline
+    assert checker.resource_name('color_blob_trac', ['python', '-c', 'zygote']) == 'color_blob_trac'
+    assert checker.resource_name('python3', ['/usr/bin/python3', '/x/nodes/color_blob_tracker']) == 'color_blob_trac'
+    assert checker.resource_name('throttle', ['/usr/lib/topic_tools/throttle', 'messages']) == 'throttle'
+
+
+def test_a_display_whose_holder_never_heard_its_failed_and_a_station_process_nobody_lists_are_violations():
+    snap = clean()
+    snap.managers = checker.managers('chaos', 'chaos_station')
+    om = {'recovering': False, 'server_queries': [
+        {'server': 'load_rviz_plugin', 'internal_id': 3, 'state': 'failed', 'failure': 'the RViz host died',
+         'summary': {'type': 'laser scan'}, 'consumers': [{'client_name': '/chaos_client_0_1', 'resource_id': 41}]}]}
+    empty = {'recovering': False, 'server_queries': []}
+    snap.registries.update({'Context Manager': empty, "station's ER Manager": empty, 'Output Manager': om})
+    snap.processes["station's ER Manager"] = {'processes': []}
+    snap.clients[0]['held']['104'] = {'kind': 'display', 'what': 'laser scan /chaos/sick/scan', 'failed': ''}
+    snap.client_registries[0]['client_queries'].append(
+        {'target': '/chaos_station/temoto_output_manager/load_rviz_plugin', 'external_id': 41, 'local_ids': [104],
+         'state': 'active'})
+    assert checker.check(snap) == ['client 0 never heard the FAILED of its display laser scan (the RViz host died)']
+    snap.clients[0]['failed_heard']['104'] = 'the RViz host died'
+    assert checker.check(snap) == []
+    snap.resources[ME + 3] = ('rviz_host', 'python3 -c zygote')
+    assert checker.check(snap) == ['rviz_host (pid %d) runs, but no ER Manager entry has it' % (ME + 3)]
+    snap.processes["station's ER Manager"] = None
+    assert checker.check(snap) == ["the station's ER Manager does not list its processes"]
+
+
+def test_two_trackers_algorithms_each_in_an_entry_are_not_a_resource_running_twice():
+    """A tracker that FAILED keeps its algorithm until released; an equal request meanwhile gets a new one."""
+    live = [subprocess.Popen([sys.executable, '-c', 'import sys; sys.stdin.read()'], stdin=subprocess.PIPE)
+            for _ in range(2)]
+    try:
+        snap = clean()
+        for proc in live:
+            snap.resources[proc.pid] = ('color_blob_trac', 'python3 -c zygote')
+        assert checker.check(snap) == ['color_blob_trac (pid %d) runs, but no ER Manager entry has it' % proc.pid
+                                       for proc in live]
+        er_processes(snap)['processes'][0]['processes'] += [{'pid': proc.pid, 'state': 'running'} for proc in live]
+        assert checker.check(snap) == []
+    finally:
+        for proc in live:
+            proc.communicate(b'', timeout=10)
