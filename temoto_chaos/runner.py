@@ -104,6 +104,9 @@ class Chaos:
         self.faults: Dict[str, int] = collections.Counter()
         self.checks = 0
         self.log: List[dict] = []
+        self.started: Optional[float] = None          # when the first step began
+        self.violations: List[str] = []
+        self.failed_step: Optional[int] = None
         self.partition_violations: List[str] = []
         self.hosts: Optional[TwoHosts] = None
         self._leave_station = None
@@ -348,10 +351,7 @@ class Chaos:
 
     def run(self) -> dict:
         last = self.opts.steps if self.opts.until is None else min(self.opts.steps, self.opts.until)
-        t0 = time.monotonic()
-        violations: List[str] = []
-        failed_step = None
-        done = 0
+        self.started = time.monotonic()
         for step in history(self.opts.seed, last, self.opts.clients, self.opts.version):
             started = time.monotonic()
             try:
@@ -364,16 +364,20 @@ class Chaos:
             self.log.append({'step': step.index, 'kind': step.kind, 'args': step.args, 'did': what,
                              'violations': violations, 'apply_s': round(applied - started, 3),
                              'check_s': round(time.monotonic() - applied, 3)})
-            done += 1
             print('[step %d] %s: %s%s' % (step.index, step.kind, what, '' if not violations else
                                           ' -> VIOLATION: ' + '; '.join(violations)), flush=True)
             if violations:
-                failed_step = step.index
+                self.violations, self.failed_step = violations, step.index
                 break
-        took = time.monotonic() - t0
+        return self.summary()
+
+    def summary(self) -> dict:
+        """What ran so far (also of a run that was interrupted)."""
+        done = len(self.log)
+        took = time.monotonic() - self.started if self.started is not None else 0.0
         return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done,
                 'faults': dict(self.faults), 'checks': self.checks,
-                'violations': violations, 'failed_step': failed_step, 'seconds': took,
+                'violations': self.violations, 'failed_step': self.failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
 
 
@@ -403,8 +407,9 @@ def run_chaos(opts: ChaosOptions) -> int:
         chaos.start()
         summary = chaos.run()
     except KeyboardInterrupt:
-        print('temoto chaos: interrupted', flush=True)
-        summary['interrupted'] = True
+        summary = dict(chaos.summary(), interrupted=True)
+        print('temoto chaos: interrupted after %d steps, seed %d, faults %s, %d checks, 0 violations, %.1f steps/s'
+              % (summary['steps'], opts.seed, summary['faults'], summary['checks'], summary['steps_per_s']), flush=True)
     finally:
         left = chaos.stop()
         signal.signal(signal.SIGTERM, previous)
