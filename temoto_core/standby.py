@@ -17,6 +17,10 @@ Rules it keeps:
   parent that finds more than one thread starts itself once more with the pools set to one thread
   (``OPENBLAS_NUM_THREADS=1`` and friends; the managers do no linear algebra). If that does not help, or
   without a journal, the node runs in the parent's process as it always did.
+- **The parameters it started with.** A node reads its private parameters from the master as it starts,
+  and a master that started again since (a robot host that lost power) has none: the node would come up
+  with its defaults (another namespace, no journal), a different node under the same name. The parent
+  reads the node's private parameters once, and puts them back before a fork if the master lost them.
 - **Back-off for a crash loop.** A node that crashes by itself (SIGSEGV, SIGABRT, ...) within
   ``QUICK_DEATH_S`` of its start is forked again only after a growing delay, so a node that cannot start
   does not spin. A node that was killed (SIGKILL: an operator, the OOM killer, a chaos test) is forked
@@ -85,6 +89,27 @@ def run(main: Callable[[], int], default_name: str, argv: Optional[list] = None)
     return _Parent(main, name).serve()
 
 
+def private_params(name: str) -> Optional[dict]:
+    """The node's private parameters on the master now (None if it has none, or no master answers)."""
+    try:
+        value = rosgraph.Master('/temoto_standby').getParam(name)
+    except Exception:                 # rosgraph raises for a missing key, and OSError without a master
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def restore_params(name: str, params: Optional[dict]) -> bool:
+    """Put ``params`` back under the node's name if the master has none there (True if it did)."""
+    if not params or private_params(name) is not None:
+        return False
+    try:
+        rosgraph.Master('/temoto_standby').setParam(name, params)
+    except Exception as e:            # no master: the node waits for one as it always does
+        sys.stderr.write('%s: could not put its parameters back: %s\n' % (name, e))
+        return False
+    return True
+
+
 class _Parent:
     def __init__(self, main: Callable[[], int], name: str) -> None:
         self.main = main
@@ -92,6 +117,7 @@ class _Parent:
         self.child = 0
         self.stopping = False
         self.libc = ctypes.CDLL(None, use_errno=True)
+        self.params = private_params(name)       # what the node started with
 
     def _forward(self, signum: int, _frame) -> None:
         self.stopping = True
@@ -122,6 +148,9 @@ class _Parent:
                 time.sleep(delay)            # back-off between respawns, as roslaunch's respawn_delay
             if self.stopping:
                 return 128 - code
+            if restore_params(self.name, self.params):
+                sys.stderr.write('%s: the master had lost its parameters (it started again); put them back\n'
+                                 % self.name)
 
     def _fork(self) -> int:
         parent = os.getpid()

@@ -3,31 +3,14 @@ when it is killed, passes a stop on, and never leaves it behind. Real roscore, r
 import os
 import signal
 import sys
-import textwrap
 
 from temoto_core import master_lookup
+from temoto_core.master import RosMaster, free_port, master_proxy
 from temoto_core.process_group import start_ticks
+from temoto_core.processes import ProcessGroupLauncher
 from temoto_core.testing import wait_for
 
-PROBE = textwrap.dedent('''
-    import sys
-    import rospy
-    from temoto_core import standby
-    from temoto_core.node import init_node, spin
-
-    def main():
-        init_node('standby_probe')
-        if rospy.get_param('~crash', False):
-            import os, signal
-            os.kill(os.getpid(), signal.SIGSEGV)
-        code = int(rospy.get_param('~exit_with', -1))
-        if code >= 0:
-            return code
-        spin()
-        return 0
-
-    sys.exit(standby.run(main, 'standby_probe'))
-''')
+PROBE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'temoto_test_nodes', 'nodes', 'standby_probe')
 
 
 def registered_pid(ros_master, name):
@@ -37,9 +20,7 @@ def registered_pid(ros_master, name):
 
 def start(procs, tmp_path, name, *args, wait=True):
     """The probe as node ``name`` (each test its own: private parameters outlive a node on the master)."""
-    script = tmp_path / 'standby_probe.py'
-    script.write_text(PROBE)
-    proc = procs.command([sys.executable, str(script), '__name:=' + name] + list(args), name)
+    proc = procs.command([sys.executable, PROBE, '__name:=' + name] + list(args), name)
     if wait:
         procs.wait_registered(proc, ['/' + name], 20)
     return proc
@@ -87,3 +68,34 @@ def test_a_node_that_crashes_as_it_starts_is_forked_again_ever_later(procs, ros_
     wait_for(lambda: 'killed by SIGSEGV; forking it again in 1.0 s' in log(), 30, 'the second back-off')
     assert 'killed by SIGSEGV; forking it again in 0.5 s' in log()
     assert parent.stop() is not None
+
+
+def test_a_node_forked_again_after_its_master_started_again_has_the_parameters_it_started_with(tmp_path):
+    """A new master has no parameters; without them the node would start as another node (its defaults)."""
+    (tmp_path / 'ros').mkdir()
+    master = RosMaster(str(tmp_path / 'ros'), port=free_port()).start()
+    (tmp_path / 'logs').mkdir()
+    launcher = ProcessGroupLauncher(master.env, str(tmp_path / 'logs'))
+    echo = tmp_path / 'greeting.txt'
+    try:
+        # as a launch file puts them: on the master, before the node starts
+        master_proxy(master.uri).setParam('/test', '/standby_params', {
+            'journal': str(tmp_path / 'j.sqlite'), 'greeting': 'hello', 'echo_to': str(echo)})
+        parent = launcher.command([sys.executable, PROBE, '__name:=standby_params'], 'standby_params')
+
+        def node_pid():
+            uri = master_lookup.lookup_node(master.uri, '/standby_params')
+            return master_lookup.node_pid(uri) if uri else None
+        first = wait_for(node_pid, 20, 'the node to answer')
+        assert echo.read_text() == 'hello'
+        echo.unlink()
+        master.stop()
+        master.start()                       # the same address, no parameters
+        os.kill(first, signal.SIGKILL)
+        wait_for(echo.exists, 20, 'the node forked again to write what it read (without its parameters it writes nothing)')
+        wait_for(lambda: echo.read_text(), 5, 'the node to write what it read')
+        assert echo.read_text() == 'hello', 'the respawned node started without its parameters'
+        assert parent.alive()
+    finally:
+        launcher.stop_all()
+        master.stop()

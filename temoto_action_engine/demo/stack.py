@@ -111,10 +111,7 @@ class Stack:
             raise KeyError('%s sets no parameter %s' % (os.path.basename(self.launch_path), ', '.join(unknown)))
         self.params.update(self.param_overrides)
         master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
-        for key, value in self.params.items():
-            code, msg, _ = master.setParam('/temoto_demo', key, value)
-            if code != 1:
-                raise RuntimeError('could not set %s: %s' % (key, msg))
+        self._upload_params(master)
         os.makedirs(self.log_dir, exist_ok=True)
         for spec in node_specs(config, self.env):
             self.running.append((spec, ManagedProcess(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)))
@@ -130,6 +127,12 @@ class Stack:
         if any(spec.respawn for spec, _ in self.running):
             self._respawner = threading.Thread(target=self._respawn_loop, name='demo-respawn', daemon=True)
             self._respawner.start()
+
+    def _upload_params(self, master) -> None:
+        for key, value in self.params.items():
+            code, msg, _ = master.setParam('/temoto_demo', key, value)
+            if code != 1:
+                raise RuntimeError('could not set %s: %s' % (key, msg))
 
     def node(self, name: str) -> ManagedProcess:
         """The process running node ``name`` now (a respawn replaces it)."""
@@ -166,6 +169,13 @@ class Stack:
         old.proc.wait()
         if spec.respawn_delay:
             time.sleep(spec.respawn_delay)
+        # the master may have started again since the parameters were uploaded (a robot host that lost
+        # power), and a new master has none: a node respawned without them would come up with its defaults
+        # (another namespace, no journal), a different node under the same name
+        try:
+            self._upload_params(xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI']))
+        except (OSError, RuntimeError) as e:
+            sys.stderr.write('%s: respawned without uploading the parameters again: %s\n' % (spec.name, e))
         with self._lock:
             if self._stopping:
                 return
