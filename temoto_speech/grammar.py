@@ -1,0 +1,147 @@
+"""The recognition grammar (JSGF), built from the indexed actions' descriptors.
+
+A new plugin's phrases are understood as soon as it is indexed, with no training: its verbs, subject
+words and parameter words become a rule of their own. A free grammar (any verb, then any words) lets the
+decoder pad a short utterance into words nobody said ("show an hot"), so each action's rule asks for an
+object the grounder can use:
+
+- its subject words ("show the environment");
+- else the words of its parameters ("track the hand");
+- else, for an action whose parameter takes any words (``stop``), "everything" or another action's clause
+  in its -ing form ("stop tracking the hand");
+- an action with a required input no word can fill (``show``'s topic) takes its parent's output, so its
+  rule is the verb and a pronoun ("show it on the screen");
+- at most one prepositional phrase: "with a hot standby" for a parameter whose pattern lists words.
+
+An utterance is an optional wake word, then one clause, or two joined by "and" or "then" (the grounder's
+separators). Words outside the recogniser's dictionary get espeak-ng's pronunciation (``phonemes.py``);
+words that cannot be said (topic names, robot names with digits) are left out, and listed.
+"""
+from __future__ import annotations
+
+import dataclasses
+import re
+from typing import Dict, Iterable, List, Optional, Sequence, Set
+
+from temoto_action_engine.grounding import inflections
+
+DETERMINERS = ('the', 'a')
+PRONOUNS = ('it', 'them')
+LOCATIVES = ('on', 'in')
+EVERYTHING = ('everything', 'all')
+JOINERS = ('and', 'then')
+POLITE = 'please'
+SAYABLE = re.compile(r'[a-z]+$')
+ENUM_PATTERN = re.compile(r'^\^?\(?([a-z]+(?:\|[a-z]+)+)\)?\$?$')     # "cold|warm|hot", "^(a|b)$"
+
+
+@dataclasses.dataclass
+class Grammar:
+    jsgf: str
+    words: Set[str]                    # every word the grammar can produce
+    actions: List[str]                 # the actions that have a rule
+    left_out: Dict[str, List[str]]     # action -> what could not be said (and why)
+
+
+def _sayable(words: Iterable[str], unsayable: Set[str] = frozenset()) -> List[str]:
+    return sorted({w.lower() for w in words if SAYABLE.match(w.lower()) and w.lower() not in unsayable})
+
+
+def _alt(words: Sequence[str]) -> str:
+    return '(%s)' % ' | '.join(words)
+
+
+def _enum_words(pattern: Optional[str]) -> List[str]:
+    m = ENUM_PATTERN.match(pattern or '')
+    return m.group(1).split('|') if m else []
+
+
+def gerund(verb: str) -> str:
+    """The -ing form: show -> showing, locate -> locating, stop -> stopping, tie -> tying."""
+    if verb.endswith('ie'):
+        return verb[:-2] + 'ying'
+    if verb.endswith('e') and not verb.endswith('ee'):
+        return verb[:-1] + 'ing'
+    doubled = verb + verb[-1] + 'ing'
+    return doubled if doubled in inflections(verb) else verb + 'ing'
+
+
+class _ActionWords:
+    """What can be said of one action, from its descriptor's JSON (``ActionDescriptor.to_json``)."""
+
+    def __init__(self, action: dict, unsayable: Set[str]) -> None:
+        self.name = str(action['name'])
+        self.unsayable = unsayable
+        grounding = action.get('grounding') or {}
+        self.verbs = _sayable(grounding.get('verbs', []), unsayable)
+        self.subjects = _sayable(grounding.get('subjects', []), unsayable)
+        self.param_words: List[str] = []
+        self.any_words = False
+        self.enums: Dict[str, List[str]] = {}
+        self.left_out: List[str] = []
+        params = grounding.get('parameters') or {}
+        self.said = {w.lower() for w in list(grounding.get('verbs', [])) + list(grounding.get('subjects', [])) +
+                     [w for spec in params.values() for w in (spec.get('words') or [])]}
+        for pname, spec in sorted((grounding.get('parameters') or {}).items()):
+            self.param_words += _sayable(spec.get('words') or [], unsayable)
+            self.any_words |= bool(spec.get('any'))
+            enum = _sayable(_enum_words(spec.get('pattern')), unsayable)
+            if enum:
+                self.enums[pname] = enum
+            elif spec.get('pattern'):
+                self.left_out.append('parameter %s (pattern %s: not a list of words)' % (pname, spec['pattern']))
+        said = set(grounding.get('parameters') or {})
+        inputs = action.get('input_parameters') or {}
+        # a required input no word fills comes from the parent clause: "show it"
+        self.takes_parent = any(spec.get('pvf_required', True) and not (
+            name in self.enums or (name in said and ((grounding['parameters'][name].get('words'))
+                                                     or grounding['parameters'][name].get('any'))))
+            for name, spec in inputs.items())
+
+    def objects(self) -> List[str]:
+        return self.subjects or sorted(set(self.param_words))
+
+
+def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: Iterable[str] = ()) -> Grammar:
+    """The grammar of ``actions`` (descriptor JSON, as ``list_actions`` sends it); with ``wake_words`` an
+    utterance must open with one of them. ``unsayable``: words the recogniser has no pronunciation for."""
+    unsayable = set(unsayable)
+    described = [a for a in (_ActionWords(a, unsayable) for a in actions) if a.verbs]
+    det = '[%s]' % _alt(DETERMINERS)
+    rules: List[str] = []
+    for a in described:
+        if a.takes_parent:
+            where = ' [%s %s %s]' % (_alt(LOCATIVES), det, _alt(a.subjects)) if a.subjects else ''
+            body = ' %s%s' % (_alt(PRONOUNS), where)
+        elif a.objects():
+            pps = ['with %s %s%s' % (det, _alt(words), ' [%s]' % pname if SAYABLE.match(pname) else '')
+                   for pname, words in sorted(a.enums.items())]
+            body = ' %s%s %s%s' % ('[me] ' if a.subjects else '', det, _alt(a.objects()),
+                                   ' [%s]' % _alt(pps) if pps else '')
+        elif a.any_words:
+            others = [_clause_of_other(b) for b in described if b is not a and b.objects() and not b.takes_parent]
+            body = ' ' + _alt(list(EVERYTHING) + [o for o in others if o])
+        else:
+            body = ''
+        rules.append('<%s> = %s%s;' % (_rule_name(a.name), _alt(a.verbs), body))
+    for a in described:
+        a.left_out += ['the word %r (no pronunciation)' % w for w in sorted(unsayable & a.said)]
+    left_out = {a.name: a.left_out for a in described if a.left_out}
+    if not rules:
+        return Grammar('', set(), [], left_out)
+    wake = _sayable(wake_words, unsayable)
+    clause = '[%s] <clause>' % POLITE
+    body = ['public <utterance> = %s%s [%s %s];' % ('%s ' % _alt(wake) if wake else '', clause, _alt(JOINERS), clause),
+            '<clause> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in described)] + rules
+    text = '\n'.join(body)
+    words = set(re.findall(r'[a-z]+', re.sub(r'<[^>]*>|^public ', ' ', text, flags=re.M)))
+    return Grammar('#JSGF V1.0;\ngrammar temoto;\n' + text + '\n', words, [a.name for a in described], left_out)
+
+
+def _rule_name(action: str) -> str:
+    return 'a_' + re.sub(r'[^A-Za-z0-9_]', '_', action)
+
+
+def _clause_of_other(b: _ActionWords) -> str:
+    gerunds = sorted({gerund(v) for v in b.verbs} - b.unsayable)
+    return '%s [%s] %s' % (_alt(gerunds), _alt(DETERMINERS), _alt(b.objects())) if gerunds else ''

@@ -1,0 +1,185 @@
+"""The speech node: the operator's voice in, the robot's announcements out.
+
+Topics (``<ns>`` is the TeMoto namespace, ``~temoto_namespace``, default ``temoto``):
+- in  ``/<ns>/speech/audio``        temoto_speech/AudioData: 16 kHz mono 16-bit PCM in chunks (an
+  ``audio_common``-style stream; ``temoto listen --wav`` sends a file). An empty chunk ends the utterance
+  at once (the end of a file), else it ends at 0.4 s of silence.
+- out ``/<ns>/human_chatter``       std_msgs/String: an accepted utterance, as text (the engine grounds it)
+- out ``/<ns>/speech/heard``        std_msgs/String: JSON of every recognition, accepted or rejected, with
+  its reason, its margin, and when its speech ended (``speech_end``, wall clock)
+- in  ``/<ns>/action_engine/events`` std_msgs/String: said as short sentences (``announcer.py``)
+- in  ``/<ns>/speech/say``          std_msgs/String: a sentence to announce
+- out ``/<ns>/speech/announcements`` std_msgs/String: every announcement, said aloud or not
+- out ``/<ns>/speech/grammar``      std_msgs/String, latched: JSON of the grammar in use (actions, words)
+
+Parameters: ``~source`` (``topic``, or ``microphone``: the ALSA device ``~microphone`` read through sox),
+``~wake_words`` (','-separated; an utterance must start with one), ``~min_margin`` (the rejection
+threshold, ``recognizer.py``), ``~speak`` (false: announcements only on the topic), ``~voice``,
+``~speed``, ``~wav_dir`` (each announcement also written there as a WAV file), ``~grammar_poll_s`` (how
+often the engine's action index is read for new plugins).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import threading
+import time
+from typing import List, Optional
+
+import rospy
+from std_msgs.msg import String
+
+from temoto_action_engine.srv import ListActions
+from temoto_core.node import init_node, spin
+from temoto_speech.announcer import Announcer, sentence
+from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
+from temoto_speech.msg import AudioData
+from temoto_speech.recognizer import MIN_MARGIN, Recognizer
+from temoto_speech.voice import DEFAULT_SPEED, DEFAULT_VOICE
+
+NODE_NAME = 'temoto_speech'
+NOT_UNDERSTOOD = 'I did not understand'
+INDEX_CALL_TIMEOUT_S = 5.0
+
+
+def _words_param(name: str) -> List[str]:
+    value = rospy.get_param(name, '')
+    if isinstance(value, str):
+        value = value.split(',')
+    if not isinstance(value, list):
+        raise ValueError('parameter %s must be a list of words or one ","-separated string' % name)
+    return [str(v).strip().lower() for v in value if str(v).strip()]
+
+
+class SpeechNode:
+    def __init__(self) -> None:
+        self.ns = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
+        self.wake_words = _words_param('~wake_words')
+        self.poll_s = float(rospy.get_param('~grammar_poll_s', 5.0))
+        base = '/%s/speech' % self.ns
+        self.chatter = rospy.Publisher('/%s/human_chatter' % self.ns, String, queue_size=10)
+        self.heard = rospy.Publisher(base + '/heard', String, queue_size=20)
+        self.grammar_pub = rospy.Publisher(base + '/grammar', String, queue_size=1, latch=True)
+        announcements = rospy.Publisher(base + '/announcements', String, queue_size=20)
+        self.announcer = Announcer(lambda text: announcements.publish(String(text)),
+                                   str(rospy.get_param('~voice', DEFAULT_VOICE)),
+                                   int(rospy.get_param('~speed', DEFAULT_SPEED)),
+                                   audible=bool(rospy.get_param('~speak', True)),
+                                   wav_dir=str(rospy.get_param('~wav_dir', '')),
+                                   on_error=lambda text: rospy.logwarn('%s: %s', NODE_NAME, text))
+        self.recognizer = Recognizer([], self.wake_words, float(rospy.get_param('~min_margin', MIN_MARGIN)))
+        self._index_digest = ''
+        self.utterances = Utterances()
+        self._audio_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._mic: Optional[subprocess.Popen] = None
+        self.refresh_grammar()
+        self._subs = [rospy.Subscriber(base + '/audio', AudioData, self._on_audio, queue_size=200),
+                      rospy.Subscriber(base + '/say', String, lambda m: self.announcer.say(m.data), queue_size=10),
+                      rospy.Subscriber('/%s/action_engine/events' % self.ns, String, self._on_event, queue_size=100)]
+        threading.Thread(target=self._poll_index, name='speech-grammar', daemon=True).start()
+        source = str(rospy.get_param('~source', 'topic'))
+        if source == 'microphone':
+            threading.Thread(target=self._listen_microphone, args=(str(rospy.get_param('~microphone', 'default')),),
+                             name='speech-microphone', daemon=True).start()
+        elif source != 'topic':
+            raise ValueError('parameter ~source must be "topic" or "microphone", got %r' % source)
+
+    # ------------------------------------------------------------------ grammar
+    def refresh_grammar(self) -> bool:
+        """Read the engine's action index; rebuild the grammar if it changed. False if the engine is away."""
+        try:
+            rospy.wait_for_service('/%s/action_engine/list_actions' % self.ns, timeout=INDEX_CALL_TIMEOUT_S)
+            index = json.loads(rospy.ServiceProxy('/%s/action_engine/list_actions' % self.ns,
+                                                  ListActions)(reindex=False).json)
+        except (rospy.ROSException, rospy.ServiceException, ValueError) as e:
+            rospy.logdebug('%s: the action index is not available: %s', NODE_NAME, e)
+            return False
+        actions = index.get('actions', [])
+        digest = hashlib.sha1(json.dumps(actions, sort_keys=True).encode()).hexdigest()
+        if digest == self._index_digest:
+            return True
+        built = self.recognizer.update(actions, self.wake_words)
+        self._index_digest = digest
+        self.grammar_pub.publish(String(json.dumps({'actions': built.actions, 'words': sorted(built.words),
+                                                    'left_out': built.left_out, 'wake_words': self.wake_words})))
+        rospy.loginfo('%s: grammar of %d action(s), %d word(s): %s', NODE_NAME, len(built.actions), len(built.words),
+                      ', '.join(built.actions))
+        return True
+
+    def _poll_index(self) -> None:
+        while not self._stop.wait(self.poll_s) and not rospy.is_shutdown():
+            self.refresh_grammar()
+
+    # ------------------------------------------------------------------ speech in
+    def _on_audio(self, msg: AudioData) -> None:
+        data = bytes(msg.data)
+        with self._audio_lock:
+            if not data:                       # the end of a file: what was said so far is one utterance
+                done = self.utterances.flush()
+            else:
+                done = self.utterances.feed(data)
+        for pcm in done:
+            self.handle_utterance(pcm, time.time())
+
+    def handle_utterance(self, pcm: bytes, speech_end: float) -> None:
+        result = self.recognizer.recognize(pcm)
+        report = dict(result.to_json(), speech_end=speech_end)
+        self.heard.publish(String(json.dumps(report)))
+        if result.accepted:
+            rospy.loginfo('%s: heard "%s" (margin %.1f)', NODE_NAME, result.text, result.margin)
+            self.chatter.publish(String(result.text))
+        else:
+            rospy.loginfo('%s: rejected "%s": %s', NODE_NAME, result.text, result.reason)
+            self.announcer.say(NOT_UNDERSTOOD)
+
+    def _listen_microphone(self, device: str) -> None:
+        argv = ['sox', '-q', '-t', 'alsa', device, '-t', 'raw', '-r', str(RATE), '-c', '1', '-b', '16',
+                '-e', 'signed-integer', '-L', '-']
+        try:
+            self._mic = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        except OSError as e:
+            rospy.logerr('%s: no microphone: %s', NODE_NAME, e)
+            self.announcer.say('no microphone')
+            return
+        while not self._stop.is_set():
+            chunk = self._mic.stdout.read(FRAME_BYTES * 5)
+            if not chunk:
+                err = self._mic.stderr.read().decode(errors='replace').strip()
+                rospy.logerr('%s: the microphone %r stopped: %s', NODE_NAME, device, err[:300] or 'no more audio')
+                self.announcer.say('the microphone stopped')
+                return
+            with self._audio_lock:
+                done = self.utterances.feed(chunk)
+            for pcm in done:
+                self.handle_utterance(pcm, time.time())
+
+    # ------------------------------------------------------------------ speech out
+    def _on_event(self, msg: String) -> None:
+        try:
+            ev = json.loads(msg.data)
+        except ValueError:
+            rospy.logwarn('%s: an event that is not JSON: %r', NODE_NAME, msg.data[:200])
+            return
+        text = sentence(ev) if isinstance(ev, dict) else None
+        if text:
+            self.announcer.say(text)
+
+    def shutdown(self) -> None:
+        self._stop.set()
+        for sub in self._subs:
+            sub.unregister()
+        if self._mic is not None and self._mic.poll() is None:
+            self._mic.terminate()
+            self._mic.wait(5.0)
+        self.announcer.stop()
+
+
+def main() -> None:
+    init_node(NODE_NAME)
+    node = SpeechNode()
+    try:
+        spin()
+    finally:
+        node.shutdown()
