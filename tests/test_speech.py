@@ -89,6 +89,11 @@ def speech(procs, rospy_client, tmp_path):
     topics.close()
 
 
+def content(text):
+    """``text`` without its articles: "the" and "a" are both in the grammar, and mean the same to the grounder."""
+    return ' '.join(w for w in text.split() if w not in grammar.DETERMINERS)
+
+
 def temoto(*args):
     return subprocess.run([sys.executable, '-m', 'temoto_core.cli'] + list(args) + ['--ns', NS],
                           capture_output=True, text=True, timeout=CLI_TIMEOUT)
@@ -98,8 +103,9 @@ def test_a_spoken_instruction_is_grounded_and_its_graph_runs(speech):
     topics, _, _ = speech
     proc = temoto('say', '--voice', 'wave', 'the', 'flag')
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert proc.stdout.strip() == 'heard: wave the flag'
-    assert wait_for(lambda: topics.get('chatter'), 10, 'the text on human_chatter') == ['wave the flag']
+    assert content(proc.stdout.strip()) == 'heard: wave flag'
+    assert [content(t) for t in wait_for(lambda: topics.get('chatter'), 10, 'the text on human_chatter')] == \
+        ['wave flag']
     wait_for(lambda: 'RUNNING' in topics.states('wave'), 20, 'the graph of the spoken instruction to run')
 
 
@@ -114,7 +120,7 @@ def test_an_utterance_outside_the_grammar_starts_nothing_and_the_operator_hears_
     wait_for(lambda: [f for f in os.listdir(wav_dir) if f.endswith('.wav')], 20, 'the announcement spoken to a file')
     # nothing reached the engine: the next, accepted utterance is the only chatter there is
     assert temoto('say', '--voice', 'wave', 'the', 'flag').returncode == 0
-    assert wait_for(lambda: topics.get('chatter'), 10, 'the accepted text') == ['wave the flag']
+    assert [content(t) for t in wait_for(lambda: topics.get('chatter'), 10, 'the accepted text')] == ['wave flag']
     wait_for(lambda: 'RUNNING' in topics.states('wave'), 20, 'the graph of the accepted utterance')
 
 
@@ -127,7 +133,7 @@ def test_a_new_plugin_is_understood_once_it_is_indexed(speech, rospy_client):
     wait_for(lambda: any('charge' in json.loads(g)['actions'] for g in topics.get('grammar')), 20,
              'the speech node to take the new action into its grammar')
     proc = temoto('say', '--voice', 'charge', 'the', 'battery')
-    assert proc.returncode == 0 and proc.stdout.strip() == 'heard: charge the battery', proc.stdout + proc.stderr
+    assert proc.returncode == 0 and content(proc.stdout.strip()) == 'heard: charge battery', proc.stdout + proc.stderr
     wait_for(lambda: 'RUNNING' in topics.states('charge'), 20, 'the new action to run')
 
 
