@@ -300,3 +300,30 @@ def test_standby_policies_fail_over_to_the_running_spare_and_hot_fails_back_with
     report = json.loads((out / 'report.json').read_text())
     assert report['standby'] == standby and report['failbacks'][0]['delay_s'] > 0
     assert 'Fail-backs' in (out / 'report.md').read_text()
+
+
+def test_a_spoken_demo_hears_the_instruction_announces_each_failure_and_records_the_audio(tmp_path_factory):
+    """``--voice``: espeak-ng says "show the environment" to the speech node, which the engine grounds; the
+    failovers are announced; the bag holds the audio (renamed inert), what was heard and what was said."""
+    from pathlib import Path
+    from rosbags.highlevel import AnyReader
+    proc, out, left = run_demo(tmp_path_factory, '--voice')
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert 'heard "show the environment"' in proc.stdout
+    assert left == []
+    said = {}
+    with AnyReader([Path(str(out / 'failover.bag'))]) as reader:
+        for conn, _, raw in reader.messages():
+            if 'speech' in conn.topic:
+                msg = reader.deserialize(raw, conn.msgtype)
+                said.setdefault(conn.topic, []).append(msg.data)
+    assert [json.loads(h)['text'] for h in said['/temoto/speech/heard']] == ['show the environment']
+    assert '/temoto/speech/audio' not in said and sum(len(a) for a in said['/temoto_demo/recorded/temoto/speech/audio']) \
+        > 16000 * 2 * 0.5, 'the spoken instruction, inert, at least half a second of it'
+    expected = ['showing the RGB-D camera cloud', 'the RGB-D camera cloud failed',
+                'switching to the arm LIDAR stitched cloud', 'the arm LIDAR stitched cloud failed',
+                'switching to the base LIDAR scan']
+    announced = iter(said['/temoto/speech/announcements'])
+    assert all(any(a == e for a in announced) for e in expected), said['/temoto/speech/announcements']  # in order
+    wavs = [f for f in os.listdir(out / 'speech') if f.endswith('.wav')]
+    assert 0 < len(wavs) <= len(said['/temoto/speech/announcements'])     # a backlog beyond 5 drops the oldest

@@ -81,6 +81,7 @@ class DemoOptions:
     robot: str = 'vaultbot'      # --hosts 2: the robot's TeMoto namespace
     standby: str = 'cold'        # the view's standby policy: cold, warm or hot
     replug: bool = False         # at the end, plug the first device back and wait for the fail-back
+    voice: bool = False          # the instruction spoken (espeak-ng) to the speech node, the failures announced
 
 
 class Progress:
@@ -218,6 +219,10 @@ class Demo:
         workdir = os.path.join(self.opts.out_dir, 'ros')
         os.makedirs(workdir, exist_ok=True)
         launch_args = list(self.opts.launch_args) + (['recovery:=true'] if self.opts.kill_managers else [])
+        if self.opts.voice:
+            said = os.path.join(self.opts.out_dir, 'speech')
+            os.makedirs(said, exist_ok=True)
+            launch_args += ['speech:=true', 'speak:=%s' % str(self.opts.live).lower(), 'speech_wav_dir:=' + said]
         if self.opts.hosts == 2:
             self._start_two_hosts(workdir, launch_args)
         else:
@@ -305,6 +310,15 @@ class Demo:
         self.chatter = rospy.Publisher(T.chatter(ns), String, queue_size=5)
         self.shot_pub = rospy.Publisher(T.SCREENSHOTS, CompressedImage, queue_size=5)
         self.stage_pub = rospy.Publisher(T.STAGES, String, queue_size=20)
+        if self.opts.voice:
+            from temoto_speech.msg import AudioData
+            self.audio_pub = rospy.Publisher(T.speech_audio(ns), AudioData, queue_size=1000)
+            self.heard: List[dict] = []
+            self.speech_actions: List[str] = []
+            base = '/%s/speech/' % ns.strip('/')
+            rospy.Subscriber(base + 'heard', String, lambda m: self.heard.append(json.loads(m.data)))
+            rospy.Subscriber(base + 'grammar', String,
+                             lambda m: self.speech_actions.extend(json.loads(m.data)['actions']))
 
     def _wait_services(self, env: Dict[str, str]) -> None:
         import rosgraph
@@ -330,8 +344,15 @@ class Demo:
         uri = env['ROS_MASTER_URI']
         pairs = [('/temoto_action_engine', T.chatter(self.opts.namespace)), (RECORDER_NODE, T.chatter(self.opts.namespace)),
                  (RECORDER_NODE, T.SCREENSHOTS), (RECORDER_NODE, T.STAGES)]
+        if self.opts.voice:
+            pairs += [('/temoto_speech', T.speech_audio(self.opts.namespace)),
+                      (RECORDER_NODE, T.speech_audio(self.opts.namespace))]
         wait_for(lambda: all(connected(uri, '/temoto_demo', sub, topic) for sub, topic in pairs), 15.0,
                  'the action engine and the recorder to connect to the demo\'s publishers')
+        if self.opts.voice:
+            wait_for(lambda: 'show_environment' in self.speech_actions and
+                     connected(uri, '/temoto_speech', '/temoto_action_engine', T.chatter(self.opts.namespace)), 30.0,
+                     'the speech node to take the actions into its grammar and connect to the action engine')
 
     # ------------------------------------------------------------------ stages
     def _mark(self, stage: str, **fields) -> None:
@@ -374,9 +395,27 @@ class Demo:
         from std_msgs.msg import String
         labels = [e['label'] for e in self._priority_override_labels()]
         since = time.monotonic()
-        self._mark('say', text=INSTRUCTION)
-        self.chatter.publish(String(data=INSTRUCTION))
+        self._mark('say', text=INSTRUCTION, voice=self.opts.voice)
+        if self.opts.voice:
+            self._speak(INSTRUCTION)
+        else:
+            self.chatter.publish(String(data=INSTRUCTION))
         return self.watcher.wait_stage(0, since, self.opts.stage_timeout, labels[0])
+
+    def _speak(self, text: str) -> None:
+        """``text`` spoken by espeak-ng to the speech node; returns once it understood it, else raises."""
+        from temoto_core.wait import wait_for
+        from temoto_speech.msg import AudioData
+        from temoto_speech.voice import synthesize_pcm
+        pcm = synthesize_pcm(text)
+        for i in range(0, len(pcm), 3200):                  # 0.1 s of audio a message, as a microphone sends
+            self.audio_pub.publish(AudioData(data=pcm[i:i + 3200]))
+        self.audio_pub.publish(AudioData(data=b''))          # the end of the utterance
+        heard = wait_for(lambda: self.heard, 20.0, 'the speech node to report what it heard')[0]
+        if not heard['accepted']:
+            raise RuntimeError('the speech node did not understand "%s" (heard "%s": %s)'
+                               % (text, heard['text'], heard['reason']))
+        self.progress.line('heard "%s" (margin %.1f)' % (heard['text'], heard['margin']))
 
     def scenario(self) -> None:
         timeout = self.opts.stage_timeout

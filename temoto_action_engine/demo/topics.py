@@ -74,6 +74,16 @@ def chatter(ns: str = DEFAULT_NS) -> str:
     return '/%s/human_chatter' % ns.strip('/')
 
 
+def speech_audio(ns: str = DEFAULT_NS) -> str:
+    """The speech node's audio in (temoto_speech/AudioData): what ``temoto demo --voice`` says."""
+    return '/%s/speech/audio' % ns.strip('/')
+
+
+def speech_topics(ns: str = DEFAULT_NS) -> List[str]:
+    """What a spoken demo records besides the rest: the audio, what was heard, what was said."""
+    return [speech_audio(ns)] + ['/%s/speech/%s' % (ns.strip('/'), t) for t in ('heard', 'announcements')]
+
+
 def display_events(ns: str = DEFAULT_NS) -> str:
     return '/%s/temoto_output_manager/display_events' % ns.strip('/')
 
@@ -111,13 +121,13 @@ def fixed_topics(ns: str = DEFAULT_NS, robot: str = '') -> Dict[str, str]:
 
 def record_regexes(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
     """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``)."""
-    exact = ['^%s$' % t.replace('.', r'\.') for t in fixed_topics(ns, robot)]
+    exact = ['^%s$' % t.replace('.', r'\.') for t in list(fixed_topics(ns, robot)) + speech_topics(ns)]
     return exact + ['^%s$' % status_regex(ns), '^%s/.*' % STREAMS_PREFIX]
 
 
 def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
     """Whether a recorded topic, played back under its own name, would drive a live stack."""
-    return topic == chatter(ns) or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
+    return topic in (chatter(ns), speech_audio(ns)) or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
 
 
 def inert_name(topic: str) -> str:
