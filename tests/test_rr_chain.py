@@ -36,6 +36,10 @@ def test_failure_at_the_bottom_reaches_the_top_under_its_own_id(chain):
     # B's owner callback ran for the failed process it held
     wait_for(lambda: b.owner_events(), 10, "B's owner status callback")
     assert b.owner_events()[0]['code'] == 1
+    # each registry says why its entry failed (it said '' for a resource that failed after its load)
+    for node in (c, b):
+        [entry] = [q for q in node.registry()['server_queries']]
+        assert entry['state'] == 'failed' and 'cable pulled' in entry['failure'], (node.name, entry)
 
 
 def test_cascade_unload_and_empty_registries(chain):

@@ -112,6 +112,8 @@ def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the
         b = RegistrarNode(procs, 'rr_rb', journal=str(tmp_path / 'rr_rb.sqlite3'), recovery_grace=60.0)
         wait_for(lambda: [q['state'] for q in b.registry()['server_queries']] == ['failed'], 20,
                  'the new incarnation to find mortal_cam dead')
+        [entry] = b.registry()['server_queries']
+        assert entry['failure'], 'the registry says why mortal_cam failed: %r' % entry       # it said ''
         # the fault: the holder stays stopped while the FAILED goes out (after the status channel's 2 s wait for a
         # connection), so nobody is connected to hear it
         time.sleep(STATUS_CONNECT_TIMEOUT + 1.0)

@@ -95,7 +95,7 @@ class ServerQuery(_Query):
         self.state = LOADING
         self.consumers: Dict[int, Consumer] = {}
         self.links: List[int] = []                              # local ids of the client queries it holds
-        self.failure: Optional[TemotoError] = None             # FAILED sent for this resource while loading
+        self.failure: Optional[TemotoError] = None             # why it FAILED (while loading, or since)
         self.link_failures: Dict[int, TemotoError] = {}         # FAILED of a linked sub-resource while loading
         self.backup = ''                                        # the record its consumers keep (backup.py)
 

@@ -229,6 +229,8 @@ class ServerSide:
                     return
                 if query.state is ACTIVE:
                     query.move(FAILED)
+                    if query.failure is None:        # why, for the registry (the consumers hear it now)
+                        query.failure = TemotoError.from_msgs([f.to_msg() for f in stack], message)
                     self.recorder.failed(query)
                     if query.server.by_key.get(query.key) is query:
                         del query.server.by_key[query.key]
