@@ -61,17 +61,6 @@ PACE_S = 3.0       # between utterances, as an operator's instructions come: the
 IDLE_S = 20.0
 
 
-def phrases(actions) -> list:
-    out = []
-    for a in actions:
-        words = grammar_mod._ActionWords(a, set())
-        if a['name'] == 'stop':
-            out += ['%s everything' % v for v in words.verbs]
-        elif not words.takes_parent:
-            out += ['%s the %s' % (v, o) for v in words.verbs for o in words.objects()]
-    return out + COMPOUND
-
-
 def with_noise(pcm: bytes, snr_db: float, rng) -> bytes:
     x = np.frombuffer(pcm, dtype='<i2').astype(np.float64)
     noise = rng.normal(0.0, np.sqrt(np.mean(x ** 2) / 10 ** (snr_db / 10.0)), x.size)
@@ -93,7 +82,7 @@ def recognition(quick: bool) -> dict:
     actions = index.to_json()['actions']
     grounder = Grounder(index.descriptors())
     recognizer = Recognizer(actions)
-    said = phrases(actions)
+    said = grammar_mod.phrases(actions) + COMPOUND
     if quick:
         said = said[::6]
     rng = np.random.default_rng(20261124)

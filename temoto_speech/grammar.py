@@ -138,6 +138,21 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
     return Grammar('#JSGF V1.0;\ngrammar temoto;\n' + text + '\n', words, [a.name for a in described], left_out)
 
 
+def phrases(actions: Sequence[dict]) -> List[str]:
+    """The plain instructions the grammar of ``actions`` takes: each verb with each object ("track the hand"),
+    and "<verb> everything" for an action whose parameter takes any words. Actions that only take their
+    parent's output ("show it") are said after another clause, so they have none of their own."""
+    out: List[str] = []
+    for a in (_ActionWords(a, set()) for a in actions):
+        if a.takes_parent:
+            continue
+        if a.objects():
+            out += ['%s the %s' % (v, o) for v in a.verbs for o in a.objects()]
+        elif a.any_words:
+            out += ['%s everything' % v for v in a.verbs]
+    return out
+
+
 def _rule_name(action: str) -> str:
     return 'a_' + re.sub(r'[^A-Za-z0-9_]', '_', action)
 

@@ -166,6 +166,7 @@ def test_the_grammar_asks_each_action_for_an_object_and_says_what_it_left_out():
     assert g.left_out['track_object'] == ["the word 'ball' (no pronunciation)"]
     assert 'ball' not in g.words and {'track', 'hand', 'robot', 'tracking'} <= g.words
     assert grammar.build([]).jsgf == ''
+    assert grammar.phrases(actions) == ['track the ball', 'track the hand', 'stop everything']
 
 
 def test_espeak_mnemonics_become_arpabet_and_events_become_short_sentences():
