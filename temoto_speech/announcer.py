@@ -92,15 +92,21 @@ class Announcer:
             self._voice(text)
 
     def _voice(self, text: str) -> None:
-        try:
-            if self.wav_dir:
-                self._count += 1
+        if self.wav_dir:
+            self._count += 1
+            try:
                 synthesize(text, os.path.join(self.wav_dir, '%s_%03d.wav' % (time.strftime('%H%M%S'), self._count)),
                            self.voice, self.speed)
-            if self.audible:
+            except VoiceError as e:
+                self.on_error('could not write %r to %s: %s' % (text, self.wav_dir, e))
+        if self.audible:
+            try:
                 speak(text, self.voice, self.speed)
-        except VoiceError as e:
-            self.on_error('could not say %r: %s' % (text, e))
+            except VoiceError as e:
+                # no loudspeaker (a headless robot): said once, then the announcements stay on their topic
+                self.audible = False
+                self.on_error('could not say %r aloud: %s; announcements stay on the topic only from now on'
+                              % (text, e))
 
     def stop(self) -> None:
         with self._wake:

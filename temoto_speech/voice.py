@@ -38,6 +38,11 @@ def _espeak(text: str, voice: str, speed: int, wav: Optional[str]) -> None:
         raise VoiceError('%s failed: %s' % (ESPEAK, e)) from e
     if proc.returncode != 0 or (wav and not os.path.exists(wav)):
         raise VoiceError('%s -v %s failed (rc %d): %s' % (ESPEAK, voice, proc.returncode, proc.stderr.strip()[:200]))
+    # with no audio device espeak-ng still exits 0, and says so only on stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith('error:')]
+    if not wav and errors:
+        raise VoiceError('no audio output: %s (%s)' % (errors[-1][len('error:'):].strip(),
+                                                       proc.stderr.strip().splitlines()[0][:120]))
 
 
 def synthesize(text: str, wav: str, voice: str = DEFAULT_VOICE, speed: int = DEFAULT_SPEED) -> str:

@@ -13,7 +13,7 @@ import pytest
 from temoto_action_engine.testing import write_plugin
 from temoto_core.wait import wait_for
 from temoto_speech import grammar
-from temoto_speech.announcer import sentence
+from temoto_speech.announcer import Announcer, sentence
 from temoto_speech.audio import Utterances, write_wav
 from temoto_speech.phonemes import to_arpabet
 from temoto_speech.voice import synthesize_pcm
@@ -189,3 +189,19 @@ def test_an_utterance_ends_at_a_silence_or_at_the_end_of_the_stream():
     done = cut.feed(loud + quiet)
     assert len(done) == 1 and 0.5 <= len(done[0]) / 32000.0 <= 1.2
     assert cut.feed(loud) == [] and len(cut.flush()) == 1 and cut.flush() == []
+
+
+def test_without_an_audio_device_the_announcer_says_so_once_and_keeps_publishing(monkeypatch, tmp_path):
+    """espeak-ng exits 0 with no audio device; the announcer must not take that for an announcement heard."""
+    monkeypatch.setenv('PULSE_SERVER', 'unix:%s' % (tmp_path / 'no_pulse'))      # no sound server, no ALSA card
+    monkeypatch.setenv('ALSA_CONFIG_PATH', str(tmp_path / 'no_alsa.conf'))
+    published, errors = [], []
+    announcer = Announcer(published.append, 'en-us', 160, audible=True, on_error=errors.append)
+    try:
+        announcer.say('the camera failed')
+        wait_for(lambda: errors, 20, 'the announcer to find it cannot be heard')
+        announcer.say('switching to the lidar')
+        wait_for(lambda: published == ['the camera failed', 'switching to the lidar'], 10, 'both published')
+    finally:
+        announcer.stop()
+    assert len(errors) == 1 and 'no audio output' in errors[0] and not announcer.audible, errors
