@@ -74,10 +74,10 @@ class SpeechNode:
         self._audio_lock = threading.Lock()
         self._stop = threading.Event()
         self._mic: Optional[subprocess.Popen] = None
-        self.refresh_grammar()
         self._subs = [rospy.Subscriber(base + '/audio', AudioData, self._on_audio, queue_size=200),
                       rospy.Subscriber(base + '/say', String, lambda m: self.announcer.say(m.data), queue_size=10),
                       rospy.Subscriber('/%s/action_engine/events' % self.ns, String, self._on_event, queue_size=100)]
+        self.refresh_grammar()      # after the subscriptions: a grammar on its topic means the node listens
         threading.Thread(target=self._poll_index, name='speech-grammar', daemon=True).start()
         source = str(rospy.get_param('~source', 'topic'))
         if source == 'microphone':
@@ -143,13 +143,16 @@ class SpeechNode:
             rospy.logerr('%s: no microphone: %s', NODE_NAME, e)
             self.announcer.say('no microphone')
             return
+        heard_any = False
         while not self._stop.is_set():
             chunk = self._mic.stdout.read(FRAME_BYTES * 5)
             if not chunk:
                 err = self._mic.stderr.read().decode(errors='replace').strip()
-                rospy.logerr('%s: the microphone %r stopped: %s', NODE_NAME, device, err[:300] or 'no more audio')
-                self.announcer.say('the microphone stopped')
+                rospy.logerr('%s: the microphone %r %s: %s', NODE_NAME, device,
+                             'stopped' if heard_any else 'gave no audio', err[:300] or 'no more audio')
+                self.announcer.say('the microphone stopped' if heard_any else 'no microphone')
                 return
+            heard_any = True
             with self._audio_lock:
                 done = self.utterances.feed(chunk)
             for pcm in done:

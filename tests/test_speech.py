@@ -9,8 +9,10 @@ import threading
 
 import numpy as np
 import pytest
+from std_msgs.msg import String
 
 from temoto_action_engine.testing import write_plugin
+from temoto_core.master import connected
 from temoto_core.wait import wait_for
 from temoto_speech import grammar
 from temoto_speech.announcer import Announcer, sentence
@@ -40,7 +42,6 @@ class Topics:
     """What the test hears of the engine and the speech node."""
 
     def __init__(self, rospy):
-        from std_msgs.msg import String
         self.lock = threading.Lock()
         self.seen = {'chatter': [], 'events': [], 'announcements': [], 'grammar': []}
         self.subs = [rospy.Subscriber('/%s/%s' % (NS, topic), String, self._keep, callback_args=key)
@@ -68,7 +69,7 @@ class Topics:
 
 
 @pytest.fixture
-def speech(procs, rospy_client, tmp_path):
+def speech(procs, rospy_client, ros_master, tmp_path):
     plugins = tmp_path / 'plugins'
     write_plugin(str(plugins), 'wave', ASYNC.format(cls='Wave'), effect='asynchronous',
                  grounding={'verbs': ['wave'], 'subjects': ['flag']})
@@ -85,6 +86,11 @@ def speech(procs, rospy_client, tmp_path):
     procs.node('temoto_speech', 'temoto_speech', name='sp_speech',
                params={'temoto_namespace': NS, 'speak': False, 'wav_dir': str(wav_dir), 'grammar_poll_s': 0.5})
     wait_for(lambda: topics.get('grammar'), 30, 'the speech node to publish its grammar')
+    # the engine's events reach the speech node, and its text the engine: connected, not just registered
+    wait_for(lambda: connected(ros_master.uri, '/sp_engine', '/sp_speech', '/%s/action_engine/events' % NS) and
+             connected(ros_master.uri, '/sp_speech', '/sp_engine', '/%s/human_chatter' % NS) and
+             connected(ros_master.uri, '/sp_speech', rospy_client.get_name(), '/%s/speech/announcements' % NS), 20,
+             'the engine, the speech node and this test connected')
     yield topics, plugins, wav_dir
     topics.close()
 
@@ -205,3 +211,15 @@ def test_without_an_audio_device_the_announcer_says_so_once_and_keeps_publishing
     finally:
         announcer.stop()
     assert len(errors) == 1 and 'no audio output' in errors[0] and not announcer.audible, errors
+
+
+def test_a_microphone_that_gives_no_audio_is_announced(procs, rospy_client):
+    said = []
+    sub = rospy_client.Subscriber('/sp_mic/speech/announcements', String, lambda m: said.append(m.data))
+    try:
+        procs.node('temoto_speech', 'temoto_speech', name='sp_mic_speech',
+                   params={'temoto_namespace': 'sp_mic', 'source': 'microphone', 'microphone': 'no_such_device',
+                           'speak': False, 'grammar_poll_s': 30.0})
+        wait_for(lambda: 'no microphone' in said, 30, 'the speech node to say it has no microphone')
+    finally:
+        sub.unregister()
