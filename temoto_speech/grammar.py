@@ -82,7 +82,7 @@ class _ActionWords:
         params = grounding.get('parameters') or {}
         self.said = {w.lower() for w in list(grounding.get('verbs', [])) + list(grounding.get('subjects', [])) +
                      [w for spec in params.values() for w in (spec.get('words') or [])]}
-        for pname, spec in sorted((grounding.get('parameters') or {}).items()):
+        for pname, spec in sorted(params.items()):
             self.param_words += _sayable(spec.get('words') or [], unsayable)
             self.any_words |= bool(spec.get('any'))
             enum = _sayable(_enum_words(spec.get('pattern')), unsayable)
@@ -90,13 +90,13 @@ class _ActionWords:
                 self.enums[pname] = enum
             elif spec.get('pattern'):
                 self.left_out.append('parameter %s (pattern %s: not a list of words)' % (pname, spec['pattern']))
-        said = set(grounding.get('parameters') or {})
-        inputs = action.get('input_parameters') or {}
+
+        def said_in_words(name: str) -> bool:
+            spec = params.get(name) or {}
+            return name in self.enums or bool(spec.get('words') or spec.get('any'))
         # a required input no word fills comes from the parent clause: "show it"
-        self.takes_parent = any(spec.get('pvf_required', True) and not (
-            name in self.enums or (name in said and ((grounding['parameters'][name].get('words'))
-                                                     or grounding['parameters'][name].get('any'))))
-            for name, spec in inputs.items())
+        self.takes_parent = any(spec.get('pvf_required', True) and not said_in_words(name)
+                                for name, spec in (action.get('input_parameters') or {}).items())
 
     def objects(self) -> List[str]:
         return self.subjects or sorted(set(self.param_words))
