@@ -100,7 +100,12 @@ class SpeechNode:
         digest = hashlib.sha1(json.dumps(actions, sort_keys=True).encode()).hexdigest()
         if digest == self._index_digest:
             return True
-        built = self.recognizer.update(actions, self.wake_words)
+        try:
+            built = self.recognizer.update(actions, self.wake_words)
+        except (ValueError, RuntimeError) as e:      # a grammar pocketsphinx refuses, espeak-ng missing
+            rospy.logerr('%s: no new grammar for the %d action(s) now indexed (the last one stays): %s',
+                         NODE_NAME, len(actions), e)
+            return False
         self._index_digest = digest
         self.grammar_pub.publish(String(json.dumps({'actions': built.actions, 'words': sorted(built.words),
                                                     'left_out': built.left_out, 'wake_words': self.wake_words})))
