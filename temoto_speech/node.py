@@ -105,6 +105,7 @@ class SpeechNode:
         except (ValueError, RuntimeError) as e:      # a grammar pocketsphinx refuses, espeak-ng missing
             rospy.logerr('%s: no new grammar for the %d action(s) now indexed (the last one stays): %s',
                          NODE_NAME, len(actions), e)
+            self._index_digest = digest          # tried again when the index changes, not every poll
             return False
         self._index_digest = digest
         self.grammar_pub.publish(String(json.dumps({'actions': built.actions, 'words': sorted(built.words),
