@@ -333,6 +333,8 @@ class ClientSide:
         except (TemotoError, ValueError) as err:
             rospy.logdebug('%s: reconciling with /%s/%s: %s', core.prefix, ns, rr_name, err)
             return False
+        if snapshot.get('recovering'):
+            return False              # its registry is being rebuilt: what failed while it was down shows later
         if any(query.get('state') == LOADING.value for query in snapshot.get('server_queries', [])):
             return False              # a load the caller gave up on may still be running there: later
         mine = self._header.client_uri

@@ -1,0 +1,47 @@
+"""A consumer that follows its owner to a new incarnation reads the owner's registry for the FAILEDs it never
+heard (client_side.reconcile_with): pure logic, the owner's registry given as its JSON. The cross-process
+case is test_rr_recovery.py."""
+import json
+
+from temoto_core.errors import Subsystem
+from temoto_core.msg import RMPRequest
+from temoto_core.rr.client_side import ClientSide
+from temoto_core.rr.core import RegistrarCore
+from temoto_core.rr.query import ACTIVE, ClientQuery
+from temoto_core.srv import GetRegistryResponse
+
+TARGET = ('chaos', 'temoto_context_manager', 'track_object')
+ME = RMPRequest(client_name='/chaos_client_2', client_uri='http://station:1/')
+
+
+def side_holding(external_id, registry):
+    side = ClientSide(RegistrarCore('rr_t', 'chaos', Subsystem.CORE), None, ME, None)
+    query = ClientQuery(TARGET, 'hand', None)
+    query.external_id, query.state = external_id, ACTIVE
+    side.by_external[(TARGET, external_id)] = query
+    side.invoke = lambda service, request, seconds, watched=True: GetRegistryResponse(json=json.dumps(registry))
+    heard = []
+    side.failed_at_owner = lambda target, external_id, message: heard.append((target, external_id, message))
+    return side, heard
+
+
+def registry(recovering):
+    """While it recovers, the entry is back as it was (active); once its sub-resource is found lost, failed."""
+    return {'recovering': recovering, 'server_queries': [
+        {'server': 'track_object', 'state': 'active' if recovering else 'failed',
+         'failure': '' if recovering else 'its tracker could not be recovered',
+         'consumers': [{'client_name': ME.client_name, 'client_uri': ME.client_uri, 'resource_id': 7}]}]}
+
+
+def test_a_failed_entry_of_an_owner_still_recovering_is_read_again_later_and_then_delivered():
+    """Seed 17, two hosts, step 4778: the robot lost power; the Context Manager's new incarnation gave the
+    tracked object back (a neighbour's copy), then found its tracker lost and sent the FAILED before the client
+    had joined the new master. The client had read the registry a moment before, while it was still being
+    rebuilt, found nothing failed, and never read it again."""
+    side, heard = side_holding(7, registry(recovering=True))
+    assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is False     # later
+    assert heard == []
+    side.invoke = lambda service, request, seconds, watched=True: GetRegistryResponse(json=json.dumps(registry(False)))
+    assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is True
+    assert heard == [(TARGET, 7, '/chaos/temoto_context_manager/track_object: FAILED at its owner (its tracker could '
+                                 'not be recovered); its status never reached this node')]
