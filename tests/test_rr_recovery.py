@@ -46,6 +46,15 @@ def chain(rospy_client, procs, tmp_path):
     return a, b, c, (lambda: RegistrarNode(procs, 'rr_rb', journal=journal))
 
 
+def _in_journal(path: str, internal_id: int) -> bool:
+    """Whether the journal has committed the served resource ``internal_id`` with a consumer."""
+    db = sqlite3.connect('file:%s?mode=ro' % path, uri=True)
+    try:
+        return db.execute('SELECT count(*) FROM consumers WHERE internal_id = ?', (internal_id,)).fetchone()[0] > 0
+    finally:
+        db.close()
+
+
 def _forget_in_journal(path: str, internal_id: int) -> None:
     """What a SIGKILL between a change and its commit loses: a served resource, its consumer and its hold."""
     db = sqlite3.connect(path)
@@ -104,6 +113,11 @@ def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the
     a, b, c, _restart = chain
     res = a.call('rr_rb', 'mortal_cam')
     assert 'error' not in res, res
+    # committed before the kill: the neighbour that would give back an uncommitted change (A) is stopped below,
+    # and without it a kill inside the commit pause loses the load (then nothing is there to fail)
+    [served] = b.registry()['server_queries']
+    wait_for(lambda: _in_journal(str(tmp_path / 'rr_rb.sqlite3'), served['internal_id']), 10,
+             "mortal_cam and its consumer committed to B's journal")
     _kill(b)
     os.kill(a.process.pid, signal.SIGSTOP)
     try:
