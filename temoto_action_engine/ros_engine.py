@@ -25,6 +25,7 @@ import time
 import rospy
 from std_msgs.msg import String
 from temoto_core.node import clear_stale_registration, on_signals, prime_log_parameter
+from temoto_core.params import list_param
 from temoto_core.rr.journal import Journal
 from temoto_core.rr.registrar import journal_param
 
@@ -39,23 +40,11 @@ LISTENER_WAIT_S = 3.0      # s a restarted engine waits for listeners before it 
 MAX_GRAPH_JSON = 1 << 20   # bytes of a graph
 
 
-def _list_param(value, name: str) -> list[str]:
-    """A list parameter that may also be given as one 'a:b' or 'a,b' string (from the command line)."""
-    if value in (None, ''):
-        return []
-    if isinstance(value, str):
-        sep = ':' if name == 'action_paths' else ','
-        return [v.strip() for v in value.split(sep) if v.strip()]
-    if isinstance(value, list) and all(isinstance(v, str) for v in value):
-        return value
-    raise ValueError('parameter ~%s must be a list of strings, got %r' % (name, value))
-
-
 class ActionEngineNode:
     def __init__(self):
         self.namespace = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
-        paths = _list_param(rospy.get_param('~action_paths', []), 'action_paths')
-        wake = _list_param(rospy.get_param('~wake_words', []), 'wake_words')
+        paths = list_param(rospy.get_param('~action_paths', []), 'action_paths', separator=':')
+        wake = list_param(rospy.get_param('~wake_words', []), 'wake_words')
         actions_cfg = rospy.get_param('~actions', {}) or {}
         if not isinstance(actions_cfg, dict):
             raise ValueError('parameter ~actions must map action names to their settings')

@@ -25,13 +25,14 @@ import json
 import subprocess
 import threading
 import time
-from typing import List, Optional
+from typing import Optional
 
 import rospy
 from std_msgs.msg import String
 
 from temoto_action_engine.srv import ListActions
 from temoto_core.node import init_node, spin
+from temoto_core.params import list_param
 from temoto_speech.announcer import Announcer, sentence
 from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
 from temoto_speech.msg import AudioData
@@ -43,19 +44,10 @@ NOT_UNDERSTOOD = 'I did not understand'
 INDEX_CALL_TIMEOUT_S = 5.0
 
 
-def _words_param(name: str) -> List[str]:
-    value = rospy.get_param(name, '')
-    if isinstance(value, str):
-        value = value.split(',')
-    if not isinstance(value, list):
-        raise ValueError('parameter %s must be a list of words or one ","-separated string' % name)
-    return [str(v).strip().lower() for v in value if str(v).strip()]
-
-
 class SpeechNode:
     def __init__(self) -> None:
         self.ns = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
-        self.wake_words = _words_param('~wake_words')
+        self.wake_words = list_param(rospy.get_param('~wake_words', ''), 'wake_words')
         self.poll_s = float(rospy.get_param('~grammar_poll_s', 5.0))
         base = '/%s/speech' % self.ns
         self.chatter = rospy.Publisher('/%s/human_chatter' % self.ns, String, queue_size=10)
