@@ -298,14 +298,8 @@ class Chaos:
         else:
             # the master, the clients and the station's stack stay, with whatever they started
             roots = [self.master.proc.pid, *(c.proc.pid for c in self.clients.values()),
-                     *(self.station_stack.pids if self.station_stack is not None else [])]
-            keep = set(roots)
-            for pid in roots:
-                try:
-                    keep.update(child.pid for child in psutil.Process(pid).children(recursive=True))
-                except psutil.NoSuchProcess:
-                    continue
-            kill_leftovers(self.token, exclude=sorted(keep) + self._station_processes())
+                     *(self.station_stack.pids if self.station_stack is not None else []), *self._station_processes()]
+            kill_leftovers(self.token, exclude=_with_descendants(roots))
         self.stack = self._new_stack()
         self.stack.start(STACK_START_S)
         self._wait_managers()
@@ -318,13 +312,7 @@ class Chaos:
         if self.station_stack is None:
             return []
         procs = checker.read_json('/%s/temoto_er_manager/processes' % STATION) or {'processes': []}
-        pids = [p['pid'] for row in procs['processes'] for p in row['processes']]
-        for pid in list(pids):
-            try:
-                pids += [child.pid for child in psutil.Process(pid).children(recursive=True)]
-            except psutil.NoSuchProcess:
-                continue
-        return pids
+        return [p['pid'] for row in procs['processes'] for p in row['processes']]
 
     def _cable(self, device: str, state: str, mode: str) -> None:
         resp = rospy.ServiceProxy('/%s/vaultbot_sim/set_device_state' % ROBOT, SetDeviceState)(device, state, mode)
@@ -379,6 +367,17 @@ class Chaos:
                 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': self.violations, 'failed_step': self.failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
+
+
+def _with_descendants(pids: List[int]) -> List[int]:
+    """``pids`` and every process below them, now."""
+    out = set(pids)
+    for pid in pids:
+        try:
+            out.update(child.pid for child in psutil.Process(pid).children(recursive=True))
+        except psutil.NoSuchProcess:
+            continue
+    return sorted(out)
 
 
 def manager_node(manager: str) -> str:
