@@ -19,6 +19,7 @@ import rospy
 from std_msgs.msg import String
 
 from temoto_action_engine import cli as engine_cli
+from temoto_core.wait import wait_for
 from temoto_speech.audio import AudioError, read_wav, write_wav
 from temoto_speech.msg import AudioData
 from temoto_speech.voice import DEFAULT_VOICE, VoiceError, synthesize_pcm
@@ -45,12 +46,12 @@ def send(ns: str, pcm: bytes, timeout: float = ANSWER_WAIT_S) -> dict:
         got.set()
     sub = rospy.Subscriber(base + '/heard', String, on_heard, queue_size=5)
     pub = rospy.Publisher(base + '/audio', AudioData, queue_size=1000)
-    deadline = time.monotonic() + SUBSCRIBER_WAIT_S
-    while pub.get_num_connections() == 0 or sub.get_num_connections() == 0:
-        if time.monotonic() > deadline:
-            raise SystemExit('error: no speech node listens on %s/audio (is temoto_speech running in namespace '
-                             '%r?)' % (base, ns))
-        time.sleep(0.05)
+    try:
+        wait_for(lambda: pub.get_num_connections() and sub.get_num_connections(), SUBSCRIBER_WAIT_S,
+                 'the speech node')
+    except TimeoutError:
+        raise SystemExit('error: no speech node listens on %s/audio (is temoto_speech running in namespace %r?)'
+                         % (base, ns)) from None
     for i in range(0, len(pcm), CHUNK_BYTES):
         pub.publish(AudioData(data=pcm[i:i + CHUNK_BYTES]))
     pub.publish(AudioData(data=b''))          # the end of the utterance
