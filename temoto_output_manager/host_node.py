@@ -18,6 +18,7 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
+from temoto_core import master_rejoin
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import prime_log_parameter
 
@@ -222,6 +223,9 @@ def main(argv=None) -> int:
         app = QtWidgets.QApplication([sys.argv[0]])
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
         prime_log_parameter()      # its logging must not wait for the master (node.py)
+        # the station's screen outlives a master on the robot that lost power: the new master learns its
+        # services again (a host with no registrar has no other way back)
+        master_rejoin.ensure_started()
         settings = HostSettings(
             fixed_frame=str(rospy.get_param('~fixed_frame', 'base_link')),
             frame_rate=int(rospy.get_param('~frame_rate', 15)),

@@ -56,6 +56,35 @@ def test_a_restarted_master_gets_every_registration_of_a_node_back(own_master):
     wait_for(lambda: registered(master, '/rr_rejoin') == before, HANG, 'every registration of /rr_rejoin back')
 
 
+# nodes with no registrar of their own, which must rejoin too: (package, script, params, the service that
+# registers last, relative to the node or to the namespace 'temoto')
+NO_REGISTRAR = {
+    'rviz_host': ('temoto_output_manager', 'rviz_host', {'show_robot': 'false', 'show_grid': 'false'},
+                  '{node}/list_displays'),
+    'action_engine': ('temoto_action_engine', 'temoto_action_engine', {'temoto_namespace': 'temoto'},
+                      '/temoto/action_engine/list_actions'),
+}
+
+
+@pytest.mark.parametrize('which', sorted(NO_REGISTRAR))
+def test_a_node_with_no_registrar_outlives_its_master_and_registers_again(own_master, which):
+    """The station's RViz host and action engine, when the robot (and the master on it) lost power. Without
+    it, every display was refused until the host itself was restarted (chaos, seed 17), and no instruction
+    reached the engine again."""
+    master, procs = own_master
+    package, script, params, last_service = NO_REGISTRAR[which]
+    proc = procs.node(package, script, name=which + '_rejoin', namespace='temoto', params=params)
+    node = '/temoto/%s_rejoin' % which
+    last_service = last_service.format(node=node)
+    wait_for(lambda: last_service in registered(master, node)[2] or not proc.alive(), 30,
+             '%s to offer its services' % which)
+    assert proc.alive(), proc.log(40)
+    before = registered(master, node)
+    master.stop()
+    master.start()
+    wait_for(lambda: registered(master, node) == before, HANG, 'every registration of %s back' % which)
+
+
 def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
     _, procs = own_master
     proc = procs.node('temoto_test_nodes', 'rr_node', name='rr_bad_period', params={'master_check_period': -1})
