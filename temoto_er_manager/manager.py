@@ -92,6 +92,9 @@ class ERManager:
         self._lock = threading.Lock()
         self._names_lock = threading.Lock()              # held from choosing a request's node names to claiming them
         self._resources: dict[int, Resource] = {}       # internal resource id -> resource, loading or loaded
+        # unloaded, its processes still being stopped (SIGINT, SIGTERM, SIGKILL, each with its grace): still
+        # listed, so that no live process is ever missing from the list
+        self._stopping: dict[int, Resource] = {}
         self._closing = False
         self.rr.add_server(LOAD_PROCESS, LOAD_PROCESS_TYPE, self._load, self._unload, recover=self._recover)
         self._stop_unclaimed(leashed)
@@ -217,13 +220,19 @@ class ERManager:
         rid = res.trr.resource_id
         with self._lock:
             resource = self._resources.pop(rid, None)
+            if resource is not None:
+                self._stopping[rid] = resource
         self.rr.drop_owner_state(PROCESS_KEY % rid)
         if resource is None:
             return
         with resource.lock:
             resource.stopping = True          # a load still starting stops what it spawns from now on
             procs = list(resource.procs)
-        infos = self._stop_all(procs)
+        try:
+            infos = self._stop_all(procs)
+        finally:
+            with self._lock:
+                self._stopping.pop(rid, None)
         rospy.loginfo('%s: unloaded %s (pid %s: %s)', NAME, resource.label,
                       ', '.join(str(p.pid) for p in procs) or 'none yet',
                       '; '.join(i.reason for i in infos) or 'its load stops it')
@@ -372,7 +381,7 @@ class ERManager:
     def processes_json(self) -> str:
         """One row per resource (loading or loaded), each with its processes."""
         with self._lock:
-            resources = list(self._resources.values())
+            resources = list(self._resources.values()) + list(self._stopping.values())
         rows = [r.snapshot() for r in resources]
         return json.dumps({'manager': NAME, 'time': time.time(), 'processes': rows}, sort_keys=True)
 

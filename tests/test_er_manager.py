@@ -6,6 +6,7 @@ import itertools
 import json
 import os
 import signal
+import threading
 import time
 
 import pytest
@@ -249,6 +250,31 @@ def test_sys_execute_refused_unless_allowlisted(consumers, tmp_path):
     with pytest.raises(TemotoError, match='sys_allowlist'):
         consumers().load('touch', str(tmp_path / 'x'), package='', action='sys_execute')
     assert not (tmp_path / 'x').exists()
+
+
+def test_a_process_being_stopped_is_listed_until_it_is_gone(consumers):
+    """An unload stops a process in steps (SIGINT, SIGTERM, SIGKILL, each with its grace): until it is reaped
+    it is still listed, as stopping. (It used to leave the list at once and run on for the graces: a live
+    process in no entry, which the chaos checker saw after unloads.)"""
+    c = consumers()
+    r = c.load('er_test_node', '__name:=slow_stop_%d _ignore_sigint:=true' % next(_names))
+    unload = threading.Thread(target=c.rr.unload, args=(r.trr.resource_id,), daemon=True)
+    unload.start()
+    looks = 0
+    deadline = time.monotonic() + 30
+    while unload.is_alive() and time.monotonic() < deadline:
+        listed = [row for row in processes() if r.pid in row['pids']]
+        if pid_gone(r.pid):
+            break
+        # alive after the list was read, so alive while it was read: it must have been in it
+        assert listed, 'pid %d runs, but the ER Manager does not list it' % r.pid
+        if listed[0]['state'] == 'stopping':
+            looks += 1
+        time.sleep(0.05)
+    unload.join(30)
+    assert not unload.is_alive() and pid_gone(r.pid)
+    assert looks > 0, 'never seen while it was being stopped'
+    assert not [row for row in processes() if r.pid in row['pids']]
 
 
 def test_ps_lists_running_processes(consumers, capsys):
