@@ -14,6 +14,7 @@ import argparse
 import collections
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -29,7 +30,7 @@ PROGRESS_EVERY = 500          # steps between progress lines
 def run(opts, out: str) -> int:
     """The history, its progress shown every PROGRESS_EVERY steps; bounded by 5 s a step and 10 minutes."""
     cmd = [sys.executable, '-m', 'temoto_core.cli', 'chaos', '--seed', str(opts.seed), '--steps', str(opts.steps),
-           '--hosts', str(opts.hosts), '--out', out]
+           '--hosts', str(opts.hosts), '--out', out] + (['--serial'] if opts.serial else [])
     deadline = time.monotonic() + opts.steps * 5 + 600
     with open(os.path.join(out, 'stdout.log'), 'w') as log:
         proc = subprocess.Popen(cmd, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -45,14 +46,27 @@ def run(opts, out: str) -> int:
 
 
 def by_kind(log: list) -> dict:
-    """kind -> [steps, seconds doing them, seconds checking after them]."""
-    out = collections.defaultdict(lambda: [0, 0.0, 0.0])
+    """kind -> [steps, the runner's seconds doing them (queueing a client's call included), its seconds
+    checking after them, the clients' seconds in the calls (concurrent histories: beside the runner)]."""
+    out = collections.defaultdict(lambda: [0, 0.0, 0.0, 0.0])
     for e in log:
         row = out[e['kind']]
         row[0] += 1
         row[1] += e.get('apply_s', 0.0)
         row[2] += e.get('check_s', 0.0)
+        row[3] += e.get('call_s', 0.0)
     return dict(out)
+
+
+def waited_for(log: list, top: int = 5) -> list:
+    """What the checks waited for most (a transient state, before it settled): [(what, steps, seconds)]."""
+    seen = collections.defaultdict(lambda: [0, 0.0])
+    for e in log:
+        if e.get('waited_for'):
+            what = re.sub(r'\d+', 'N', e['waited_for'])[:100]
+            seen[what][0] += 1
+            seen[what][1] += e.get('check_s', 0.0)
+    return sorted(((w, n, t) for w, (n, t) in seen.items()), key=lambda row: -row[2])[:top]
 
 
 def main(argv=None) -> int:
@@ -60,6 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument('--steps', type=int, default=10000)
     ap.add_argument('--seed', type=int, default=17)
     ap.add_argument('--hosts', type=int, choices=(1, 2), default=2)
+    ap.add_argument('--serial', action='store_true', help='one step at a time (the clients not concurrently)')
     opts = ap.parse_args(argv)
     out = tempfile.mkdtemp(prefix='bench_chaos_')
     rc = run(opts, out)
@@ -82,10 +97,17 @@ def main(argv=None) -> int:
           % (summary.get('steps_per_s', 0.0), summary.get('seconds', 0.0), GOAL_STEPS_PER_S))
     print('| processes left behind | %d | 0 |' % summary.get('leftovers', -1))
     print()
-    print('| kind of step | steps | doing it: total (mean) | checking after it: total (mean) |')
-    print('| --- | --- | --- | --- |')
-    for kind, (n, doing, checking) in sorted(kinds.items(), key=lambda kv: -(kv[1][1] + kv[1][2])):
-        print('| %s | %d | %.0f s (%.3f s) | %.0f s (%.3f s) |' % (kind, n, doing, doing / n, checking, checking / n))
+    print('| kind of step | steps | runner doing it: total (mean) | checking after it: total (mean) | '
+          'the client\'s call: mean |')
+    print('| --- | --- | --- | --- | --- |')
+    for kind, (n, doing, checking, calling) in sorted(kinds.items(), key=lambda kv: -(kv[1][1] + kv[1][2])):
+        print('| %s | %d | %.0f s (%.3f s) | %.0f s (%.3f s) | %s |' % (
+            kind, n, doing, doing / n, checking, checking / n, '%.3f s' % (calling / n) if calling else '-'))
+    print()
+    print('| what the checks waited for most | steps | seconds |')
+    print('| --- | --- | --- |')
+    for what, n, seconds in waited_for(result['log']):
+        print('| %s | %d | %.0f |' % (what.replace('|', '/'), n, seconds))
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'chaos.json'), 'w') as f:
         json.dump(dict(summary, seed=opts.seed, requested=opts.steps, by_kind=kinds), f, indent=1, sort_keys=True)

@@ -27,6 +27,10 @@ CONSUMERS = ('throttle',)                  # the clients' own processes (topic_t
 # until its holder releases it, and an equal request meanwhile gets a new one
 ALGORITHMS = ('color_blob_trac',)
 CLIENT_NODE_PREFIX = 'chaos_client_'       # the clients' node names (the runner names each incarnation)
+# what a client calls the resources of each server it is a consumer of (its held 'kind')
+SERVER_KINDS = {'start_sensor': 'sensor', 'load_process': 'process', 'track_object': 'tracked',
+                'load_rviz_plugin': 'display'}
+UNDER_WAY = ('loading', 'unloading')        # an owner's entry that is not settled yet: compared once it is
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,6 +55,10 @@ def managers(robot: str, station: Optional[str] = None) -> List[Manager]:
 
 
 READ_TIMEOUT = 2.0
+# s an owner has to release what a killed client held: its consumer liveness bound, 2 x (the check period,
+# 2 s, + 1 s of ping timeout), with the slack a loaded machine gets
+KILLED_CLIENT_BOUND = 2 * (2.0 + 1.0) + 2.0
+PROCESS_CLOCK_S = 0.02        # a process's start time is known to the kernel's clock tick (10 ms), and rounded
 # a call's deadlines, load and unload (the managers' contracts), by the kind of resource a client holds (it
 # counts its calls as '<load|unload> <kind>'), and the slack a loaded machine gets before it is a violation
 DEADLINES = {'sensor': (40.0, 15.0), 'process': (15.0, 10.0), 'tracked': (70.0, 25.0), 'display': (60.0, 15.0)}
@@ -90,6 +98,12 @@ class Snapshot:
     clients: Dict[int, dict]                 # client index -> its state (the socket's answer)
     client_registries: Dict[int, Optional[dict]]
     resources: Dict[int, Tuple[str, str]]    # live resource process pid -> (its name, its command line)
+    # when each resource process started (the kernel's clock), and when the registries were read: a process
+    # started after the read, or while an ER Manager was starting a resource, may not be in its list yet
+    created: Dict[int, float] = dataclasses.field(default_factory=dict)
+    read_at: float = float('inf')
+    # client incarnations the nemesis killed, by node name (without namespace): seconds since the kill
+    killed: Dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 def resource_name(name: str, cmdline: List[str]) -> Optional[str]:
@@ -115,17 +129,63 @@ def resource_processes(pids: List[int]) -> Dict[int, Tuple[str, str]]:
     return found
 
 
-def take(read: List[Manager], client_namespace: str, client_states: Dict[int, dict],
+def take(read: List[Manager], client_namespace: str, client_states: Callable[[], Dict[int, dict]],
          session_processes: Callable[[], List[int]]) -> Snapshot:
-    """Everything at once: the managers' registries (and ER Managers' processes), the clients' registries
-    (their registrars are in ``client_namespace``) and the resource processes the kernel has."""
-    resources = resource_processes(session_processes())
-    clients = {i: '/%s/%s/registry' % (client_namespace.strip('/'), s['registrar']) for i, s in client_states.items()}
+    """Everything as near one moment as a system that keeps working allows: the managers' registries (and
+    ER Managers' processes), the clients' registries (their registrars are in ``client_namespace``), then
+    the resource processes the kernel has.
+
+    The clients are asked for their state before the registries are read and again after, so that a call
+    that began or ended meanwhile counts as under way, and only what a client held all along is held. A
+    resource process started after the registries were read is not expected in them yet."""
+    before = client_states()
+    clients = {i: '/%s/%s/registry' % (client_namespace.strip('/'), s['registrar']) for i, s in before.items()}
     services = [m.path + '/registry' for m in read] + [m.path + '/processes' for m in read if m.lists_processes]
+    read_at = time.time()
     answers = read_all(services + list(clients.values()))
+    after = client_states()
+    resources = resource_processes(session_processes())
     return Snapshot(read, {m.label: answers[m.path + '/registry'] for m in read},
                     {m.label: answers[m.path + '/processes'] for m in read if m.lists_processes},
-                    client_states, {i: answers[c] for i, c in clients.items()}, resources)
+                    _held_throughout(before, after), {i: answers[c] for i, c in clients.items()}, resources,
+                    _created(resources), read_at)
+
+
+def _held_throughout(before: Dict[int, dict], after: Dict[int, dict]) -> Dict[int, dict]:
+    """Each client's state as the checker may hold it to: held (and heard FAILED) in both answers, and every
+    call under way in either. A client that started again meanwhile is left out until the next look."""
+    out = {}
+    for i, first in before.items():
+        second = after.get(i)
+        if second is None or second['node'] != first['node']:
+            continue
+        state = dict(second)
+        state['held'] = {lid: info for lid, info in second['held'].items() if lid in first['held']}
+        state['pending'] = first.get('pending', []) + second.get('pending', [])
+        out[i] = state
+    return out
+
+
+def _created(pids) -> Dict[int, float]:
+    out = {}
+    for pid in pids:
+        try:
+            out[pid] = psutil.Process(pid).create_time()
+        except psutil.Error:
+            continue
+    return out
+
+
+def _maybe_unlisted_yet(snap: Snapshot, pid: int) -> bool:
+    """Whether ``pid`` may be missing from every ER Manager's list only because it started too late to be
+    in it: after the lists were read, or while an ER Manager was still starting a resource (the manager
+    lists a process once the start returns)."""
+    created = snap.created.get(pid)
+    if created is None:
+        return False
+    starting = [row['started'] for procs in snap.processes.values() for row in procs['processes']
+                if row['state'] == 'starting']
+    return created >= snap.read_at - PROCESS_CLOCK_S or any(created >= t - PROCESS_CLOCK_S for t in starting)
 
 
 def _settled(snap: Snapshot) -> List[str]:
@@ -135,8 +195,6 @@ def _settled(snap: Snapshot) -> List[str]:
             out.append('the %s does not answer' % name)
         elif reg.get('recovering'):
             out.append('the %s is still recovering' % name)
-        elif any(q['state'] in ('loading', 'unloading') for q in reg['server_queries']):
-            out.append('the %s has a load or unload under way' % name)
     return out
 
 
@@ -154,7 +212,7 @@ def check(snap: Snapshot) -> List[str]:
     # algorithm runs once per tracker entry (the entry is what is checked)
     same: Dict[str, List[int]] = {}
     for pid, (name, cmdline) in snap.resources.items():
-        if pid not in listed:
+        if pid not in listed and not _maybe_unlisted_yet(snap, pid):
             out.append('%s (pid %d) runs, but no ER Manager entry has it' % (name, pid))
         if name not in ALGORITHMS:
             same.setdefault(name if name in DRIVERS else cmdline, []).append(pid)
@@ -189,8 +247,9 @@ def _holders(snap: Snapshot) -> List[str]:
             out.append('client %d (%s) does not answer for its registry' % (i, state['node']))
             continue
         local = {lid for cq in reg['client_queries'] for lid in cq['local_ids']}
+        unloading = {p['id'] for p in state.get('pending', []) if p['op'] == 'unload'}
         for lid, info in state['held'].items():
-            if int(lid) not in local:
+            if int(lid) not in local and int(lid) not in unloading:
                 out.append('client %d: acknowledged load %s (%s) is not in its registry: lost'
                            % (i, lid, info['what']))
     for manager in snap.managers:
@@ -210,10 +269,13 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
             if _is_client(c['client_name']):
                 served[(c['client_name'], c['resource_id'])] = q
     held = {}            # (client node, external id) -> (client index, local ids, the client's entry state)
+    busy = set()         # the clients with a call of this server's under way: their references are in flux
     for i, state in snap.clients.items():
         reg = snap.client_registries.get(i)
         if reg is None:
             continue
+        if any(p['kind'] == SERVER_KINDS.get(server) for p in state.get('pending', [])):
+            busy.add(state['node'])
         heard_failed = {int(lid) for lid in state['failed_heard']}
         for cq in reg['client_queries']:
             if not cq['target'].endswith('/' + server):
@@ -222,13 +284,14 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
             held[key] = cq
             q = served.get(key)
             if q is None:
-                if cq['state'] != 'failed':
+                if cq['state'] != 'failed' and state['node'] not in busy:
                     out.append('client %d holds %s id %d, which is not served to it: lost' % (i, what, key[1]))
             elif q['state'] == 'failed' and not any(lid in heard_failed for lid in cq['local_ids']):
                 out.append('client %d never heard the FAILED of its %s %s (%s)' % (
                     i, what, _describe(q['summary']), q.get('failure', '')[:120]))
     for key, q in served.items():
-        if key not in held:
+        if key not in held and key[0] not in busy and q['state'] not in UNDER_WAY \
+                and snap.killed.get(key[0].rsplit('/', 1)[-1], KILLED_CLIENT_BOUND) >= KILLED_CLIENT_BOUND:
             out.append('%s id %d of %s is counted as held by %s, which holds nothing of it: a leaked reference'
                        % (what, key[1], server, key[0]))
     return out

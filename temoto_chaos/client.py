@@ -11,12 +11,13 @@ its policy runs.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import socketserver
 import threading
 import time
-from typing import Callable, Deque, Dict, List
+from typing import Callable, Deque, Dict, Iterator, List
 
 import rospy
 
@@ -54,6 +55,10 @@ class ChaosClient:
         self.recent: Deque[dict] = collections.deque(maxlen=RECENT_STATUSES)
         self.calls: Dict[str, dict] = {}           # op -> {'count', 'failed', 'max_s'}: held to its deadline
         self.unexpected: List[str] = []            # a call that raised something other than a TemotoError
+        # the calls under way (the runner may ask for the state meanwhile): the checker does not hold a
+        # resource whose load or unload is under way to what is settled
+        self.pending: Dict[int, dict] = {}         # call number -> {'op', 'kind', 'id' (an unload's)}
+        self._calls_started = 0
 
     def _on_status(self, ev: StatusEvent) -> None:
         with self.lock:
@@ -67,15 +72,16 @@ class ChaosClient:
               answer: Callable[[object], dict]) -> dict:
         """One load through an interface: acknowledged (held, answered with ``answer``) or refused."""
         t0 = time.monotonic()
-        try:
-            result = load()
-        except TemotoError as e:
-            self._call('load ' + kind, t0, False)
-            return {'ok': False, 'error': str(e)}
-        self._call('load ' + kind, t0, True)
-        rid = resource_id(result)
-        with self.lock:
-            self.held[rid] = {'kind': kind, 'what': what, 'failed': ''}
+        with self._under_way('load', kind):
+            try:
+                result = load()
+            except TemotoError as e:
+                self._call('load ' + kind, t0, False)
+                return {'ok': False, 'error': str(e)}
+            rid = resource_id(result)
+            with self.lock:
+                self.held[rid] = {'kind': kind, 'what': what, 'failed': ''}
+            self._call('load ' + kind, t0, True)
         return dict(answer(result), ok=True, id=rid)
 
     def load_sensor(self, sensor_type: str, keys: List[str]) -> dict:
@@ -109,16 +115,30 @@ class ChaosClient:
         t0 = time.monotonic()
         with self.lock:
             kind = self.held.get(resource_id, {}).get('kind', 'sensor')
-        try:
-            self.releases[kind](resource_id)
-            ok, error = True, ''
-        except TemotoError as e:
-            ok, error = False, str(e)
-        self._call('unload ' + kind, t0, ok)
-        with self.lock:
-            self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
-            self.failed_heard.pop(resource_id, None)
+        with self._under_way('unload', kind, resource_id):
+            try:
+                self.releases[kind](resource_id)
+                ok, error = True, ''
+            except TemotoError as e:
+                ok, error = False, str(e)
+            with self.lock:
+                self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
+                self.failed_heard.pop(resource_id, None)
+            self._call('unload ' + kind, t0, ok)
         return {'ok': ok, 'error': error}
+
+    @contextlib.contextmanager
+    def _under_way(self, op: str, kind: str, resource_id: int = 0) -> Iterator[None]:
+        """A call listed as under way while it runs: it ends (however it ends) after what it held changed."""
+        with self.lock:
+            self._calls_started += 1
+            call = self._calls_started
+            self.pending[call] = {'op': op, 'kind': kind, 'id': resource_id}
+        try:
+            yield
+        finally:
+            with self.lock:
+                self.pending.pop(call, None)
 
     def _call(self, op: str, t0: float, ok: bool) -> None:
         with self.lock:
@@ -142,7 +162,7 @@ class ChaosClient:
                     'held': {str(k): dict(v) for k, v in self.held.items()},
                     'failed_heard': {str(k): v for k, v in self.failed_heard.items()},
                     'recent_statuses': list(self.recent), 'calls': {op: dict(v) for op, v in self.calls.items()},
-                    'unexpected': list(self.unexpected)}
+                    'unexpected': list(self.unexpected), 'pending': list(self.pending.values())}
 
     def handle(self, cmd: dict) -> dict:
         op = cmd.get('op')

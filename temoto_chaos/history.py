@@ -11,7 +11,7 @@ import dataclasses
 import random
 from typing import Dict, Iterator, List, Tuple
 
-VERSION = 3
+VERSION = 4
 # (kind, weight) by history version: client operations are the bulk of a history, faults the rest. A new
 # version draws other steps from the same seed; the older ones stay, so that every seed ever reported
 # replays (version 1: sensors only, no consumer processes and no power loss of the robot; version 2: no
@@ -28,7 +28,8 @@ NEMESIS: Dict[int, List[Tuple[str, float]]] = {
         ('unplug', 1), ('replug', 2), ('partition', 1),
         ('kill_robot', 0.25)],                         # the slowest fault (the robot boots again): the rarest
 }
-NEMESIS[3] = NEMESIS[2]
+NEMESIS[3] = NEMESIS[4] = NEMESIS[2]
+CLIENT_OPS[4] = CLIENT_OPS[3]
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
@@ -47,6 +48,11 @@ MANAGERS: Dict[int, Tuple[str, ...]] = {
         'station/temoto_er_manager'),
 }
 MANAGERS[2] = MANAGERS[1]
+MANAGERS[4] = MANAGERS[3]
+# how many clients a history has unless told (``step`` draws the client from them); from version 4 the
+# clients work concurrently (runner.py), and the draws are version 3's over twice as many clients
+CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6}
+CONCURRENT_FROM = 4
 DEVICES = ('d435', 'hokuyo', 'sick')
 MODES = ('crash', 'stall')
 

@@ -14,12 +14,14 @@ is violated, within ``settle_s``.
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import dataclasses
 import json
 import os
 import signal
+import threading
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Deque, Dict, List, Optional, Tuple
 
 import psutil
 import rospy
@@ -34,7 +36,7 @@ from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
 
 from . import checker
-from .history import VERSION, Step, history
+from .history import CLIENTS, CONCURRENT_FROM, VERSION, Step, history
 
 ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
 STATION = 'chaos_station'      # the station's, from history 3
@@ -43,8 +45,12 @@ ER_CONFIG = os.path.join(HERE, 'config', 'er_chaos.yaml')
 LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true', 'er_config:=' + ER_CONFIG]
 STATION_LAUNCH = os.path.join(HERE, 'launch', 'station.launch')
 STATION_ARGS = ['temoto_namespace:=' + STATION, 'robot:=' + ROBOT]
+CLIENT_STEPS = ('load_sensor', 'load_process', 'track_object', 'show_display', 'unload')
 STATION_KINDS = ('display',)   # what a client holds of the station's, on the clients' side of a cut link
 CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
+# calls a client may have queued (concurrent histories): the runner waits for a client only when its queue is
+# full, so one slow call (a display's first frame) does not hold up the steps of the others
+CLIENT_BACKLOG = 3
 STACK_START_S = 60.0           # s: the robot's nodes to register (at boot and after a power loss)
 PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
 
@@ -54,11 +60,21 @@ class ChaosOptions:
     seed: int
     steps: int
     out_dir: str
-    clients: int = 3
+    clients: Optional[int] = None   # default: the history version's (history.CLIENTS)
     settle_s: float = 20.0
     until: Optional[int] = None     # replay only the steps before this one
     hosts: int = 1                  # 2: the robot's stack on one host, the clients on the station (a partition fault)
     version: int = VERSION          # how steps are drawn from the seed (history.py)
+    serial: bool = False            # one step at a time even where the version runs its clients concurrently
+
+    def __post_init__(self) -> None:
+        if self.clients is None:
+            self.clients = CLIENTS[self.version]
+
+    @property
+    def concurrent(self) -> bool:
+        """History 4 and later: each client does its calls in order, the clients at the same time."""
+        return self.version >= CONCURRENT_FROM and not self.serial
 
     @property
     def station(self) -> bool:
@@ -75,8 +91,8 @@ class ClientHandle:
             os.unlink(socket_path)      # a killed incarnation's
         self.index = index
         self.socket_path = socket_path
-        name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
-        self.proc = launcher.node('temoto_chaos', 'chaos_client', name=name,
+        self.name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
+        self.proc = launcher.node('temoto_chaos', 'chaos_client', name=self.name,
                                   params={'control_socket': socket_path, 'temoto_namespace': ROBOT,
                                           'station_namespace': station})
         deadline = time.monotonic() + 20.0
@@ -110,6 +126,15 @@ class Chaos:
         self.partition_violations: List[str] = []
         self.hosts: Optional[TwoHosts] = None
         self._leave_station = None
+        # concurrent histories: a worker per client does its calls in order; the runner goes on to the next
+        # step as soon as a call is queued, and waits only for a client with a full queue (CLIENT_BACKLOG)
+        self._workers: Dict[int, concurrent.futures.ThreadPoolExecutor] = {}
+        self._jobs: Dict[int, Deque[Tuple[concurrent.futures.Future, Optional[dict]]]] = \
+            collections.defaultdict(collections.deque)      # each client's jobs not known done: (job, its step's log)
+        self.call_violations: List[str] = []      # a client that did not answer a call it was not killed in
+        self._print_lock = threading.Lock()
+        self.waited_for = ''                      # what the last check waited to see settle, if anything
+        self._killed: Dict[str, float] = {}       # a killed client incarnation's node name -> when
 
     # ------------------------------------------------------------------ setup
     def start(self) -> None:
@@ -169,8 +194,12 @@ class Chaos:
         path = os.path.join(self.opts.out_dir, 'client_%d.sock' % index)
         self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path,
                                            STATION if self.opts.station else '')
+        if self.opts.concurrent and index not in self._workers:
+            self._workers[index] = concurrent.futures.ThreadPoolExecutor(1, 'chaos-client-%d' % index)
 
     def stop(self) -> List[tuple]:
+        for worker in self._workers.values():
+            worker.shutdown(wait=False, cancel_futures=True)   # a call under way ends when its client is stopped
         if self.hosts is not None:
             self.hosts.link(True)        # a run stopped during a partition: the nodes stop over a working link
         if self.launcher is not None:
@@ -195,29 +224,8 @@ class Chaos:
     def apply(self, step: Step) -> str:
         """Do ``step``; a sentence saying what was done (or why nothing was)."""
         kind, a = step.kind, step.args
-        if kind == 'load_sensor':
-            answer = self.clients[a['client']].ask(op='load_sensor', type=a['type'], keys=a['keys'])
-            return 'client %d: %s' % (a['client'], answer.get('sensor') or
-                                      'refused: %s' % answer.get('error', '')[:100])
-        if kind == 'load_process':
-            answer = self.clients[a['client']].ask(op='load_process', topic=a['topic'], rate=a['rate'])
-            return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
-        if kind == 'track_object':
-            answer = self.clients[a['client']].ask(op='track_object', object=a['object'])
-            return 'client %d: %s' % (a['client'], '%s by %s' % (a['object'], answer['tracker']) if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
-        if kind == 'show_display':
-            answer = self.clients[a['client']].ask(op='show_display', type=a['type'], topic=a['topic'])
-            return 'client %d: %s' % (a['client'], 'display %s' % answer['display'] if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
-        if kind == 'unload':
-            held = sorted(self.clients[a['client']].ask(op='state')['held'])
-            if not held:
-                return 'client %d holds nothing' % a['client']
-            rid = held[a['pick'] % len(held)]
-            answer = self.clients[a['client']].ask(op='unload', id=int(rid))
-            return 'client %d unloaded %s%s' % (a['client'], rid, '' if answer['ok'] else ': ' + answer['error'][:100])
+        if kind in CLIENT_STEPS:
+            return self._client_op(step, self.clients[a['client']])
         if kind == 'partition' and self.hosts is None:
             return 'one host: no link to cut'
         self.faults[kind] += 1
@@ -230,11 +238,7 @@ class Chaos:
             os.kill(pid, signal.SIGKILL)
             return 'SIGKILL %s %s (pid %d)' % (kind.split('_')[1], name, pid)
         if kind == 'kill_client':
-            old = self.clients[a['client']].proc
-            os.kill(old.pid, signal.SIGKILL)
-            old.stop()          # reaps it (already dead: returns at once)
-            self._start_client(a['client'])
-            return 'SIGKILL client %d, started again' % a['client']
+            return self._kill_client(a['client'])
         if kind in ('kill_manager', 'stop_manager'):
             name = manager_node(a['manager'])
             uri = lookup_node(self.master.uri, name)
@@ -258,18 +262,135 @@ class Chaos:
         self._cable(a['device'], 'plugged', '')
         return 'plugged %s' % a['device']
 
+    def _client_op(self, step: Step, client: ClientHandle) -> str:
+        """A client's step, done by ``client``: what it answered."""
+        kind, a = step.kind, step.args
+        if kind == 'load_sensor':
+            answer = client.ask(op='load_sensor', type=a['type'], keys=a['keys'])
+            return 'client %d: %s' % (a['client'], answer.get('sensor') or
+                                      'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'load_process':
+            answer = client.ask(op='load_process', topic=a['topic'], rate=a['rate'])
+            return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'track_object':
+            answer = client.ask(op='track_object', object=a['object'])
+            return 'client %d: %s' % (a['client'], '%s by %s' % (a['object'], answer['tracker']) if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'show_display':
+            answer = client.ask(op='show_display', type=a['type'], topic=a['topic'])
+            return 'client %d: %s' % (a['client'], 'display %s' % answer['display'] if answer.get('ok')
+                                      else 'refused: %s' % answer.get('error', '')[:100])
+        if kind == 'unload':
+            held = sorted(client.ask(op='state')['held'])
+            if not held:
+                return 'client %d holds nothing' % a['client']
+            rid = held[a['pick'] % len(held)]
+            answer = client.ask(op='unload', id=int(rid))
+            return 'client %d unloaded %s%s' % (a['client'], rid, '' if answer['ok'] else ': ' + answer['error'][:100])
+        raise ValueError('not a client step: %s' % kind)
+
+    def _kill_client(self, index: int) -> str:
+        """SIGKILL a client, whatever call it is in, and start a new incarnation. In a concurrent history the
+        new one starts in the client's worker, after the call the kill cut short, and the checker leaves the
+        client out until it answers (the dead incarnation's references must still go)."""
+        if index not in self.clients:
+            self._wait_client(index)        # killed a moment ago, and still starting again
+        if index not in self.clients:
+            return 'client %d did not start again: nothing to kill' % index
+        old = self.clients.pop(index)
+        os.kill(old.proc.pid, signal.SIGKILL)
+        self._killed[old.name] = time.monotonic()
+        if not self.opts.concurrent:
+            self._restart_client(index, old)
+            return 'SIGKILL client %d, started again' % index
+        # the calls queued behind the one the kill cut short die with the client
+        dropped = 0
+        for job, entry in self._jobs[index]:
+            if job.cancel():
+                entry['did'] = 'not done: client %d was killed before its turn' % index
+                self._print(entry)
+                dropped += 1
+        self._jobs[index].append((self._workers[index].submit(self._restart_client, index, old), None))
+        return 'SIGKILL client %d, starting again%s' % (index, ' (%d queued call(s) dropped)' % dropped
+                                                        if dropped else '')
+
+    def _restart_client(self, index: int, old: ClientHandle) -> None:
+        old.proc.stop()          # reaps it (already dead: returns at once)
+        try:
+            self._start_client(index)
+        except RuntimeError as err:
+            if not self.opts.concurrent:
+                raise
+            self.call_violations.append('client %d did not start again: %s' % (index, err))
+
+    # ------------------------------------------------------------------ concurrent clients
+    def _dispatch(self, step: Step, entry: dict) -> None:
+        """Queue a client's step for its worker, once the client has room in its queue."""
+        index = step.args['client']
+        jobs = self._jobs[index]
+        while jobs and jobs[0][0].done():
+            jobs.popleft()
+        if len(jobs) >= CLIENT_BACKLOG:
+            self._wait_job(jobs.popleft()[0])
+        jobs.append((self._workers[index].submit(self._call, step, entry), entry))
+
+    def _wait_client(self, index: int) -> None:
+        """Until every job queued for the client is done."""
+        jobs = self._jobs[index]
+        while jobs:
+            self._wait_job(jobs.popleft()[0])
+
+    @staticmethod
+    def _wait_job(job: concurrent.futures.Future) -> None:
+        if not job.cancelled():
+            # bounded by the calls queued before it; the jobs catch what they can raise
+            job.result(timeout=CLIENT_BACKLOG * CLIENT_CALL_TIMEOUT + STACK_START_S)
+
+    def _drain(self) -> None:
+        """Until no client has a job queued or under way."""
+        for index in list(self._jobs):
+            self._wait_client(index)
+
+    def _call(self, step: Step, entry: dict) -> None:
+        """A worker's job: the step, its answer in the log. A client that does not answer is a violation,
+        unless the nemesis killed it during the call."""
+        index = step.args['client']
+        client = self.clients.get(index)
+        t0 = time.monotonic()
+        if client is None:
+            entry['did'] = 'not done: client %d did not start again' % index
+        else:
+            try:
+                entry['did'] = self._client_op(step, client)
+            except Exception as err:      # reported: a violation, unless the nemesis killed the client meanwhile
+                if self.clients.get(index) is client:
+                    entry['did'] = 'not done'
+                    self.call_violations.append('step %d: client %d did not answer: %s: %s'
+                                                % (step.index, index, type(err).__name__, err))
+                else:
+                    entry['did'] = 'client %d was killed during the call' % index
+        entry['call_s'] = round(time.monotonic() - t0, 3)
+        self._print(entry)
+
+    def _print(self, entry: dict) -> None:
+        with self._print_lock:
+            print('[step %d] %s: %s%s' % (entry['step'], entry['kind'], entry['did'], '' if not entry['violations']
+                                          else ' -> VIOLATION: ' + '; '.join(entry['violations'])), flush=True)
+
     def _partition(self, seconds: float) -> str:
         """Cut the link for ``seconds`` (at least as long as it takes): every resource of the robot's that a
         client held (all but the station's displays) must be FAILED at that client within the bound; then
         plug the cable back."""
+        clients = dict(self.clients)        # a client starting again meanwhile is not asked
         held = {i: {lid for lid, info in c.ask(op='state')['held'].items()
                     if not info['failed'] and info['kind'] not in STATION_KINDS}
-                for i, c in self.clients.items()}
+                for i, c in clients.items()}
         cut = time.monotonic()
         self.hosts.link(False)
         try:
             while True:
-                states = {i: c.ask(op='state') for i, c in self.clients.items()}
+                states = {i: c.ask(op='state') for i, c in clients.items()}
                 unheard = ['client %d: %s' % (i, lid) for i, lids in held.items() for lid in lids
                            if lid in states[i]['held'] and not states[i]['held'][lid]['failed']]
                 down = time.monotonic() - cut
@@ -290,6 +411,7 @@ class Chaos:
         robot host, its master included; on one host the stack and every process its ER Manager started,
         while the master, the clients and this runner stay."""
         t0 = time.monotonic()
+        self._drain()          # every client is known (none halfway started) when the robot's processes die
         self.stack.kill()
         if self.hosts is not None:
             self.hosts.kill_all(self.hosts.robot)
@@ -325,38 +447,67 @@ class Chaos:
 
     # ------------------------------------------------------------------ checks
     def check(self) -> List[str]:
-        """The violations left once the system had ``settle_s`` to settle (none: the step passed)."""
+        """The violations left once the system had ``settle_s`` to settle (none: the step passed). What the
+        first look saw, if the system had to settle, is kept in ``waited_for`` (where a history's time goes)."""
         deadline = time.monotonic() + self.opts.settle_s
+        self.waited_for = ''
         while True:
-            states = {i: c.ask(op='state') for i, c in self.clients.items()}
-            snap = checker.take(self.managers, ROBOT, states,
+            snap = checker.take(self.managers, ROBOT, self._states,
                                 lambda: [pid for pid, _ in leftover_processes(self.token)])
-            violations = self.partition_violations + checker.check(snap)
+            now = time.monotonic()
+            snap.killed = {name: now - t for name, t in self._killed.items()}
+            for name, age in snap.killed.items():
+                if age > checker.KILLED_CLIENT_BOUND + self.opts.settle_s:
+                    del self._killed[name]      # past its bound long ago: a reference it left is a violation
+            violations = self.partition_violations + self.call_violations + checker.check(snap)
             self.checks += 1
             if not violations or time.monotonic() > deadline:
                 return violations
+            self.waited_for = self.waited_for or violations[0][:200]
             time.sleep(0.1)
+
+    def _states(self) -> Dict[int, dict]:
+        """Every running client's own account (one starting again is not asked)."""
+        return {i: c.ask(op='state') for i, c in list(self.clients.items())}
 
     def run(self) -> dict:
         last = self.opts.steps if self.opts.until is None else min(self.opts.steps, self.opts.until)
         self.started = time.monotonic()
         for step in history(self.opts.seed, last, self.opts.clients, self.opts.version):
             started = time.monotonic()
+            entry = {'step': step.index, 'kind': step.kind, 'args': step.args, 'did': 'under way', 'violations': []}
+            self.log.append(entry)
+            handed_over = self.opts.concurrent and step.kind in CLIENT_STEPS
             try:
-                what = self.apply(step)
+                if handed_over:
+                    self._dispatch(step, entry)
+                else:
+                    entry['did'] = self.apply(step)
                 applied = time.monotonic()
                 violations = self.check()
-            except (OSError, ValueError) as err:     # a client that does not answer is a finding, not a crash
+            except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
+                # a client that does not answer is a finding, not a crash
                 applied = time.monotonic()
-                what, violations = 'not done', ['the runner could not do the step or check it: %s' % err]
-            self.log.append({'step': step.index, 'kind': step.kind, 'args': step.args, 'did': what,
-                             'violations': violations, 'apply_s': round(applied - started, 3),
-                             'check_s': round(time.monotonic() - applied, 3)})
-            print('[step %d] %s: %s%s' % (step.index, step.kind, what, '' if not violations else
-                                          ' -> VIOLATION: ' + '; '.join(violations)), flush=True)
+                entry['did'], violations = 'not done', ['the runner could not do the step or check it: %s' % err]
+                handed_over = False
+            entry.update(violations=violations, apply_s=round(applied - started, 3),
+                         check_s=round(time.monotonic() - applied, 3))
+            if self.waited_for:
+                entry['waited_for'] = self.waited_for
+            if not handed_over:
+                self._print(entry)
             if violations:
                 self.violations, self.failed_step = violations, step.index
                 break
+        if not self.violations and self.opts.concurrent:
+            # the last calls end, and the system they leave is checked once more
+            try:
+                self._drain()
+                violations = self.check()
+            except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
+                violations = ['the runner could not check the end of the history: %s' % err]
+            if violations:
+                self.violations, self.failed_step = ['after the last call: ' + v for v in violations], last - 1
         return self.summary()
 
     def summary(self) -> dict:
@@ -389,9 +540,11 @@ def manager_node(manager: str) -> str:
 
 def replay_command(opts: ChaosOptions, until: int) -> str:
     """The command that runs the same first ``until`` steps again."""
-    extra = [('--clients', opts.clients, 3), ('--hosts', opts.hosts, 1), ('--history', opts.version, VERSION)]
-    return 'temoto chaos --seed %d --until %d%s' % (opts.seed, until, ''.join(
-        ' %s %s' % (flag, value) for flag, value, default in extra if value != default))
+    extra = [('--clients', opts.clients, CLIENTS[opts.version]), ('--hosts', opts.hosts, 1),
+             ('--history', opts.version, VERSION)]
+    return 'temoto chaos --seed %d --until %d%s%s' % (opts.seed, until, ''.join(
+        ' %s %s' % (flag, value) for flag, value, default in extra if value != default),
+        ' --serial' if opts.serial else '')
 
 
 def _interrupt(signum, frame) -> None:

@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from temoto_core.processes import SESSION_ENV, leftover_processes
-from temoto_chaos.history import NEMESIS, VERSION, history
+from temoto_chaos.history import CLIENTS, NEMESIS, VERSION, history
 
 SEED = 20261131      # a seed whose first 300 steps hold every kind of fault, the robot's power loss once
 STEPS = 300
@@ -49,11 +49,17 @@ def test_a_seeded_history_with_every_fault_keeps_every_invariant_and_replays_fro
     for kind, acknowledged in (('load_sensor', ': realsense_d435'), ('load_process', 'throttle pid'),
                                ('track_object', 'hand by green_hand_rgbd'), ('show_display', 'display ')):
         assert any(acknowledged in text for text in did[kind]), (kind, did[kind])
-    # the log is the seed's history, step by step
-    assert [(e['kind'], e['args']) for e in result['log']] == [(s.kind, s.args) for s in history(SEED, STEPS, 3)]
-    # --until replays the first steps of the same history
-    proc, replay, left = run_chaos(tmp_path / 'replay', '--seed', str(SEED), '--steps', str(STEPS), '--until', '8')
+    # the log is the seed's history, step by step (the clients worked concurrently: their calls overlapped)
+    assert [(e['kind'], e['args']) for e in result['log']] == [(s.kind, s.args)
+                                                                for s in history(SEED, STEPS, CLIENTS[VERSION])]
+    assert 'working concurrently' in proc.stdout.splitlines()[0]
+    assert any(e.get('call_s', 0) > e['apply_s'] + e['check_s'] for e in result['log'] if 'call_s' in e), \
+        'no call outlasted its own step: nothing ran concurrently'
+    # --until replays the first steps of the same history; --serial one step at a time
+    proc, replay, left = run_chaos(tmp_path / 'replay', '--seed', str(SEED), '--steps', str(STEPS), '--until', '8',
+                                   '--serial')
     assert proc.returncode == 0 and left == [], proc.stdout[-2000:]
+    assert 'concurrently' not in proc.stdout and not any('call_s' in e for e in replay['log'])
     assert [(e['kind'], e['args']) for e in replay['log']] == [(e['kind'], e['args']) for e in result['log'][:8]]
 
 

@@ -61,12 +61,48 @@ def test_a_consistent_system_passes():
 
 def test_an_unsettled_system_is_reported_as_such_and_not_checked_further():
     snap = clean()
-    sm(snap)['server_queries'][0]['state'] = 'loading'
+    sm(snap)['recovering'] = True
     snap.resources[ME + 1] = ('sick_driver', '')   # would be a violation, but nothing is checked yet
-    assert checker.check(snap) == ['the Sensor Manager has a load or unload under way']
+    assert checker.check(snap) == ['the Sensor Manager is still recovering']
     snap = clean()
     snap.registries['ER Manager'] = None
     assert checker.check(snap) == ['the ER Manager does not answer']
+
+
+def test_a_load_under_way_hides_only_its_own_entry():
+    """With the clients working concurrently a manager almost always has a load under way somewhere: that
+    entry's references are compared once it settles, and everything else is checked meanwhile."""
+    snap = clean()
+    sm(snap)['server_queries'][0]['state'] = 'loading'
+    sm(snap)['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_1_1', 'resource_id': 12})
+    assert checker.check(snap) == []
+    snap.resources[ME + 1] = ('sick_driver', 'python3 -m zygote')
+    assert checker.check(snap) == ['sick_driver (pid %d) runs, but no ER Manager entry has it' % (ME + 1),
+                                   'sick_driver runs 2 times: [%d, %d]' % (ME, ME + 1)]
+    sm(snap)['server_queries'][0]['state'] = 'active'
+    assert 'a leaked reference' in checker.check(snap)[-1]
+
+
+def test_a_call_under_way_at_a_client_defers_only_its_own_kind_and_never_a_missed_failed():
+    # an unload under way: the client's registry may already have dropped what it still lists as held
+    snap = clean()
+    snap.client_registries[0]['client_queries'] = []
+    assert checker.check(snap) == ['client 0: acknowledged load 101 (lidar) is not in its registry: lost',
+                                   'sensor id 11 of start_sensor is counted as held by /chaos_client_0_1, which '
+                                   'holds nothing of it: a leaked reference']
+    snap.clients[0]['pending'] = [{'op': 'unload', 'kind': 'sensor', 'id': 101}]
+    assert checker.check(snap) == []
+    # a load of a sensor under way: the Sensor Manager may count the reference before the client has it
+    snap = clean()
+    sm(snap)['server_queries'][0]['consumers'].append({'client_name': '/chaos_client_0_1', 'resource_id': 12})
+    snap.clients[0]['pending'] = [{'op': 'load', 'kind': 'sensor', 'id': 0}]
+    assert checker.check(snap) == []
+    # ... which defers nothing of another kind, and no FAILED the client should have heard
+    snap = with_throttle(snap)
+    er(snap)['server_queries'][1]['consumers'] = []
+    sm(snap)['server_queries'][0].update(state='failed', failure='sick_driver died')
+    assert sorted(checker.check(snap)) == ['client 0 holds process id 31, which is not served to it: lost',
+                                           'client 0 never heard the FAILED of its sensor lidar (sick_driver died)']
 
 
 def test_a_driver_that_no_entry_has_and_a_driver_running_twice_are_violations():
@@ -117,6 +153,11 @@ def test_a_reference_nobody_holds_is_a_leak():
                                                                   'resource_id': 12})
     assert checker.check(snap) == ['sensor id 12 of start_sensor is counted as held by /chaos_client_1_1, which holds '
                                    'nothing of it: a leaked reference']
+    # a client the nemesis killed: its owner has its liveness bound to release what it held, and no longer
+    snap.killed = {'chaos_client_1_1': 1.0}
+    assert checker.check(snap) == []
+    snap.killed = {'chaos_client_1_1': checker.KILLED_CLIENT_BOUND + 0.1}
+    assert len(checker.check(snap)) == 1
     snap = clean()           # the Sensor Manager's own references to its drivers are not the clients' to hold
     er(snap)['server_queries'][0]['consumers'].append({'client_name': '/chaos/temoto_sensor_manager',
                                                               'resource_id': 22})
@@ -223,3 +264,35 @@ def test_two_trackers_algorithms_each_in_an_entry_are_not_a_resource_running_twi
     finally:
         for proc in live:
             proc.communicate(b'', timeout=10)
+
+
+def test_a_resource_started_after_the_registries_were_read_is_not_expected_in_them_yet():
+    snap = clean()
+    snap.resources[ME + 1] = ('throttle', '/usr/lib/topic_tools/throttle messages a 1 b')
+    assert checker.check(snap) == ['throttle (pid %d) runs, but no ER Manager entry has it' % (ME + 1)]
+    snap.created = {ME + 1: 1000.0}
+    snap.read_at = 999.0
+    assert checker.check(snap) == []
+    # ... or while the ER Manager was starting a resource (it lists a process once its start returns)
+    snap.read_at = 1100.0
+    assert checker.check(snap) != []
+    er_processes(snap)['processes'].append({'resource_id': 7, 'label': 'throttle', 'state': 'starting',
+                                            'started': 999.5, 'processes': []})
+    assert checker.check(snap) == []
+    er_processes(snap)['processes'][-1]['started'] = 1000.5       # a start that began after this process
+    assert checker.check(snap) != []
+
+
+def test_what_a_client_held_is_what_it_held_before_and_after_the_registries_were_read():
+    """A call that ran between the two answers counts as under way; a client that started again is left
+    out until the next look."""
+    held = {'101': {'kind': 'sensor', 'what': 'lidar', 'failed': ''}}
+    before = {0: {'node': '/chaos_client_0_1', 'held': dict(held), 'pending': []},
+              1: {'node': '/chaos_client_1_1', 'held': {}, 'pending': []}}
+    after = {0: {'node': '/chaos_client_0_1', 'held': {}, 'pending': [{'op': 'load', 'kind': 'display', 'id': 0}]},
+             1: {'node': '/chaos_client_1_2', 'held': {}, 'pending': []}}
+    states = checker._held_throughout(before, after)
+    assert list(states) == [0]
+    assert states[0]['held'] == {} and states[0]['pending'] == [{'op': 'load', 'kind': 'display', 'id': 0}]
+    after[0]['held'] = dict(held, **{'102': {'kind': 'sensor', 'what': 'depth camera', 'failed': ''}})
+    assert checker._held_throughout(before, after)[0]['held'] == held
