@@ -219,7 +219,14 @@ class ProcessGroupLauncher:
 
 def leftover_processes(token: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:
     """Processes (any depth) whose environment carries ``SESSION_ENV=token``."""
-    marker = ('%s=%s' % (SESSION_ENV, token)).encode()
+    return processes_with_env(SESSION_ENV, token, exclude)
+
+
+def processes_with_env(name: str, value: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:
+    """Every process but this one (and ``exclude``) that started with ``name=value`` in its environment:
+    (pid, command line). The environment a process started with stays in /proc whatever it does, and a
+    process forked without exec (from a zygote) shows its parent's."""
+    marker = ('%s=%s' % (name, value)).encode()
     skip = {os.getpid(), *exclude}
     found = []
     for entry in os.listdir('/proc'):

@@ -61,6 +61,11 @@ class LeashOwned(LeashError):
     """Another manager is connected to the leash."""
 
 
+# in the environment of every child of a manager with a journal: its leash's address. A child the manager
+# started but had not yet told its leash about when it died is found by this (the next incarnation stops it)
+OWNER_ENV = 'TEMOTO_ER_OWNER'
+
+
 def address_for(journal_path: str) -> str:
     """The leash's abstract socket name for the manager that keeps ``journal_path``."""
     digest = hashlib.sha1(os.path.abspath(journal_path).encode()).hexdigest()[:20]

@@ -27,6 +27,7 @@ import threading
 import time
 from typing import Optional
 
+import psutil
 import rosgraph
 import rospy
 
@@ -40,7 +41,8 @@ from temoto_core import master_lookup as master
 from temoto_core.process_group import start_ticks
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as NAME
 from .policy import ERConfig, RequestRefused, validate_request
-from .leash import Leash, LeashError, address_for
+from temoto_core.processes import processes_with_env
+from .leash import OWNER_ENV, Leash, LeashError, address_for
 from .resolve import Plan, Resolver
 from .resource import Resource
 from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSpec, ProcessSupervisor,
@@ -79,6 +81,8 @@ class ERManager:
                 leashed = self.leash.attach()
             except LeashError as e:
                 raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER, str(e)) from None
+            # every child (the zygote's too) carries its owner: see _stop_unclaimed
+            self.resolver.env[OWNER_ENV] = address_for(journal)
         self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=Subsystem.ER_MANAGER, journal=journal)
         self.supervisor = ProcessSupervisor(self._on_exit, sigint_grace=config.sigint_grace,
                                             sigterm_grace=config.sigterm_grace,
@@ -314,11 +318,33 @@ class ERManager:
         rospy.loginfo('%s: adopted %s (pid %s) after a restart', NAME, resource.label,
                       ', '.join(str(p.pid) for p in procs))
 
+    def _untold_children(self, known: set) -> list:
+        """[(pid, start)] of the previous incarnations' children that their leash does not know: processes
+        with this manager's owner in their environment whose parent does not have it (the root of what a
+        manager started; a node's own children are stopped with its group), other than this
+        incarnation's own (its zygote may be starting this moment)."""
+        ours = {child.pid for child in psutil.Process().children(recursive=True)}
+        marked = {pid for pid, _ in processes_with_env(OWNER_ENV, self.resolver.env[OWNER_ENV], exclude=list(ours))}
+        out = []
+        for pid in sorted(marked - known):
+            try:
+                parent = psutil.Process(pid).ppid()
+            except psutil.Error:
+                continue              # gone already
+            start = start_ticks(pid)
+            if parent not in marked and parent not in ours and start is not None:
+                out.append((pid, start))
+        return out
+
     def _stop_unclaimed(self, leashed: list) -> None:
         """Children the leash kept that no recovered resource claimed (they were starting, or their
-        resource was released, when the manager died): stopped, so that nothing runs unowned."""
+        resource was released, when the manager died), and children the previous incarnation started but
+        died before telling its leash about (known by the owner in their environment): stopped, so that
+        nothing runs unowned."""
         with self._lock:
             claimed = {p.pid for r in self._resources.values() for p in r.procs}
+        if OWNER_ENV in self.resolver.env:
+            leashed = leashed + self._untold_children({pid for pid, _ in leashed})
         strays = []
         for pid, start in leashed:
             if pid in claimed:

@@ -7,14 +7,17 @@ this test process.
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 
+import psutil
 import pytest
 
 from temoto_core.msg import ResourceStatus
 from temoto_core.process_group import start_ticks
 from temoto_core.testing import ProcessGroupLauncher, wait_for
-from temoto_er_manager.leash import address_for
+from temoto_er_manager.leash import OWNER_ENV, address_for
 
 MGR = 'temoto_er_manager'
 
@@ -144,6 +147,31 @@ def test_children_nobody_adopts_are_stopped_within_the_bound(stack, consumer):
     wait_for(lambda: not leash_pids(stack.params['journal']), 10, 'the leash to exit')
     log = open(os.path.join(stack.params['log_dir'], 'leash.log')).read()
     assert 'no ER Manager claimed them' in log and str(res.pid) in log, log
+
+
+def test_a_child_the_leash_never_heard_of_is_stopped_by_the_next_incarnation(stack, consumer, tmp_path):
+    """A manager SIGKILLed between starting a child and telling its leash (chaos, seed 17, step 647: a
+    laser_stitcher ran on with no entry) leaves a child nobody knows. The child carries its owner in its
+    environment, so the next incarnation finds it and stops it; a node's own child, and a claimed child,
+    stay."""
+    stack.start()
+    kept = load(consumer, 'claimed')
+    stack.kill()
+    env = dict(os.environ, **{OWNER_ENV: address_for(stack.params['journal'])})
+    # started as the dead manager would have: its own session, the owner in its environment; it starts a
+    # child of its own (a node's child: stopped with its group, not on its own)
+    untold = subprocess.Popen([sys.executable, '-c', 'import subprocess, time; subprocess.Popen(["sleep", "300"]); '
+                               'time.sleep(300)'], env=env, start_new_session=True)
+    wait_for(lambda: len(psutil.Process(untold.pid).children()) == 1, 10, 'the untold child to start its own')
+    stack.start()
+    wait_for(lambda: untold.poll() is not None, 20, 'the next incarnation to stop the child it was never told of')
+    assert running(kept.pid), 'the claimed child runs on'
+    wait_for(lambda: not [p for p in psutil.process_iter(['cmdline', 'environ'])
+                          if p.info['cmdline'] == ['sleep', '300'] and OWNER_ENV in (p.info['environ'] or {})
+                          and p.info['environ'][OWNER_ENV] == env[OWNER_ENV]], 10, "the untold child's own child to go")
+    log = stack.manager.log(40)
+    assert 'no resource claims: pid %d' % untold.pid in log, log
+    consumer.unload(kept.trr.resource_id)
 
 
 def test_a_second_manager_on_the_same_journal_is_refused(stack, consumer):
