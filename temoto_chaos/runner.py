@@ -268,26 +268,26 @@ class Chaos:
         if kind == 'load_sensor':
             answer = client.ask(op='load_sensor', type=a['type'], keys=a['keys'])
             return 'client %d: %s' % (a['client'], answer.get('sensor') or
-                                      'refused: %s' % answer.get('error', '')[:100])
+                                      'refused: %s' % answer.get('error', '')[:200])
         if kind == 'load_process':
             answer = client.ask(op='load_process', topic=a['topic'], rate=a['rate'])
             return 'client %d: %s' % (a['client'], 'throttle pid %s' % answer['pid'] if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
+                                      else 'refused: %s' % answer.get('error', '')[:200])
         if kind == 'track_object':
             answer = client.ask(op='track_object', object=a['object'])
             return 'client %d: %s' % (a['client'], '%s by %s' % (a['object'], answer['tracker']) if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
+                                      else 'refused: %s' % answer.get('error', '')[:200])
         if kind == 'show_display':
             answer = client.ask(op='show_display', type=a['type'], topic=a['topic'])
             return 'client %d: %s' % (a['client'], 'display %s' % answer['display'] if answer.get('ok')
-                                      else 'refused: %s' % answer.get('error', '')[:100])
+                                      else 'refused: %s' % answer.get('error', '')[:200])
         if kind == 'unload':
             held = sorted(client.ask(op='state')['held'])
             if not held:
                 return 'client %d holds nothing' % a['client']
             rid = held[a['pick'] % len(held)]
             answer = client.ask(op='unload', id=int(rid))
-            return 'client %d unloaded %s%s' % (a['client'], rid, '' if answer['ok'] else ': ' + answer['error'][:100])
+            return 'client %d unloaded %s%s' % (a['client'], rid, '' if answer['ok'] else ': ' + answer['error'][:200])
         raise ValueError('not a client step: %s' % kind)
 
     def _kill_client(self, index: int) -> str:

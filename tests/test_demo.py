@@ -302,6 +302,10 @@ def test_standby_policies_fail_over_to_the_running_spare_and_hot_fails_back_with
     assert 'Fail-backs' in (out / 'report.md').read_text()
 
 
+# a whole demo with espeak-ng and pocketsphinx decoding: in the first suite run that had it beside the other
+# worker, three tests there failed on timing (a stall seen as a crash, a fail-back frame missed, an RViz host
+# still registered), each of which passed alone; so it runs alone
+@pytest.mark.alone
 def test_a_spoken_demo_hears_the_instruction_announces_each_failure_and_records_the_audio(tmp_path_factory):
     """``--voice``: espeak-ng says "show the environment" to the speech node, which the engine grounds; the
     failovers are announced; the bag holds the audio (renamed inert), what was heard and what was said."""
