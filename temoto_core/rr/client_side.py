@@ -335,9 +335,15 @@ class ClientSide:
             return False
         if snapshot.get('recovering'):
             return False              # its registry is being rebuilt: what failed while it was down shows later
-        if any(query.get('state') == LOADING.value for query in snapshot.get('server_queries', [])):
-            return False              # a load the caller gave up on may still be running there: later
         mine = self._header.client_uri
+        in_flight = snapshot.get('calls_in_flight')
+        if in_flight is None:         # an owner that does not say: any load there may be one this node gave up on
+            in_flight = [[self._header.client_name, mine, 1]] if any(
+                query.get('state') == LOADING.value for query in snapshot.get('server_queries', [])) else []
+        if any(name == self._header.client_name and uri == mine for name, uri, _ in in_flight):
+            # a load this node gave up on is still being served there: later. Only this node's: an owner
+            # busy with other consumers' loads (a display waiting for its first frame) is read meanwhile
+            return False
         served = [((ns, rr_name, query['server']), consumer['resource_id'], query)
                   for query in snapshot.get('server_queries', []) for consumer in query.get('consumers', [])
                   if consumer.get('client_uri') == mine and consumer.get('client_name') == self._header.client_name]

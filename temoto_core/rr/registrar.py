@@ -317,9 +317,11 @@ class ResourceRegistrar:
                     request=encode_message(q.request),
                     response=encode_message(q.response) if q.response is not None else None,
                     summary={k: v for k, v in readable(q.request).items() if k != 'trr'}))
+            in_flight = [[name, uri, n] for (name, uri), n in sorted(server.calls_in_flight.items())]
             return RegistrySnapshot(name=core.name, namespace=core.namespace, node=rospy.get_name(),
                                     servers=sorted(server.servers), server_queries=servers, client_queries=clients,
-                                    recovering=self._recovering, incarnation=core.incarnation)
+                                    recovering=self._recovering, incarnation=core.incarnation,
+                                    calls_in_flight=in_flight)
 
     # ------------------------------------------------------------------------------------------ lifetime
     def shutdown(self) -> None:

@@ -90,6 +90,8 @@ class RegistrySnapshot:
     client_queries: List[ClientEntry]
     recovering: bool = False  # a restarted registrar that has not finished taking its registry back
     incarnation: int = 0      # the registrar's incarnation (0: it keeps no journal)
+    # loads being served right now, per consumer incarnation: [client name, client URI, how many]
+    calls_in_flight: List[list] = dataclasses.field(default_factory=list)
 
     def to_json(self, indent: Optional[int] = None) -> str:
         return json.dumps(dataclasses.asdict(self), indent=indent, sort_keys=True)

@@ -33,6 +33,9 @@ class ServerSide:
         self.servers: Dict[str, Server] = {}
         self.by_internal: Dict[int, ServerQuery] = {}
         self.by_external: Dict[Tuple[str, int], ServerQuery] = {}
+        # loads being served, by consumer incarnation (its node name and URI): a consumer that gave up on a
+        # call reads this before it decides that what the registry says it holds is all it will ever hold
+        self.calls_in_flight: Dict[Tuple[str, str], int] = {}
         self._node, self._node_uri = rospy.get_name(), rospy.get_node_uri() or ''   # who answers: see owners.py
 
     # ------------------------------------------------------------------------------------------ load
@@ -50,11 +53,18 @@ class ServerSide:
         # attach the consumer gives the channel back.
         self._channels.acquire(consumer.status_topic)
         attached = False
+        caller = (consumer.client_name, consumer.uri)
+        with core.lock:
+            self.calls_in_flight[caller] = self.calls_in_flight.get(caller, 0) + 1
         try:
             response = self._serve(server, request, response, consumer)
             attached = response.trr.code == 0
             return response
         finally:
+            with core.lock:
+                left = self.calls_in_flight.pop(caller) - 1
+                if left:
+                    self.calls_in_flight[caller] = left
             if not attached:
                 self._channels.release(consumer.status_topic)
 
