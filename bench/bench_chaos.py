@@ -8,7 +8,7 @@ within 30 minutes (5.6 steps per second). ``make bench`` runs exactly that (the 
 checking until the system settled), which says where the throughput goes.
 
 Prints a markdown table and writes bench/results/chaos.json.
-Usage: python bench/bench_chaos.py [--steps N] [--seed S] [--hosts 1|2]
+Usage: python bench/bench_chaos.py [--steps N] [--seed S] [--hosts 1|2] [--serial | --compare]
 """
 import argparse
 import collections
@@ -69,13 +69,48 @@ def waited_for(log: list, top: int = 5) -> list:
     return sorted(((w, n, t) for w, (n, t) in seen.items()), key=lambda row: -row[2])[:top]
 
 
+def percentile(values: list, q: float) -> float:
+    values = sorted(values)
+    return values[min(len(values) - 1, int(q * len(values)))] if values else 0.0
+
+
+def compare(opts) -> int:
+    """The same first steps of the seed one step at a time, then with the clients concurrent, side by side."""
+    rows, rc = [], 0
+    for serial in (True, False):
+        opts.serial = serial
+        out = tempfile.mkdtemp(prefix='bench_chaos_')
+        rc = run(opts, out) or rc
+        with open(os.path.join(out, 'chaos.json')) as f:
+            result = json.load(f)
+        summary = result['summary']
+        # the runner's time per step, and per client call the time from its step to its answer
+        runner = [e.get('apply_s', 0.0) + e.get('check_s', 0.0) for e in result['log']]
+        calls = [e['call_s'] for e in result['log'] if 'call_s' in e]
+        rows.append(('one step at a time' if serial else 'clients concurrent', summary, runner, calls))
+    print('| seed %d, %d steps, %d host(s) | steps/s | runner per step: median (p95) | violations | checks |'
+          % (opts.seed, opts.steps, opts.hosts))
+    print('| --- | --- | --- | --- | --- |')
+    for label, summary, runner, _ in rows:
+        print('| %s | %.2f | %.3f s (%.3f s) | %d | %d |' % (label, summary.get('steps_per_s', 0.0),
+                                                          percentile(runner, 0.5), percentile(runner, 0.95),
+                                                          len(summary.get('violations', [])), summary.get('checks', 0)))
+    ratio = rows[1][1].get('steps_per_s', 0.0) / max(rows[0][1].get('steps_per_s', 0.0), 1e-9)
+    print('\nconcurrent / serial throughput: %.2fx (goal: >= %.1f steps/s)' % (ratio, GOAL_STEPS_PER_S))
+    return rc
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--steps', type=int, default=10000)
     ap.add_argument('--seed', type=int, default=17)
     ap.add_argument('--hosts', type=int, choices=(1, 2), default=2)
     ap.add_argument('--serial', action='store_true', help='one step at a time (the clients not concurrently)')
+    ap.add_argument('--compare', action='store_true',
+                    help='run the steps one at a time, then concurrently, and print the two side by side')
     opts = ap.parse_args(argv)
+    if opts.compare:
+        return compare(opts)
     out = tempfile.mkdtemp(prefix='bench_chaos_')
     rc = run(opts, out)
     with open(os.path.join(out, 'chaos.json')) as f:
