@@ -10,6 +10,11 @@ a manager SIGKILLed; a manager SIGSTOPped for a while; a cable pulled, crash or 
 with two hosts, the link between them cut for a while; every process of the robot killed, then booted
 again). After each step the checker reads the system from outside and the step passes once no invariant
 is violated, within ``settle_s``.
+
+From history 4 the clients work concurrently, as Jepsen's do: each has a worker here that makes its calls
+in the history's order, and the runner goes on to the next step (and the checks) as soon as a call is
+queued. The checker then sees a system at work, and defers what a call under way leaves in flux
+(checker.py); ``--serial`` runs one step at a time.
 """
 from __future__ import annotations
 

@@ -219,6 +219,33 @@ def test_an_owner_answering_a_load_while_its_watch_reads_the_holds_stays_watched
         watch.stop()
 
 
+def test_an_owner_a_call_was_given_up_on_is_read_again_until_a_late_request_can_no_longer_arrive(
+        rospy_client, monkeypatch):
+    """A request caught in a cut link reaches its owner when TCP sends it again, after the caller gave up and
+    possibly after the one read of the owner's registry that found nothing (chaos seed 17, step 2437: a
+    tracker loaded after that read leaked). The registry is read again until LATE_REQUEST_S has passed."""
+    monkeypatch.setattr(owners, 'LATE_REQUEST_S', 1.5, raising=False)   # (absent before the fix)
+    core = RegistrarCore('rr_late', 'temoto', 0)
+    reads = []
+
+    def reconcile(registrar, quiet):
+        reads.append(time.monotonic())
+        return True
+    # the owner is this test's own node: its URI answers every ping
+    watch = owners.OwnerWatch(core, lambda node: False, lambda node: [], lambda *a: None, lambda *a: True,
+                              reconcile, period=0.05, bound=2.0, busy_bound=3.0)
+    try:
+        watch.notice('/late_owner', rospy.get_node_uri(), 0)
+        owner = watch.calling('/late_owner', ('temoto', 'rr_owner'))
+        gave_up = time.monotonic()
+        watch.done_calling(owner, answered=False)
+        wait_for(lambda: '/late_owner' not in watch._owners, 15, 'the watch to end once no late request can come')
+        assert len(reads) >= 2 and reads[-1] - gave_up >= 1.0, \
+            'read %d time(s), the last %.2f s after the call was given up' % (len(reads), reads[-1] - gave_up)
+    finally:
+        watch.stop()
+
+
 def test_a_pooled_connection_broken_while_sending_is_retried_not_raised(rospy_client, procs):
     """rospy raises TransportTerminated, which is not a ROSException, when the socket fails while a request is
     sent: a pooled connection to an owner that had died broke a chaos client's load with an exception that

@@ -59,6 +59,11 @@ DEFAULT_BUSY_BOUND = 3.0
 # how long a connect to a silent owner may take; a cut link takes it all (detection must stay within 1 s)
 ACCEPT_TIMEOUT = 0.1
 RECONCILE_SPACING = 0.5    # seconds between two reads of a suspect owner's registry
+# a request whose caller gave up may still reach its owner this long after: TCP sends a request caught in
+# a cut link again with a growing backoff (after a 3 s cut, up to about 6 s after it was first sent), and a
+# stopped owner reads it when it runs again. The owner's registry is read again until then (chaos seed 17,
+# step 2437: a tracker load arrived after the one read that found nothing, and leaked)
+LATE_REQUEST_S = 10.0
 
 
 class _SharedVerdicts:
@@ -114,7 +119,7 @@ _SHARED = _SharedVerdicts()
 class Owner:
     """What is known of one owner incarnation (guarded by the watch's lock)."""
     __slots__ = ('node', 'uri', 'incarnation', 'last_ok', 'refused_since', 'lost', 'calls', 'owed', 'started',
-                 'noticed', 'registrars', 'suspect', 'next_reconcile')
+                 'noticed', 'registrars', 'suspect', 'next_reconcile', 'recheck_until')
 
     def __init__(self, node: str, uri: str, incarnation: int) -> None:
         self.node = node
@@ -130,6 +135,7 @@ class Owner:
         self.registrars: Set[Tuple[str, str]] = set()   # its registrars this one has called
         self.suspect = False           # it may hold references this side does not know of: reconcile
         self.next_reconcile = 0.0      # not before (a reconciliation reads the owner's whole registry)
+        self.recheck_until = 0.0       # a request given up on may still arrive: read again until then
 
 
 class OwnerWatch:
@@ -199,6 +205,7 @@ class OwnerWatch:
                 owner.calls -= 1
                 if not answered:
                     owner.suspect = True
+                    owner.recheck_until = time.monotonic() + LATE_REQUEST_S
 
     def owe(self, node: str, target: Target, external_id: int) -> None:
         """An unload of ``target``'s ``external_id`` did not reach ``node``: send it again when it answers."""
@@ -271,7 +278,9 @@ class OwnerWatch:
             now = time.monotonic()
             if verdict:
                 if owner.lost:             # back after a partition: what it holds for this side is checked
-                    owner.suspect = True
+                    with self._lock:
+                        owner.suspect = True
+                        owner.recheck_until = now + LATE_REQUEST_S
                 owner.last_ok, owner.refused_since, owner.lost = now, None, ''
                 self._settle(owner)
             elif verdict is None:
@@ -352,6 +361,9 @@ class OwnerWatch:
             if not self._reconcile(registrar, quiet):
                 with self._lock:
                     owner.suspect = True       # not read, or a call started meanwhile: next time
+        with self._lock:
+            if time.monotonic() < owner.recheck_until:
+                owner.suspect = True           # a request given up on may still arrive there
 
     def _lookup(self, node: str) -> str:
         try:
