@@ -150,9 +150,13 @@ def journal_rows(path, sql):
         db.close()
 
 
-# with a 5 s pause the journal has the driver's hold, committed at once, and lacks what followed within the
-# pause (its link to the sensor, the sensor itself): the neighbours must give those back
-@pytest.mark.parametrize('managers', [None, 5.0], indirect=True, ids=['default_pause', 'journal_behind'])
+# with a 5 s pause (the longest a registrar accepts) the journal has the driver's hold, committed at once, and
+# lacks what followed within the pause (its link to the sensor, the sensor itself): the neighbours must give
+# those back. The kill must come within that pause of the driver's load; beside the other worker a sensor's
+# start took longer once, and the journal had caught up: that case runs alone
+@pytest.mark.parametrize('managers', [pytest.param(None, id='default_pause'),
+                                      pytest.param(5.0, id='journal_behind', marks=pytest.mark.alone)],
+                         indirect=True)
 def test_a_driver_crash_while_the_sensor_manager_is_down_reaches_the_client_after_the_restart(managers, sensor):
     sm, result = sensor
     pid = driver_pid()
