@@ -55,14 +55,14 @@ def managers(robot: str, station: Optional[str] = None) -> List[Manager]:
 
 
 READ_TIMEOUT = 2.0
-# s an owner has to release what a killed client held: its consumer liveness bound, 2 x (the check period,
-# 2 s, + 1 s of ping timeout), with the slack a loaded machine gets
-KILLED_CLIENT_BOUND = 2 * (2.0 + 1.0) + 2.0
 PROCESS_CLOCK_S = 0.02        # a process's start time is known to the kernel's clock tick (10 ms), and rounded
 # a call's deadlines, load and unload (the managers' contracts), by the kind of resource a client holds (it
 # counts its calls as '<load|unload> <kind>'), and the slack a loaded machine gets before it is a violation
 DEADLINES = {'sensor': (40.0, 15.0), 'process': (15.0, 10.0), 'tracked': (70.0, 25.0), 'display': (60.0, 15.0)}
 DEADLINE_SLACK = 2.0
+# s an owner has to release what a killed client held: its consumer liveness bound, 2 x (the check period,
+# 2 s, + 1 s of ping timeout), with the same slack
+KILLED_CLIENT_BOUND = 2 * (2.0 + 1.0) + DEADLINE_SLACK
 
 
 def read_all(services: List[str], timeout: float = READ_TIMEOUT) -> Dict[str, Optional[dict]]:
