@@ -23,6 +23,7 @@ import os
 import select
 import shutil
 import signal
+import stat
 import subprocess
 import tempfile
 import time
@@ -117,15 +118,35 @@ class Xvfb:
         self.proc = None
 
 
+def runtime_dir(parent: Optional[str] = None) -> Optional[str]:
+    """This user's one XDG_RUNTIME_DIR for headless hosts, made once and kept, as /run/user/UID is.
+
+    One folder per user, not one per host: a host that is SIGKILLed cannot remove its own, and a folder per
+    start filled /tmp by the hundred. Qt wants it private (0700, ours), and since /tmp is shared, a folder
+    already there that is a link, someone else's or open to others is not used: None (Qt then only warns).
+    """
+    path = os.path.join(parent or tempfile.gettempdir(), 'temoto_xdg_%d' % os.getuid())
+    try:
+        os.mkdir(path, 0o700)
+    except FileExistsError:
+        pass
+    info = os.lstat(path)
+    if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid() or info.st_mode & 0o077:
+        return None
+    return path
+
+
 def ensure_display(env=None) -> Optional[Xvfb]:
     """Make ``env['DISPLAY']`` usable: keep a real one, or start a private Xvfb.
 
     Returns the Xvfb (the caller stops it) or None when a DISPLAY was given.
-    Also points XDG_RUNTIME_DIR at a private folder when unset (silences Qt).
+    Also points XDG_RUNTIME_DIR at this user's private folder when unset (silences Qt).
     """
     env = os.environ if env is None else env
     if not env.get('XDG_RUNTIME_DIR'):
-        env['XDG_RUNTIME_DIR'] = tempfile.mkdtemp(prefix='temoto_xdg_')
+        folder = runtime_dir()
+        if folder:
+            env['XDG_RUNTIME_DIR'] = folder
     if env.get('DISPLAY'):
         return None
     server = Xvfb()

@@ -18,6 +18,7 @@ from temoto_core.testing import wait_for
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient, RvizHostError
 from temoto_output_manager.msg import DisplayEvent
+from temoto_output_manager.xvfb import runtime_dir
 
 NS = 'temoto'
 
@@ -208,6 +209,9 @@ def test_killed_host_takes_its_xvfb_along(procs, rospy_client):
     xvfb = [c for c in children if c.name() == 'Xvfb']
     assert len(xvfb) == 1, 'headless host must run its own Xvfb: %s' % children
     assert '-nolisten' in xvfb[0].cmdline() and 'tcp' in xvfb[0].cmdline()
+    # a killed host cleans nothing up: its Qt runtime folder (its Xvfb was started with it) is the user's
+    # one, not one more left in /tmp
+    assert xvfb[0].environ()['XDG_RUNTIME_DIR'] == runtime_dir()
     os.kill(proc.pid, signal.SIGKILL)
     proc.proc.wait(timeout=10)
     wait_for(lambda: not xvfb[0].is_running() or xvfb[0].status() == psutil.STATUS_ZOMBIE, 10,

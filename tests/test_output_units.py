@@ -7,7 +7,7 @@ from temoto_output_manager import display_config as dc
 from temoto_output_manager.display_types import UnknownDisplayType, installed_rviz_classes, rviz_class_for
 from temoto_output_manager.first_frame import FirstFrameWatch, received_count
 from temoto_output_manager.framing import robot_view
-from temoto_output_manager.xvfb import Xvfb
+from temoto_output_manager.xvfb import Xvfb, ensure_display, runtime_dir
 
 
 class FakeProp:
@@ -143,6 +143,26 @@ def test_xvfb_picks_a_free_display_and_stops_cleanly():
         a.stop()
         b.stop()
     assert not a.running() and not os.path.exists('/tmp/.X11-unix/X%s' % da[1:])
+
+
+def test_headless_hosts_share_one_private_runtime_folder_per_user(tmp_path):
+    first = runtime_dir(str(tmp_path))
+    assert first == runtime_dir(str(tmp_path)) == str(tmp_path / ('temoto_xdg_%d' % os.getuid()))
+    assert os.stat(first).st_mode & 0o777 == 0o700
+    env = {'DISPLAY': ':99'}            # a display given: no Xvfb, only the folder
+    assert ensure_display(env) is None and env['XDG_RUNTIME_DIR'] == runtime_dir()
+
+
+@pytest.mark.parametrize('planted', ['open to others', 'a link'])
+def test_a_runtime_folder_planted_in_the_shared_tmp_is_not_used(tmp_path, planted):
+    path = tmp_path / ('temoto_xdg_%d' % os.getuid())
+    if planted == 'a link':
+        (tmp_path / 'elsewhere').mkdir(mode=0o700)
+        path.symlink_to(tmp_path / 'elsewhere')
+    else:
+        path.mkdir(mode=0o700)
+        path.chmod(0o777)
+    assert runtime_dir(str(tmp_path)) is None
 
 
 def test_the_host_starts_looking_at_the_data_unless_told_otherwise():
