@@ -57,6 +57,11 @@ def probe_of(spec: TopicSpec, topic: str, on_first=None) -> TopicProbe:
     return TopicProbe(topic, spec.silence_limit(), on_first=on_first, rate=spec.rate, adaptive=spec.adaptive)
 
 
+def _reached(connections: int) -> str:
+    return 'no publisher connected' if not connections else 'connected to %d publisher%s' % (
+        connections, '' if connections == 1 else 's')
+
+
 def _gaps(probes: List[TopicProbe]) -> str:
     """The longest gap between messages on each topic, beside its stall limit (to tune the limits)."""
     return 'longest gap between messages: ' + ', '.join(
@@ -212,7 +217,8 @@ class SensorManager:
             if attempt.failure:
                 raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed before '
                                   'data arrived: %s' % (entry.name, started.pid, attempt.failure))
-            silent = [p.topic for p in probes if not p.first.is_set()]
+            # whether the driver's publisher was ever reached tells a silent driver from a lost connection
+            silent = ['%s (%s)' % (p.topic, _reached(p.connections())) for p in probes if not p.first.is_set()]
             if silent and stalled:
                 raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s; its driver (pid %d) '
                                   'runs, and has sent nothing since it stalled (%s)' % (

@@ -74,6 +74,11 @@ class TopicProbe:
             return 'limit %.3f s' % limit
         return 'adaptive limit %.3f s of at most %.3f s: %s' % (limit, self.limit, self.arrivals.describe())
 
+    def connections(self) -> int:
+        """How many publishers of the topic this probe is connected to now (0 once closed)."""
+        sub = self._sub
+        return sub.get_num_connections() if sub is not None else 0
+
     def close(self) -> None:
         """Stop watching and unsubscribe; safe to call more than once (a failure, then the unload)."""
         self.armed = False

@@ -231,6 +231,8 @@ def call_raw(**fields):
     (dict(sensor_type='lidar', output_topics=[('lidar_data', ''), ('lidar_data', '/x')]), ErrorCode.BAD_REQUEST,
      ['requested twice']),
     (dict(sensor_type='fake dead'), ErrorCode.SENSOR_NOT_FOUND, ['no candidate left', 'fake_dead']),
+    # a driver that runs and sends nothing is told from one whose publisher was never reached
+    (dict(sensor_type='fake mute'), ErrorCode.SENSOR_NOT_FOUND, ['no data on /fake/mute/data (connected to 1 publisher)']),
 ])
 def test_bad_input_gets_a_clear_error_and_leaves_nothing_loaded(smi, fields, code, words):
     from diagnostic_msgs.msg import KeyValue
