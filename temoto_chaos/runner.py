@@ -14,7 +14,8 @@ is violated, within ``settle_s``.
 From history 4 the clients work concurrently, as Jepsen's do: each has a worker here that makes its calls
 in the history's order, and the runner goes on to the next step (and the checks) as soon as a call is
 queued. The checker then sees a system at work, and defers what a call under way leaves in flux
-(checker.py); ``--serial`` runs one step at a time.
+(checker.py). A fault that lasts (a cut link, a stopped manager) goes on meanwhile in a thread of its own
+while the clients' next steps are queued (lasting.py); ``--serial`` runs one step at a time.
 """
 from __future__ import annotations
 
@@ -24,9 +25,10 @@ import dataclasses
 import json
 import os
 import signal
+import sys
 import threading
 import time
-from typing import Deque, Dict, List, Optional, Tuple
+from typing import Callable, Deque, Dict, List, Optional, Tuple, Union
 
 import psutil
 import rospy
@@ -42,6 +44,7 @@ from vaultbot_sim.srv import SetDeviceState
 
 from . import checker
 from .history import CLIENTS, CONCURRENT_FROM, VERSION, Step, history
+from .lasting import LastingFault
 
 ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
 STATION = 'chaos_station'      # the station's, from history 3
@@ -55,9 +58,10 @@ STATION_KINDS = ('display',)   # what a client holds of the station's, on the cl
 CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
 # calls a client may have queued (concurrent histories): the runner waits for a client only when its queue is
 # full, so one slow call (a display's first frame) does not hold up the steps of the others
-CLIENT_BACKLOG = 3
+CLIENT_BACKLOG = 6
 STACK_START_S = 60.0           # s: the robot's nodes to register (at boot and after a power loss)
 PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
+LASTING_FAULT_END_S = 30.0     # s: a lasting fault's own bounds (3 s at most, and a client's state asked) are far shorter
 
 
 @dataclasses.dataclass
@@ -140,6 +144,10 @@ class Chaos:
         self._print_lock = threading.Lock()
         self.waited_for = ''                      # what the last check waited to see settle, if anything
         self._killed: Dict[str, float] = {}       # a killed client incarnation's node name -> when
+        self._lasting: Optional[LastingFault] = None   # a cut link or a stopped manager, going on meanwhile
+        self.reader = checker.RegistryReader()
+        # the clients are asked for their state all at once, twice a check (one by one was 0.02 s of it)
+        self._asking = concurrent.futures.ThreadPoolExecutor(8, 'chaos-ask')
 
     # ------------------------------------------------------------------ setup
     def start(self) -> None:
@@ -191,7 +199,7 @@ class Chaos:
     def _wait_managers(self) -> None:
         """Until every manager answers for its registry (a dead incarnation's service may still be listed)."""
         services = [m.path + '/registry' for m in self.managers]
-        wait_for(lambda: all(reg is not None for reg in checker.read_all(services).values()),
+        wait_for(lambda: all(reg is not None for reg in self.reader.read_all(services).values()),
                  STACK_START_S, 'the managers to answer')
 
     def _start_client(self, index: int) -> None:
@@ -205,6 +213,15 @@ class Chaos:
     def stop(self) -> List[tuple]:
         for worker in self._workers.values():
             worker.shutdown(wait=False, cancel_futures=True)   # a call under way ends when its client is stopped
+        self._asking.shutdown(wait=False, cancel_futures=True)
+        self.reader.close()
+        if self._lasting is not None:        # a run interrupted during a lasting fault: it ends on its clock
+            fault, self._lasting = self._lasting, None
+            try:
+                fault.end(LASTING_FAULT_END_S)
+            except Exception as err:         # the run is over; what the fault raised is still told
+                print('temoto chaos: the fault of step %d, cut short: %s' % (fault.entry['step'], err),
+                      file=sys.stderr)
         if self.hosts is not None:
             self.hosts.link(True)        # a run stopped during a partition: the nodes stop over a working link
         if self.launcher is not None:
@@ -226,8 +243,10 @@ class Chaos:
         return left
 
     # ------------------------------------------------------------------ steps
-    def apply(self, step: Step) -> str:
-        """Do ``step``; a sentence saying what was done (or why nothing was)."""
+    def apply(self, step: Step) -> Union[str, Callable[[], str]]:
+        """Do ``step``: a sentence saying what was done (or why nothing was), or, for a fault that lasts (a
+        cut link, a stopped manager), the rest of the fault to run, begun here: waiting it out and undoing
+        it, which returns the sentence."""
         kind, a = step.kind, step.args
         if kind in CLIENT_STEPS:
             return self._client_op(step, self.clients[a['client']])
@@ -254,9 +273,7 @@ class Chaos:
                 os.kill(pid, signal.SIGKILL)
                 return 'SIGKILL %s (%d)' % (name, pid)
             os.kill(pid, signal.SIGSTOP)
-            time.sleep(a['seconds'])          # the fault itself: stopped this long
-            os.kill(pid, signal.SIGCONT)
-            return 'SIGSTOP %s for %.2f s' % (name, a['seconds'])
+            return lambda: self._resume(name, pid, a['seconds'])
         if kind == 'partition':
             return self._partition(a['seconds'])
         if kind == 'kill_robot':
@@ -383,16 +400,30 @@ class Chaos:
             print('[step %d] %s: %s%s' % (entry['step'], entry['kind'], entry['did'], '' if not entry['violations']
                                           else ' -> VIOLATION: ' + '; '.join(entry['violations'])), flush=True)
 
-    def _partition(self, seconds: float) -> str:
-        """Cut the link for ``seconds`` (at least as long as it takes): every resource of the robot's that a
-        client held (all but the station's displays) must be FAILED at that client within the bound; then
-        plug the cable back."""
+    @staticmethod
+    def _resume(name: str, pid: int, seconds: float) -> str:
+        """The rest of a stopped manager's fault: stopped ``seconds`` in all, then SIGCONT."""
+        time.sleep(seconds)          # the fault itself: stopped this long
+        os.kill(pid, signal.SIGCONT)
+        return 'SIGSTOP %s for %.2f s' % (name, seconds)
+
+    def _partition(self, seconds: float) -> Callable[[], str]:
+        """Cut the link; the rest of the fault: for ``seconds`` (at least as long as it takes) every resource
+        of the robot's that a client held (all but the station's displays) must be FAILED at that client
+        within the bound; then the cable is plugged back."""
         clients = dict(self.clients)        # a client starting again meanwhile is not asked
         held = {i: {lid for lid, info in c.ask(op='state')['held'].items()
                     if not info['failed'] and info['kind'] not in STATION_KINDS}
                 for i, c in clients.items()}
         cut = time.monotonic()
         self.hosts.link(False)
+        return lambda: self._heal(clients, held, cut, seconds)
+
+    def _heal(self, clients: Dict[int, ClientHandle], held: Dict[int, set], cut: float, seconds: float) -> str:
+        """Wait out a cut link (made at ``cut``) until its FAILEDs are heard and ``seconds`` have passed, or
+        its bound; plug it back."""
+        unheard: List[str] = []
+        down = 0.0
         try:
             while True:
                 states = {i: c.ask(op='state') for i, c in clients.items()}
@@ -438,7 +469,7 @@ class Chaos:
         they are not always its descendants."""
         if self.station_stack is None:
             return []
-        procs = checker.read_json('/%s/temoto_er_manager/processes' % STATION) or {'processes': []}
+        procs = self.reader.read_json('/%s/temoto_er_manager/processes' % STATION) or {'processes': []}
         return [p['pid'] for row in procs['processes'] for p in row['processes']]
 
     def _cable(self, device: str, state: str, mode: str) -> None:
@@ -457,7 +488,7 @@ class Chaos:
         deadline = time.monotonic() + self.opts.settle_s
         self.waited_for = ''
         while True:
-            snap = checker.take(self.managers, ROBOT, self._states,
+            snap = checker.take(self.reader, self.managers, ROBOT, self._states,
                                 lambda: [pid for pid, _ in leftover_processes(self.token)])
             now = time.monotonic()
             snap.killed = {name: now - t for name, t in self._killed.items()}
@@ -473,23 +504,31 @@ class Chaos:
 
     def _states(self) -> Dict[int, dict]:
         """Every running client's own account (one starting again is not asked)."""
-        return {i: c.ask(op='state') for i, c in list(self.clients.items())}
+        asked = {i: self._asking.submit(c.ask, op='state') for i, c in list(self.clients.items())}
+        return {i: answer.result() for i, answer in asked.items()}      # each bounded by its socket's timeout
 
     def run(self) -> dict:
         last = self.opts.steps if self.opts.until is None else min(self.opts.steps, self.opts.until)
         self.started = time.monotonic()
         for step in history(self.opts.seed, last, self.opts.clients, self.opts.version):
+            handed_over = self.opts.concurrent and step.kind in CLIENT_STEPS
+            # a fault or a check never overlaps a lasting fault; a client's step does, while it lasts
+            if self._lasting is not None and (not handed_over or self._lasting.done()) and self._end_lasting():
+                break
             started = time.monotonic()
             entry = {'step': step.index, 'kind': step.kind, 'args': step.args, 'did': 'under way', 'violations': []}
             self.log.append(entry)
-            handed_over = self.opts.concurrent and step.kind in CLIENT_STEPS
             try:
                 if handed_over:
                     self._dispatch(step, entry)
                 else:
-                    entry['did'] = self.apply(step)
+                    did = self.apply(step)
+                    if callable(did) and self.opts.concurrent:
+                        self._lasting = LastingFault(entry, did)
+                    else:
+                        entry['did'] = did() if callable(did) else did
                 applied = time.monotonic()
-                violations = self.check()
+                violations = [] if self._lasting is not None else self.check()
             except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
                 # a client that does not answer is a finding, not a crash
                 applied = time.monotonic()
@@ -497,9 +536,11 @@ class Chaos:
                 handed_over = False
             entry.update(violations=violations, apply_s=round(applied - started, 3),
                          check_s=round(time.monotonic() - applied, 3))
-            if self.waited_for:
+            if self._lasting is not None and self._lasting.entry is not entry:
+                entry['during'] = self._lasting.entry['step']      # not checked on its own: the fault lasted
+            if self.waited_for and not violations and self._lasting is None:
                 entry['waited_for'] = self.waited_for
-            if not handed_over:
+            if not handed_over and (self._lasting is None or self._lasting.entry is not entry):
                 self._print(entry)
             if violations:
                 self.violations, self.failed_step = violations, step.index
@@ -507,6 +548,8 @@ class Chaos:
         if not self.violations and self.opts.concurrent:
             # the last calls end, and the system they leave is checked once more
             try:
+                if self._lasting is not None and self._end_lasting():
+                    return self.summary()
                 self._drain()
                 violations = self.check()
             except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
@@ -514,6 +557,29 @@ class Chaos:
             if violations:
                 self.violations, self.failed_step = ['after the last call: ' + v for v in violations], last - 1
         return self.summary()
+
+    def _end_lasting(self) -> bool:
+        """Wait for the lasting fault to end, check what it left, and log both at its step. Whether that
+        found a violation (the run stops there)."""
+        fault, self._lasting = self._lasting, None
+        entry = fault.entry
+        t0 = time.monotonic()
+        try:
+            entry['did'] = fault.end(LASTING_FAULT_END_S)
+            ended = time.monotonic()
+            violations = self.check()
+        except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
+            ended = time.monotonic()
+            entry['did'], violations = 'not done', ['the runner could not do the step or check it: %s' % err]
+        # the runner's time on the fault: starting it, and what was left of it when the runner had to wait
+        entry.update(violations=violations, apply_s=round(entry['apply_s'] + ended - t0, 3),
+                     check_s=round(time.monotonic() - ended, 3))
+        if self.waited_for and not violations:
+            entry['waited_for'] = self.waited_for
+        self._print(entry)
+        if violations:
+            self.violations, self.failed_step = violations, entry['step']
+        return bool(violations)
 
     def summary(self) -> dict:
         """What ran so far (also of a run that was interrupted)."""

@@ -9,10 +9,11 @@ import pytest
 
 from temoto_core.processes import SESSION_ENV, leftover_processes
 from temoto_chaos.history import CLIENTS, NEMESIS, VERSION, history
+from temoto_chaos.runner import CLIENT_STEPS
 
 SEED = 20261131      # a seed whose first 300 steps hold every kind of fault, the robot's power loss once
 STEPS = 300
-TWO_HOSTS_SEED = 6   # a seed whose first 60 steps cut the link once and kill the robot host once
+TWO_HOSTS_SEED = 42  # a seed whose first 60 steps cut the link once (clients' steps next) and kill the robot host once
 TIMEOUT = 900
 
 
@@ -75,6 +76,8 @@ def test_across_two_hosts_a_cut_link_and_a_dead_robot_host_keep_every_invariant(
     assert summary['violations'] == [], summary
     [cut] = [e for e in result['log'] if e['kind'] == 'partition']
     assert 'FAILED at their clients' in cut['did'], cut
+    # the clients' next steps were queued while the link was down, and met the cut
+    assert any(e.get('during') == cut['step'] for e in result['log'] if e['kind'] in CLIENT_STEPS), cut
     [power_loss] = [e for e in result['log'] if e['kind'] == 'kill_robot']
     assert 'its master too' in power_loss['did'], power_loss
     assert left == [] and set(hosts_mod._ip('netns', 'list').stdout.split()) <= before

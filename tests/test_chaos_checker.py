@@ -7,6 +7,7 @@ import sys
 
 from temoto_chaos import checker
 from temoto_chaos.history import NEMESIS, VERSION, history, step
+from temoto_core.wait import wait_for
 
 ME = os.getpid()      # a pid the kernel has: a "live" process
 
@@ -216,6 +217,8 @@ def test_a_driver_is_found_whether_it_was_forked_by_the_zygote_or_started_plainl
     script.write_text('import sys\nsys.stdin.read()\n')
     plain = subprocess.Popen([sys.executable, str(script), 'd435/depth'], stdin=subprocess.PIPE)
     try:
+        # the kernel shows an empty command line for a moment after the exec
+        wait_for(lambda: checker.resource_processes([plain.pid]), 10, "the driver's command line")
         assert checker.resource_processes([plain.pid]) == {
             plain.pid: ('d435_driver', '%s %s d435/depth' % (sys.executable, script))}
         assert checker.resource_processes([os.getpid()]) == {}       # pytest: not a resource
