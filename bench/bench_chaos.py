@@ -131,6 +131,8 @@ def main(argv=None) -> int:
     print('| throughput | %.2f steps/s (%.0f s) | ≥ %.1f steps/s (10,000 steps in 30 min) |'
           % (summary.get('steps_per_s', 0.0), summary.get('seconds', 0.0), GOAL_STEPS_PER_S))
     print('| processes left behind | %d | 0 |' % summary.get('leftovers', -1))
+    print('| clients\' steps queued while a fault lasted (checked once it ended) | %d | - |'
+          % sum(1 for e in result['log'] if 'during' in e))
     print()
     print('| kind of step | steps | runner doing it: total (mean) | checking after it: total (mean) | '
           'the client\'s call: mean |')

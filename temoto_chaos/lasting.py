@@ -1,8 +1,10 @@
-"""A fault that lasts: a cut link, or a manager SIGSTOPped for a while, going on in a thread of its own.
+"""A fault that lasts, going on in a thread of its own: a cut link, a manager SIGSTOPped for a while, or a
+manager SIGKILLed until its next incarnation answers.
 
 In a concurrent history the runner does not sit out such a fault. It queues the clients' next steps
 meanwhile, as Jepsen's nemesis runs beside its clients, so the calls made during the fault meet it. The
-fault ends on its own clock (the link is plugged back, the manager gets SIGCONT) whatever the runner does.
+fault ends on its own clock (the link is plugged back, the manager gets SIGCONT or is respawned) whatever
+the runner does.
 No check runs while it lasts: the registries it cuts off could not answer, and a check would only wait.
 The runner ends the fault before the next fault or check, and checks at once what it left (logged at the
 fault's step).

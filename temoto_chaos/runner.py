@@ -14,8 +14,8 @@ is violated, within ``settle_s``.
 From history 4 the clients work concurrently, as Jepsen's do: each has a worker here that makes its calls
 in the history's order, and the runner goes on to the next step (and the checks) as soon as a call is
 queued. The checker then sees a system at work, and defers what a call under way leaves in flux
-(checker.py). A fault that lasts (a cut link, a stopped manager) goes on meanwhile in a thread of its own
-while the clients' next steps are queued (lasting.py); ``--serial`` runs one step at a time.
+(checker.py). A fault that lasts (a cut link, a stopped manager, a killed one until it is back) goes on
+meanwhile in a thread of its own while the clients' next steps are queued (lasting.py); ``--serial`` runs one step at a time.
 """
 from __future__ import annotations
 
@@ -60,8 +60,14 @@ CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has 
 # full, so one slow call (a display's first frame) does not hold up the steps of the others
 CLIENT_BACKLOG = 6
 STACK_START_S = 60.0           # s: the robot's nodes to register (at boot and after a power loss)
+CLIENT_START_S = 20.0          # s: one attempt at starting a client (its registration, then its socket)
+# s: a client that cannot start (its master out of reach: a cut link, a robot booting) is tried again this
+# long before that is a violation
+CLIENT_RESTART_S = 60.0
 PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 s) with a margin for a loaded machine
-LASTING_FAULT_END_S = 30.0     # s: a lasting fault's own bounds (3 s at most, and a client's state asked) are far shorter
+# s past the settle bound (the longest a killed manager is waited for) before a lasting fault that has not
+# ended is reported: a cut link ends within 3 s, a stopped manager within 2 s
+LASTING_FAULT_SLACK_S = 10.0
 
 
 @dataclasses.dataclass
@@ -101,14 +107,20 @@ class ClientHandle:
         self.index = index
         self.socket_path = socket_path
         self.name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
-        self.proc = launcher.node('temoto_chaos', 'chaos_client', name=self.name,
+        self.proc = launcher.node('temoto_chaos', 'chaos_client', name=self.name, wait=False,
                                   params={'control_socket': socket_path, 'temoto_namespace': ROBOT,
                                           'station_namespace': station})
-        deadline = time.monotonic() + 20.0
-        while not os.path.exists(socket_path):
-            if time.monotonic() > deadline or not self.proc.alive():
-                raise RuntimeError('chaos client %d did not open its socket; log:\n%s' % (index, self.proc.log()))
-            time.sleep(0.02)
+        try:
+            launcher.wait_registered(self.proc, ['/' + self.name], CLIENT_START_S)
+            deadline = time.monotonic() + CLIENT_START_S
+            while not os.path.exists(socket_path):
+                if time.monotonic() > deadline or not self.proc.alive():
+                    raise RuntimeError('chaos client %d did not open its socket; log:\n%s'
+                                       % (index, self.proc.log()))
+                time.sleep(0.02)
+        except BaseException:
+            self.proc.stop()          # a start that failed leaves no second client behind on the same socket
+            raise
 
     def ask(self, **cmd) -> dict:
         return control_socket.ask(self.socket_path, cmd, CLIENT_CALL_TIMEOUT)
@@ -144,7 +156,7 @@ class Chaos:
         self._print_lock = threading.Lock()
         self.waited_for = ''                      # what the last check waited to see settle, if anything
         self._killed: Dict[str, float] = {}       # a killed client incarnation's node name -> when
-        self._lasting: Optional[LastingFault] = None   # a cut link or a stopped manager, going on meanwhile
+        self._lasting: Optional[LastingFault] = None   # a cut link, a stopped or killed manager, going on
         self.reader = checker.RegistryReader()
         # the clients are asked for their state all at once, twice a check (one by one was 0.02 s of it)
         self._asking = concurrent.futures.ThreadPoolExecutor(8, 'chaos-ask')
@@ -218,7 +230,7 @@ class Chaos:
         if self._lasting is not None:        # a run interrupted during a lasting fault: it ends on its clock
             fault, self._lasting = self._lasting, None
             try:
-                fault.end(LASTING_FAULT_END_S)
+                fault.end(self.opts.settle_s + LASTING_FAULT_SLACK_S)
             except Exception as err:         # the run is over; what the fault raised is still told
                 print('temoto chaos: the fault of step %d, cut short: %s' % (fault.entry['step'], err),
                       file=sys.stderr)
@@ -271,7 +283,7 @@ class Chaos:
                 return '%s not registered' % name
             if kind == 'kill_manager':
                 os.kill(pid, signal.SIGKILL)
-                return 'SIGKILL %s (%d)' % (name, pid)
+                return lambda: self._respawned(name, pid)
             os.kill(pid, signal.SIGSTOP)
             return lambda: self._resume(name, pid, a['seconds'])
         if kind == 'partition':
@@ -338,13 +350,20 @@ class Chaos:
                                                         if dropped else '')
 
     def _restart_client(self, index: int, old: ClientHandle) -> None:
+        """Start the killed client's next incarnation, again if an attempt fails (its registration may meet a
+        cut link or a robot booting), within CLIENT_RESTART_S; a client that does not start is a violation."""
         old.proc.stop()          # reaps it (already dead: returns at once)
-        try:
-            self._start_client(index)
-        except RuntimeError as err:
-            if not self.opts.concurrent:
-                raise
-            self.call_violations.append('client %d did not start again: %s' % (index, err))
+        deadline = time.monotonic() + CLIENT_RESTART_S
+        while True:
+            try:
+                self._start_client(index)
+                return
+            except Exception as err:      # whatever it was (an OSError from the master, a timeout): told below
+                if time.monotonic() > deadline:
+                    self.call_violations.append('client %d did not start again within %.0f s: %s: %s'
+                                                % (index, CLIENT_RESTART_S, type(err).__name__, err))
+                    return
+            time.sleep(0.5)
 
     # ------------------------------------------------------------------ concurrent clients
     def _dispatch(self, step: Step, entry: dict) -> None:
@@ -352,7 +371,7 @@ class Chaos:
         index = step.args['client']
         jobs = self._jobs[index]
         while jobs and jobs[0][0].done():
-            jobs.popleft()
+            self._wait_job(jobs.popleft()[0])          # what a job raised reaches the runner, at once
         if len(jobs) >= CLIENT_BACKLOG:
             self._wait_job(jobs.popleft()[0])
         jobs.append((self._workers[index].submit(self._call, step, entry), entry))
@@ -399,6 +418,24 @@ class Chaos:
         with self._print_lock:
             print('[step %d] %s: %s%s' % (entry['step'], entry['kind'], entry['did'], '' if not entry['violations']
                                           else ' -> VIOLATION: ' + '; '.join(entry['violations'])), flush=True)
+
+    def _respawned(self, name: str, pid: int) -> str:
+        """The rest of a killed manager's fault: until its next incarnation answers for its registry, taken
+        back from its journal (the checks would only wait for it), within the settle bound; the check that
+        follows reports a manager that is not back."""
+        t0 = time.monotonic()
+        deadline = t0 + self.opts.settle_s
+        while not _dead(pid):
+            if time.monotonic() > deadline:        # the dead one must not be the one that answers
+                return 'SIGKILL %s (%d); it did not die within %.0f s' % (name, pid, self.opts.settle_s)
+            time.sleep(0.01)
+        while time.monotonic() < deadline:
+            registry = self.reader.read_json(name + '/registry', timeout=1.0)
+            if registry is not None and not registry.get('recovering'):
+                return 'SIGKILL %s (%d); its next incarnation answered %.2f s later' % (
+                    name, pid, time.monotonic() - t0)
+            time.sleep(0.05)
+        return 'SIGKILL %s (%d); no incarnation answered within %.0f s' % (name, pid, self.opts.settle_s)
 
     @staticmethod
     def _resume(name: str, pid: int, seconds: float) -> str:
@@ -518,6 +555,7 @@ class Chaos:
             started = time.monotonic()
             entry = {'step': step.index, 'kind': step.kind, 'args': step.args, 'did': 'under way', 'violations': []}
             self.log.append(entry)
+            self.waited_for = ''
             try:
                 if handed_over:
                     self._dispatch(step, entry)
@@ -538,7 +576,7 @@ class Chaos:
                          check_s=round(time.monotonic() - applied, 3))
             if self._lasting is not None and self._lasting.entry is not entry:
                 entry['during'] = self._lasting.entry['step']      # not checked on its own: the fault lasted
-            if self.waited_for and not violations and self._lasting is None:
+            if self.waited_for:
                 entry['waited_for'] = self.waited_for
             if not handed_over and (self._lasting is None or self._lasting.entry is not entry):
                 self._print(entry)
@@ -564,8 +602,9 @@ class Chaos:
         fault, self._lasting = self._lasting, None
         entry = fault.entry
         t0 = time.monotonic()
+        self.waited_for = ''
         try:
-            entry['did'] = fault.end(LASTING_FAULT_END_S)
+            entry['did'] = fault.end(self.opts.settle_s + LASTING_FAULT_SLACK_S)
             ended = time.monotonic()
             violations = self.check()
         except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
@@ -574,7 +613,7 @@ class Chaos:
         # the runner's time on the fault: starting it, and what was left of it when the runner had to wait
         entry.update(violations=violations, apply_s=round(entry['apply_s'] + ended - t0, 3),
                      check_s=round(time.monotonic() - ended, 3))
-        if self.waited_for and not violations:
+        if self.waited_for:
             entry['waited_for'] = self.waited_for
         self._print(entry)
         if violations:
@@ -589,6 +628,14 @@ class Chaos:
                 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': self.violations, 'failed_step': self.failed_step, 'seconds': took,
                 'steps_per_s': done / took if took > 0 else 0.0}
+
+
+def _dead(pid: int) -> bool:
+    """Whether ``pid`` has died (gone, or a zombie not reaped yet)."""
+    try:
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
 
 
 def _with_descendants(pids: List[int]) -> List[int]:

@@ -1,0 +1,36 @@
+"""Pieces of the chaos runner against real processes (the whole runner: test_chaos.py)."""
+import os
+import threading
+
+from temoto_chaos.runner import Chaos, ChaosOptions, ClientHandle
+from temoto_core.master import RosMaster, free_port
+from temoto_core.processes import ProcessGroupLauncher, leftover_processes
+from temoto_core.testing import wait_for
+
+
+def test_a_client_whose_master_is_out_of_reach_is_started_again_once_it_can_be(tmp_path):
+    """Chaos seed 17, two hosts: a client killed just before the link was cut could not register, its
+    restart raised, and nobody read the exception; the client stayed dead for the next 6,000 steps with no
+    violation. The restart now tries again within its bound, and a start that fails leaves no process."""
+    token = 'test_chaos_runner_' + os.urandom(6).hex()
+    os.makedirs(tmp_path / 'ros')
+    master = RosMaster(str(tmp_path / 'ros'), session_token=token, port=free_port())   # out of reach for now
+    chaos = Chaos(ChaosOptions(seed=1, steps=1, out_dir=str(tmp_path)))
+    chaos.launcher = ProcessGroupLauncher(master.env, str(tmp_path))
+    old = ClientHandle.__new__(ClientHandle)          # a killed incarnation: its process, already gone
+    old.proc = chaos.launcher.command(['true'], 'killed_client')
+    reachable = threading.Thread(target=lambda: wait_for(lambda: chaos.generations[0] >= 2, 60,
+                                                         'a second attempt') and master.start(), daemon=True)
+    reachable.start()
+    try:
+        chaos._restart_client(0, old)
+        reachable.join(60)
+        assert chaos.call_violations == []
+        assert chaos.clients[0].ask(op='state')['node'].endswith(chaos.clients[0].name)
+        # the failed attempts left nothing: one client process runs, the one that answered
+        clients = [cmd for _, cmd in leftover_processes(token) if 'chaos_client' in cmd]
+        assert len(clients) == 1 and chaos.clients[0].name in clients[0], clients
+    finally:
+        chaos.launcher.stop_all()
+        master.stop()
+    assert leftover_processes(token) == []
