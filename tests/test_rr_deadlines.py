@@ -219,6 +219,10 @@ def test_an_owner_answering_a_load_while_its_watch_reads_the_holds_stays_watched
         watch.stop()
 
 
+# The owner here is this test process's own node, which must answer the watch's pings within its 2 s bound: a
+# clean clone's suite once saw the watch still running after 15 s beside the other worker (a ping that times
+# out makes the owner lost, and its return opens LATE_REQUEST_S again). It runs alone until that is understood.
+@pytest.mark.alone
 def test_an_owner_a_call_was_given_up_on_is_read_again_until_a_late_request_can_no_longer_arrive(
         rospy_client, monkeypatch):
     """A request caught in a cut link reaches its owner when TCP sends it again, after the caller gave up and
