@@ -257,8 +257,8 @@ class Chaos:
     # ------------------------------------------------------------------ steps
     def apply(self, step: Step) -> Union[str, Callable[[], str]]:
         """Do ``step``: a sentence saying what was done (or why nothing was), or, for a fault that lasts (a
-        cut link, a stopped manager), the rest of the fault to run, begun here: waiting it out and undoing
-        it, which returns the sentence."""
+        cut link, a stopped manager, a killed one until it is back), the rest of the fault to run, begun
+        here: waiting it out and undoing it, which returns the sentence."""
         kind, a = step.kind, step.args
         if kind in CLIENT_STEPS:
             return self._client_op(step, self.clients[a['client']])
@@ -449,9 +449,9 @@ class Chaos:
         of the robot's that a client held (all but the station's displays) must be FAILED at that client
         within the bound; then the cable is plugged back."""
         clients = dict(self.clients)        # a client starting again meanwhile is not asked
-        held = {i: {lid for lid, info in c.ask(op='state')['held'].items()
+        held = {i: {lid for lid, info in state['held'].items()
                     if not info['failed'] and info['kind'] not in STATION_KINDS}
-                for i, c in clients.items()}
+                for i, state in self._states(clients).items()}
         cut = time.monotonic()
         self.hosts.link(False)
         return lambda: self._heal(clients, held, cut, seconds)
@@ -463,7 +463,7 @@ class Chaos:
         down = 0.0
         try:
             while True:
-                states = {i: c.ask(op='state') for i, c in clients.items()}
+                states = self._states(clients)
                 unheard = ['client %d: %s' % (i, lid) for i, lids in held.items() for lid in lids
                            if lid in states[i]['held'] and not states[i]['held'][lid]['failed']]
                 down = time.monotonic() - cut
@@ -539,9 +539,11 @@ class Chaos:
             self.waited_for = self.waited_for or violations[0][:200]
             time.sleep(0.1)
 
-    def _states(self) -> Dict[int, dict]:
-        """Every running client's own account (one starting again is not asked)."""
-        asked = {i: self._asking.submit(c.ask, op='state') for i, c in list(self.clients.items())}
+    def _states(self, clients: Optional[Dict[int, ClientHandle]] = None) -> Dict[int, dict]:
+        """Each client's own account, all asked at once: of ``clients``, or of every running one (one starting
+        again is not asked)."""
+        asked = {i: self._asking.submit(c.ask, op='state')
+                 for i, c in (list(self.clients.items()) if clients is None else clients.items())}
         return {i: answer.result() for i, answer in asked.items()}      # each bounded by its socket's timeout
 
     def run(self) -> dict:
