@@ -26,7 +26,8 @@ def test_a_node_respawned_after_the_master_started_again_has_its_launch_paramete
     stack = Stack(str(launch), master.env, str(tmp_path / 'logs'))
     try:
         stack.start(30)
-        wait_for(echo.exists, 20, 'the node to write what it read')
+        # open(..., 'w') makes the file before it writes to it
+        wait_for(lambda: echo.exists() and echo.read_text(), 20, 'the node to write what it read')
         assert echo.read_text() == 'hello'
         echo.unlink()
         master.stop()

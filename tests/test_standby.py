@@ -87,6 +87,8 @@ def test_a_node_forked_again_after_its_master_started_again_has_the_parameters_i
             uri = master_lookup.lookup_node(master.uri, '/standby_params')
             return master_lookup.node_pid(uri) if uri else None
         first = wait_for(node_pid, 20, 'the node to answer')
+        # it registers (init_node) before it writes what it read: the file comes a moment later
+        wait_for(lambda: echo.exists() and echo.read_text(), 20, 'the node to write what it read')
         assert echo.read_text() == 'hello'
         echo.unlink()
         master.stop()
