@@ -18,6 +18,13 @@ from vaultbot_sim.srv import SetDeviceState
 
 ROBOTS = {'vaultbot_1': '[0, 0, 0]', 'vaultbot_2': '[0, 8, 0]'}
 
+# Two whole robots (two simulations, two D435s rendering at 30 Hz) and, last, an operator's station with RViz
+# take the machine: alone, its idle time fell to 0-16 % for the last test. Beside the other worker, a clean
+# clone's suite once saw robot 1's view not fail over within 30 s; the demo's tests, starved the same way, saw
+# their LIDARs stall (no scan for 0.3 s, the stall limit) and every candidate fail in turn. The module runs
+# alone, as test_chaos does.
+pytestmark = pytest.mark.alone
+
 
 @pytest.fixture(scope='module')
 def robots(rospy_client, module_procs):
@@ -167,6 +174,11 @@ class ActionEvents:
     def of(self, kind, graph=None):
         return [e for e in list(self.events) if e.get('event') == kind and graph in (None, e.get('graph'))]
 
+    def story(self, graph=None):
+        """What happened, for a failure's message: every event but the state ticks, briefly."""
+        return [(e.get('event'), e.get('graph'), e.get('message') or e.get('topic')) for e in list(self.events)
+                if e.get('event') != 'state' and graph in (None, e.get('graph'))]
+
     def close(self):
         self._sub.unregister()
 
@@ -189,13 +201,14 @@ def test_one_station_shows_both_robots_and_each_view_fails_over_on_its_own(robot
         second = wait_for(lambda: len(events.of('sensor_active')) >= 2 and events.of('sensor_active')[1], 60,
                           'robot 2\'s view')
         assert first['topic'] == '/vaultbot_1/d435/depth_registered/points', first
-        assert second['topic'] == '/vaultbot_2/d435/depth_registered/points', [
-            (e.get('event'), e.get('graph'), e.get('message') or e.get('topic')) for e in events.events
-            if e.get('event') != 'state'][-4:]
+        assert second['topic'] == '/vaultbot_2/d435/depth_registered/points', events.story()[-4:]
         assert first['graph'] != second['graph']
         set_cable('vaultbot_1', 'd435', 'unplugged', 'crash')
-        moved = wait_for(lambda: len(events.of('sensor_active', first['graph'])) >= 2
-                         and events.of('sensor_active', first['graph'])[1], 30, 'robot 1\'s view failing over')
+        try:
+            moved = wait_for(lambda: len(events.of('sensor_active', first['graph'])) >= 2
+                             and events.of('sensor_active', first['graph'])[1], 30, 'robot 1\'s view failing over')
+        except TimeoutError as err:
+            raise AssertionError('%s; robot 1\'s graph told: %s' % (err, events.story(first['graph']))) from err
         assert moved['topic'].startswith('/vaultbot_1/') and moved['priority_index'] == 1, moved
         [failed_event] = events.of('sensor_failed')
         assert failed_event['graph'] == first['graph'] and 'd435_driver' in failed_event['message'], failed_event
