@@ -23,6 +23,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from common import child_env  # noqa: E402
+from temoto_chaos.runner import CLIENT_STEPS  # noqa: E402
 GOAL_STEPS_PER_S = 10000 / 1800.0
 PROGRESS_EVERY = 500          # steps between progress lines
 
@@ -131,8 +132,9 @@ def main(argv=None) -> int:
     print('| throughput | %.2f steps/s (%.0f s) | ≥ %.1f steps/s (10,000 steps in 30 min) |'
           % (summary.get('steps_per_s', 0.0), summary.get('seconds', 0.0), GOAL_STEPS_PER_S))
     print('| processes left behind | %d | 0 |' % summary.get('leftovers', -1))
-    print('| clients\' steps queued while a fault lasted (checked once it ended) | %d | - |'
-          % sum(1 for e in result['log'] if 'during' in e))
+    during = [e for e in result['log'] if 'during' in e]
+    print('| steps while a fault lasted (checked once it ended): clients\' steps queued, faults | %d, %d | - |'
+          % (sum(1 for e in during if e['kind'] in CLIENT_STEPS), sum(1 for e in during if e['kind'] not in CLIENT_STEPS)))
     print()
     print('| kind of step | steps | runner doing it: total (mean) | checking after it: total (mean) | '
           'the client\'s call: mean |')

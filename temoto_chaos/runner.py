@@ -68,6 +68,15 @@ PARTITION_FAILED_BOUND = 3.0   # s after the cut: the owner liveness bound (0.7 
 # s past the settle bound (the longest a killed manager is waited for) before a lasting fault that has not
 # ended is reported: a cut link ends within 3 s, a stopped manager within 2 s
 LASTING_FAULT_SLACK_S = 10.0
+# the faults that go on while a lasting fault does (concurrent histories), and are checked with it at its end:
+# those that need nothing it cuts off. On two hosts this runner is on the station, so a cut link leaves it
+# without the robot's simulation (the cables), and the cut's own check asks the clients it knew at the cut
+# (not a client killed meanwhile). A manager stopped or killed (until it is back) takes none of them away.
+OVERLAPPING = {
+    'partition': ('kill_driver', 'kill_consumer'),
+    'stop_manager': ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug'),
+    'kill_manager': ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug'),
+}
 
 
 @dataclasses.dataclass
@@ -551,8 +560,11 @@ class Chaos:
         self.started = time.monotonic()
         for step in history(self.opts.seed, last, self.opts.clients, self.opts.version):
             handed_over = self.opts.concurrent and step.kind in CLIENT_STEPS
-            # a fault or a check never overlaps a lasting fault; a client's step does, while it lasts
-            if self._lasting is not None and (not handed_over or self._lasting.done()) and self._end_lasting():
+            # a client's step overlaps a lasting fault, while it lasts, and so does a fault that needs nothing the
+            # lasting one cuts off; another fault, or a check, waits for its end
+            overlaps = handed_over or (self._lasting is not None and
+                                       step.kind in OVERLAPPING.get(self._lasting.entry['kind'], ()))
+            if self._lasting is not None and (not overlaps or self._lasting.done()) and self._end_lasting():
                 break
             started = time.monotonic()
             entry = {'step': step.index, 'kind': step.kind, 'args': step.args, 'did': 'under way', 'violations': []}

@@ -51,6 +51,11 @@ def test_a_seeded_history_with_every_fault_keeps_every_invariant_and_replays_fro
         assert any(text.startswith('SIGKILL') for text in did[kind]), (kind, did[kind])
     # a killed manager is a fault that lasts until its next incarnation answers
     assert any('its next incarnation answered' in text for text in did['kill_manager']), did['kill_manager']
+    # a fault that needs nothing a lasting one cuts off goes on meanwhile: the SICK's cable is pulled (step 62)
+    # while the ER Manager is stopped for 1.5 s (step 61), and what both left is checked once it goes on
+    stopped, unplugged = result['log'][61], result['log'][62]
+    assert stopped['kind'] == 'stop_manager' and stopped['did'].startswith('SIGSTOP'), stopped
+    assert unplugged['kind'] == 'unplug' and unplugged.get('during') == 61, unplugged
     for kind, acknowledged in (('load_sensor', ': realsense_d435'), ('load_process', 'throttle pid'),
                                ('track_object', 'hand by green_hand_rgbd'), ('show_display', 'display ')):
         assert any(acknowledged in text for text in did[kind]), (kind, did[kind])
