@@ -103,6 +103,10 @@ class RegistryReader:
         with self._guard:
             gone = [name for name in self._proxies if name not in services]
             proxies = [self._proxies.pop(name) for name in gone]
+            # and their locks (a history kills a client every 40 steps or so: each incarnation left one);
+            # a lock a read still holds stays, so that read is still the only one on its service
+            for name in [n for n, lock in self._busy.items() if n not in services and not lock.locked()]:
+                del self._busy[name]
         for proxy in proxies:
             proxy.close()
 

@@ -6,7 +6,7 @@ import time
 
 from rr_helpers import RegistrarNode
 from temoto_chaos.checker import RegistryReader
-from temoto_core.testing import wait_for
+from temoto_core.testing import signals, wait_for
 
 HANG = 5.0           # generous: catches a read that hangs, not a slow machine
 
@@ -33,7 +33,7 @@ def test_a_stopped_server_is_no_answer_within_the_timeout_and_answers_again_once
     service = '/temoto/rr_reader_stop/registry'
     try:
         assert reader.read_json(service) is not None
-        os.killpg(node.process.pid, signal.SIGSTOP)
+        signals.stop(node.process.pid, group=True)
         try:
             t0 = time.monotonic()
             assert reader.read_json(service, timeout=0.5) is None
@@ -45,3 +45,19 @@ def test_a_stopped_server_is_no_answer_within_the_timeout_and_answers_again_once
         wait_for(lambda: reader.read_json(service) is not None, 10, 'the registry once the node runs again')
     finally:
         reader.close()
+
+
+def test_what_is_no_longer_kept_leaves_no_connection_and_no_lock_behind(rospy_client, procs):
+    RegistrarNode(procs, 'rr_reader_keep')
+    reader = RegistryReader()
+    kept, dropped = '/temoto/rr_reader_keep/registry', '/temoto/rr_reader_killed_client/registry'
+    try:
+        assert reader.read_json(kept) is not None
+        assert reader.read_json(dropped, timeout=2.0) is None        # never up: read, and no answer
+        assert set(reader._busy) == {kept, dropped}
+        reader.keep_only([kept])
+        assert set(reader._busy) == {kept} and set(reader._proxies) == {kept}
+        assert reader.read_json(kept) is not None
+    finally:
+        reader.close()
+    assert not reader._busy and not reader._proxies

@@ -12,7 +12,7 @@ from PIL import Image as PILImage
 
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import wait_for
+from temoto_core.testing import signals, wait_for
 from temoto_core import master_lookup as er_master
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient
@@ -136,7 +136,7 @@ def kill_host_while_starting(previous_pid=None):
             q.target.endswith('/load_process') and q.state == 'active'
             for q in fetch(NS, 'temoto_output_manager').client_queries) else None
     pid = wait_for(started, 20, 'the ER Manager to start an RViz host', interval=0.01)
-    os.kill(pid, signal.SIGSTOP)
+    signals.stop(pid)
     try:
         assert not service_registered(HOST + '/list_displays'), 'the host was ready before it could be stopped'
     finally:

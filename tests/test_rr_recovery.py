@@ -15,7 +15,7 @@ import rospy
 
 from temoto_core.msg import ResourceStatus
 from temoto_core.srv import Reclaim
-from temoto_core.testing import wait_for
+from temoto_core.testing import signals, wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 # A clean clone's suite (fifth session, 1 run in 4) saw the first load of a chain, A -> B (journaled) -> C,
@@ -124,7 +124,7 @@ def test_a_failed_status_lost_while_the_holder_could_not_connect_is_found_in_the
     wait_for(lambda: _in_journal(str(tmp_path / 'rr_rb.sqlite3'), served['internal_id']), 10,
              "mortal_cam and its consumer committed to B's journal")
     _kill(b)
-    os.kill(a.process.pid, signal.SIGSTOP)
+    signals.stop(a.process.pid)
     try:
         # a stopped consumer does not answer the owner's check: the new incarnation keeps it as a consumer for
         # a minute (its recovery grace) rather than dropping it while the test holds it stopped
