@@ -491,9 +491,13 @@ class Chaos:
         """Every process of the robot SIGKILLed at once, as a robot that loses power, then the robot boots
         again (its managers take their registries back from their journals). On two hosts that is the
         robot host, its master included; on one host the stack and every process its ER Manager started,
-        while the master, the clients and this runner stay."""
+        while the master, the clients and this runner stay. On two hosts the clients' calls under way meet
+        the power loss, as they would on a robot; on one host they end first, so that every client process is
+        known (none halfway started) when the robot's processes die and the clients are spared."""
+        if self.hosts is None:
+            self._drain()
+        under_way = sum(1 for jobs in self._jobs.values() for job, _ in jobs if not job.done())
         t0 = time.monotonic()
-        self._drain()          # every client is known (none halfway started) when the robot's processes die
         self.stack.kill()
         if self.hosts is not None:
             self.hosts.kill_all(self.hosts.robot)
@@ -508,7 +512,8 @@ class Chaos:
         self.stack.start(STACK_START_S)
         self._wait_managers()
         return 'the robot lost power and booted again in %.1f s%s' % (
-            time.monotonic() - t0, ' (its master too)' if self.hosts is not None else '')
+            time.monotonic() - t0, ' (its master too; %d client call(s) queued or under way met it)' % under_way
+            if self.hosts is not None else '')
 
     def _station_processes(self) -> List[int]:
         """What the station's ER Manager runs (its RViz host): with a journal its children outlive it, so
