@@ -1,9 +1,10 @@
 """A consumer that follows its owner to a new incarnation reads the owner's registry for the FAILEDs it never
-heard (client_side.reconcile_with): pure logic, the owner's registry given as its JSON. The cross-process
-case is test_rr_recovery.py."""
+heard (client_side.reconcile_with): the logic alone, the owner's registry given as its JSON (or its read
+failing). The cross-process case is test_rr_recovery.py."""
 import json
+import logging
 
-from temoto_core.errors import Subsystem
+from temoto_core.errors import ErrorCode, Subsystem
 from temoto_core.msg import RMPRequest
 from temoto_core.rr.client_side import ClientSide
 from temoto_core.rr.core import RegistrarCore
@@ -45,3 +46,19 @@ def test_a_failed_entry_of_an_owner_still_recovering_is_read_again_later_and_the
     assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is True
     assert heard == [(TARGET, 7, '/chaos/temoto_context_manager/track_object: FAILED at its owner (its tracker could '
                                  'not be recovered); its status never reached this node')]
+
+
+def test_a_registry_that_cannot_be_read_is_a_warning_and_read_again_later(rospy_client, caplog):
+    """Seed 17, two hosts, step 6429: a stray reference stayed at the Context Manager after a cut call, and
+    the client's log said nothing of its reconciliation, whose failed reads were debug lines. (A node: the
+    warning is throttled on ROS time.)"""
+    side, heard = side_holding(7, registry(recovering=False))
+
+    def unreadable(service, request, seconds, watched=True):
+        raise side._core.error(ErrorCode.SERVICE_REQ_FAIL, 'service %s is not tried: it is lost' % service)
+    side.invoke = unreadable
+    with caplog.at_level(logging.WARNING, logger='rosout'):
+        assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is False     # later
+    assert heard == []
+    assert 'could not read /chaos/temoto_context_manager/registry to reconcile with it: service ' \
+           '/chaos/temoto_context_manager/registry is not tried: it is lost' in caplog.text, caplog.text
