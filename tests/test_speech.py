@@ -83,9 +83,12 @@ def speech(procs, rospy_client, ros_master, tmp_path):
     rospy_client.wait_for_service('/%s/action_engine/list_actions' % NS, timeout=20)
     wav_dir = tmp_path / 'said'
     wav_dir.mkdir()
-    procs.node('temoto_speech', 'temoto_speech', name='sp_speech',
-               params={'temoto_namespace': NS, 'speak': False, 'wav_dir': str(wav_dir), 'grammar_poll_s': 0.5})
-    wait_for(lambda: topics.get('grammar'), 30, 'the speech node to publish its grammar')
+    node = procs.node('temoto_speech', 'temoto_speech', name='sp_speech',
+                      params={'temoto_namespace': NS, 'speak': False, 'wav_dir': str(wav_dir), 'grammar_poll_s': 0.5})
+    try:
+        wait_for(lambda: topics.get('grammar'), 30, 'the speech node to publish its grammar')
+    except TimeoutError as err:        # a clean clone's suite saw this once: what the node said is the clue
+        raise AssertionError('%s; the speech node (alive: %s) logged:\n%s' % (err, node.alive(), node.log(40))) from err
     # the engine's events reach the speech node, and its text the engine: connected, not just registered
     wait_for(lambda: connected(ros_master.uri, '/sp_engine', '/sp_speech', '/%s/action_engine/events' % NS) and
              connected(ros_master.uri, '/sp_speech', '/sp_engine', '/%s/human_chatter' % NS) and
