@@ -28,6 +28,7 @@ import time
 from typing import Optional
 
 import rospy
+from rospy.exceptions import TransportException
 from std_msgs.msg import String
 
 from temoto_action_engine.srv import ListActions
@@ -85,7 +86,9 @@ class SpeechNode:
             rospy.wait_for_service('/%s/action_engine/list_actions' % self.ns, timeout=INDEX_CALL_TIMEOUT_S)
             index = json.loads(rospy.ServiceProxy('/%s/action_engine/list_actions' % self.ns,
                                                   ListActions)(reindex=False).json)
-        except (rospy.ROSException, rospy.ServiceException, ValueError) as e:
+        # rospy's TransportException (a connection refused or cut) is no ROSException; an uncaught one ended
+        # the poll's thread, and with it every later grammar, without a word
+        except (rospy.ROSException, rospy.ServiceException, TransportException, OSError, ValueError) as e:
             rospy.logdebug('%s: the action index is not available: %s', NODE_NAME, e)
             return False
         actions = index.get('actions', [])

@@ -226,3 +226,22 @@ def test_a_microphone_that_gives_no_audio_is_announced(procs, rospy_client):
         wait_for(lambda: 'no microphone' in said, 30, 'the speech node to say it has no microphone')
     finally:
         sub.unregister()
+
+
+def test_the_grammar_refresh_takes_a_refused_connection_as_an_engine_away(monkeypatch):
+    """rospy raises TransportInitError (no ROSException) when the engine's service refuses the connection: it
+    went uncaught and ended the node's grammar poll for good."""
+    from rospy.exceptions import TransportInitError
+    from temoto_speech import node as speech_node
+
+    class Refused:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def __call__(self, *args, **kwargs):
+            raise TransportInitError('Unable to connect to service: [Errno 111] Connection refused')
+    monkeypatch.setattr(speech_node.rospy, 'wait_for_service', lambda *args, **kwargs: None)
+    monkeypatch.setattr(speech_node.rospy, 'ServiceProxy', Refused)
+    refreshing = speech_node.SpeechNode.__new__(speech_node.SpeechNode)
+    refreshing.ns = 'sptest'
+    assert refreshing.refresh_grammar() is False
