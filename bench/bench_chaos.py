@@ -132,9 +132,9 @@ def main(argv=None) -> int:
     print('| throughput | %.2f steps/s (%.0f s) | ≥ %.1f steps/s (10,000 steps in 30 min) |'
           % (summary.get('steps_per_s', 0.0), summary.get('seconds', 0.0), GOAL_STEPS_PER_S))
     print('| processes left behind | %d | 0 |' % summary.get('leftovers', -1))
-    during = [e for e in result['log'] if 'during' in e]
+    during = [e['kind'] in CLIENT_STEPS for e in result['log'] if 'during' in e]
     print('| steps while a fault lasted (checked once it ended): clients\' steps queued, faults | %d, %d | - |'
-          % (sum(1 for e in during if e['kind'] in CLIENT_STEPS), sum(1 for e in during if e['kind'] not in CLIENT_STEPS)))
+          % (during.count(True), during.count(False)))
     print()
     print('| kind of step | steps | runner doing it: total (mean) | checking after it: total (mean) | '
           'the client\'s call: mean |')

@@ -72,10 +72,11 @@ LASTING_FAULT_SLACK_S = 10.0
 # those that need nothing it cuts off. On two hosts this runner is on the station, so a cut link leaves it
 # without the robot's simulation (the cables), and the cut's own check asks the clients it knew at the cut
 # (not a client killed meanwhile). A manager stopped or killed (until it is back) takes none of them away.
+_BESIDE_A_MANAGER_DOWN = ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug')
 OVERLAPPING = {
     'partition': ('kill_driver', 'kill_consumer'),
-    'stop_manager': ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug'),
-    'kill_manager': ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug'),
+    'stop_manager': _BESIDE_A_MANAGER_DOWN,
+    'kill_manager': _BESIDE_A_MANAGER_DOWN,
 }
 
 
