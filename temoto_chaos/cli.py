@@ -12,12 +12,16 @@ from temoto_core.hosts import unavailable
 from .history import CLIENT_OPS, CLIENTS, CONCURRENT_FROM, VERSION
 from .runner import ChaosOptions, run_chaos
 
+DEFAULT_STEPS = 300
 
-def chaos_main(argv: Optional[List[str]] = None) -> int:
+
+def chaos_options(argv: Optional[List[str]] = None) -> ChaosOptions:
+    """The run that ``argv`` asks for; a bad argument exits with argparse's error, naming it."""
     p = argparse.ArgumentParser(prog='temoto chaos', description='Run a seeded history of client operations and '
                                 'faults against the robot\'s managers, checking the invariants after every step.')
     p.add_argument('--seed', type=int, required=True)
-    p.add_argument('--steps', type=int, default=300)
+    p.add_argument('--steps', type=int, default=None,
+                   help='how many steps (default: %d, or all those before --until)' % DEFAULT_STEPS)
     p.add_argument('--until', type=int, default=None, help='replay only the steps before this one')
     p.add_argument('--clients', type=int, default=None,
                    help='how many clients (default: the history version\'s, %s)'
@@ -36,20 +40,30 @@ def chaos_main(argv: Optional[List[str]] = None) -> int:
     args = p.parse_args(argv)
     if args.clients is None:
         args.clients = CLIENTS[args.history]
+    if args.steps is None:
+        # a failure's replay command names its step, not the run's length: --until alone replays up to it
+        args.steps = DEFAULT_STEPS if args.until is None else args.until
     if args.steps < 1 or args.clients < 1 or args.settle <= 0 or (args.until is not None and args.until < 1):
         p.error('--steps, --clients, --until and --settle must be positive')
-    if args.hosts == 2:
+    return ChaosOptions(seed=args.seed, steps=args.steps, out_dir=args.out, clients=args.clients,
+                        settle_s=args.settle, until=args.until, hosts=args.hosts, version=args.history,
+                        serial=args.serial)
+
+
+def chaos_main(argv: Optional[List[str]] = None) -> int:
+    opts = chaos_options(argv)
+    if opts.hosts == 2:
         why = unavailable()
         if why:
             print('temoto chaos --hosts 2: %s' % why, file=sys.stderr)
             return 2
-    out = os.path.abspath(args.out or tempfile.mkdtemp(prefix='temoto_chaos_'))
-    concurrently = args.history >= CONCURRENT_FROM and not args.serial
+    opts.out_dir = os.path.abspath(opts.out_dir or tempfile.mkdtemp(prefix='temoto_chaos_'))
+    concurrently = opts.version >= CONCURRENT_FROM and not opts.serial
+    last = opts.steps if opts.until is None else min(opts.steps, opts.until)
     print('temoto chaos: seed %d, %d steps, %d clients%s; run folder %s'
-          % (args.seed, args.steps, args.clients, ' working concurrently' if concurrently else '', out), flush=True)
-    return run_chaos(ChaosOptions(seed=args.seed, steps=args.steps, out_dir=out, clients=args.clients,
-                                  settle_s=args.settle, until=args.until, hosts=args.hosts,
-                                  version=args.history, serial=args.serial))
+          % (opts.seed, last, opts.clients, ' working concurrently' if concurrently else '', opts.out_dir),
+          flush=True)
+    return run_chaos(opts)
 
 
 if __name__ == '__main__':

@@ -1,8 +1,10 @@
 """Pieces of the chaos runner against real processes (the whole runner: test_chaos.py)."""
 import os
+import shlex
 import threading
 
-from temoto_chaos.runner import Chaos, ChaosOptions, ClientHandle
+from temoto_chaos.cli import chaos_options
+from temoto_chaos.runner import Chaos, ChaosOptions, ClientHandle, replay_command
 from temoto_core.master import RosMaster, free_port
 from temoto_core.processes import ProcessGroupLauncher, leftover_processes
 from temoto_core.testing import wait_for
@@ -34,3 +36,14 @@ def test_a_client_whose_master_is_out_of_reach_is_started_again_once_it_can_be(t
         chaos.launcher.stop_all()
         master.stop()
     assert leftover_processes(token) == []
+
+
+def test_a_failures_replay_command_replays_every_step_up_to_it():
+    """Chaos seed 17, two hosts: the violation at step 6429 printed ``--until 6430``, which ran 300 steps
+    (the default length) and stopped long before it. The printed command alone now replays up to the step."""
+    run = ChaosOptions(seed=17, steps=10000, out_dir='', hosts=2)
+    replay = chaos_options(shlex.split(replay_command(run, 6430))[2:])
+    assert (replay.seed, replay.steps, replay.until, replay.hosts, replay.clients, replay.version) == \
+        (17, 6430, 6430, 2, run.clients, run.version)
+    assert chaos_options(['--seed', '3']).steps == 300
+    assert chaos_options(['--seed', '3', '--steps', '50', '--until', '6430']).steps == 50
