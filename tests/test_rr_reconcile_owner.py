@@ -62,3 +62,20 @@ def test_a_registry_that_cannot_be_read_is_a_warning_and_read_again_later(rospy_
     assert heard == []
     assert 'could not read /chaos/temoto_context_manager/registry to reconcile with it: service ' \
            '/chaos/temoto_context_manager/registry is not tried: it is lost' in caplog.text, caplog.text
+
+
+def test_a_stray_whose_release_does_not_reach_the_owner_leaves_the_owner_to_be_read_again(rospy_client):
+    """A stray found in the owner's registry is released by an unload; an owner that died or was cut off
+    between the read and the unload has not let it go, so the reconciliation is not done."""
+    snapshot = {'server_queries': [{'server': 'track_object', 'state': 'active', 'failure': '', 'consumers': [
+        {'client_name': ME.client_name, 'client_uri': ME.client_uri, 'resource_id': 8}]}]}
+    side, heard = side_holding(7, snapshot)
+    sent = []
+
+    def unload(target, external_id):
+        sent.append((target, external_id))
+        return len(sent) > 1                   # the first unload does not reach the owner; the second does
+    side.resend_unload = unload
+    assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is False     # read again
+    assert side.reconcile_with(('chaos', 'temoto_context_manager'), lambda: True) is True
+    assert sent == [(TARGET, 8), (TARGET, 8)] and heard == []

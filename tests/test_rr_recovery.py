@@ -13,6 +13,7 @@ import time
 import pytest
 import rospy
 
+from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
 from temoto_core.srv import Reclaim
 from temoto_core.testing import signals, wait_for
@@ -273,3 +274,30 @@ def test_a_call_after_the_owner_restarted_connects_afresh_whatever_the_pool_hold
     assert 'error' not in third, third
     for res in (first, second, third):
         assert a.unload(res['id']) == {}
+
+
+def test_a_load_given_up_on_before_any_answer_is_released_after_its_journaled_owner_restarts(chain, procs,
+                                                                                              tmp_path):
+    """Chaos seed 17, two hosts, step 6429: a client's first call to the Context Manager since its watch began
+    was cut, the manager was killed and came back, and what it had served for that call stayed counted for
+    the client. The client had had no answer from it, so its watch did not know the owner kept a journal, took
+    the new incarnation for one that lost everything, and stopped watching: nothing ever read the registry
+    that the journal had rebuilt. Here A gives up on its first load from B, and is stopped while B finishes it,
+    commits it, and is killed and started again."""
+    a, b, _c, _restart = chain
+    journal = str(tmp_path / 'rr_rb.sqlite3')
+    out = a.command(op='call', rr='rr_rb', name='given_up', params=[['delay', '1.0']], deadline=0.3)
+    assert out.get('code') == ErrorCode.TIMEOUT, out
+    signals.stop(a.process.pid)
+    try:
+        wait_for(lambda: _journaled(journal, 'load_test'), 10, 'the given-up load committed to B\'s journal')
+        _kill(b)
+        b = RegistrarNode(procs, 'rr_rb', journal=journal, recovery_grace=60.0)
+        wait_for(lambda: not b.registry()['recovering'], 20, 'rr_rb to finish recovering')
+        [entry] = b.registry()['server_queries']
+        assert [c['client_name'] for c in entry['consumers']] == ['/rr_ra'], entry
+    finally:
+        os.kill(a.process.pid, signal.SIGCONT)
+    wait_for(lambda: b.counts()['unloads'] == {'given_up': 1}, 20, 'the given-up load released at B')
+    wait_for(lambda: registry_empty(b), 10, 'an empty registry at B')
+    assert registry_empty(a)

@@ -357,16 +357,20 @@ class ClientSide:
                        and (t, e) in self.by_external and self.by_external[(t, e)].state is not FAILED]
         if not quiet():
             return False
+        unreleased = 0
         for target, external_id in strays:
             rospy.logwarn('%s: %s holds resource %d for this node, which does not know of it: releasing it',
                           core.prefix, target_name(target), external_id)
-            self.resend_unload(target, external_id)
+            if not self.resend_unload(target, external_id):
+                unreleased += 1
         for target, external_id, why in unheard:
             message = '%s: FAILED at its owner%s; its status never reached this node' % (
                 target_name(target), ' (%s)' % why if why else '')
             rospy.logwarn('%s: %s', core.prefix, message)
             self.failed_at_owner(target, external_id, message)
-        return True
+        # a release that did not reach the owner (it died or was cut off meanwhile) is not done: the owner stays
+        # to be read again, and the stray is found and released at its next answer
+        return unreleased == 0
 
     def holds_from(self, node: str) -> bool:
         with self._core.lock:

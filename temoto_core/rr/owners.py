@@ -15,7 +15,9 @@ per owner asks it ``getPid`` every ``period`` (the consumer side's
   that keeps a journal (incarnation > 0) is being respawned and takes its
   registry back (``recovery.py``), so it is given ``grace`` seconds, and is
   followed to its new URI when the master has one that answers. One that keeps
-  no journal lost everything it served: **lost** at once.
+  no journal lost everything it served: **lost** at once. One that has not
+  answered this side yet (only called, or owed an unload) may keep a journal:
+  it is handled as one that does.
 
 **Lost** means: every call in flight to that owner is cut (``deadlines.py``), and
 every resource held from it is handled as a FAILED arriving from it, so that the
@@ -121,9 +123,11 @@ class Owner:
     __slots__ = ('node', 'uri', 'incarnation', 'last_ok', 'refused_since', 'lost', 'calls', 'owed', 'started',
                  'noticed', 'registrars', 'suspect', 'next_reconcile', 'recheck_until')
 
-    def __init__(self, node: str, uri: str, incarnation: int) -> None:
+    def __init__(self, node: str, uri: str, incarnation: Optional[int]) -> None:
         self.node = node
         self.uri = uri
+        # None until it answers: an owner only called (or owed an unload) may keep a journal, and a load it
+        # served for a call this side gave up on comes back with its next incarnation (chaos seed 17, step 6429)
         self.incarnation = incarnation
         self.last_ok = time.monotonic()
         self.refused_since: Optional[float] = None
@@ -174,7 +178,7 @@ class OwnerWatch:
         if node and node != self._me:
             with self._lock:
                 owner = self._owner(node, uri, incarnation)
-                if incarnation < owner.incarnation:
+                if owner.incarnation is not None and incarnation < owner.incarnation:
                     return               # an answer from an older incarnation: fenced
                 if uri and uri != owner.uri:
                     owner.uri, owner.last_ok, owner.lost, owner.refused_since = uri, time.monotonic(), '', None
@@ -186,7 +190,7 @@ class OwnerWatch:
         if not node or node == self._me:
             return None
         with self._lock:
-            owner = self._owner(node, '', 0)
+            owner = self._owner(node, '', None)
             owner.calls += 1
             owner.started += 1
             owner.registrars.add(registrar)
@@ -211,7 +215,7 @@ class OwnerWatch:
         """An unload of ``target``'s ``external_id`` did not reach ``node``: send it again when it answers."""
         if node and node != self._me and not self._stop.is_set():
             with self._lock:
-                self._owner(node, '', 0).owed.append((target, external_id))
+                self._owner(node, '', None).owed.append((target, external_id))
 
     def unreachable(self, registrar: Tuple[str, str]) -> str:
         """Why ``registrar``'s node is lost, or '' if it is not known to be: a call need not try it."""
@@ -243,7 +247,7 @@ class OwnerWatch:
     def stop(self) -> None:
         self._stop.set()
 
-    def _owner(self, node: str, uri: str, incarnation: int) -> Owner:
+    def _owner(self, node: str, uri: str, incarnation: Optional[int]) -> Owner:
         """The record of ``node``, made (and its thread started) on first sight (lock held)."""
         owner = self._owners.get(node)
         if owner is None:
@@ -301,7 +305,7 @@ class OwnerWatch:
         """Nobody answers at the owner's URI any more: follow it to a new incarnation, or lose it."""
         uri = self._lookup(owner.node)
         if uri and uri != owner.uri and ping(uri, self.bound, self._core.prefix)[0]:
-            if owner.incarnation > 0:
+            if owner.incarnation != 0:
                 rospy.loginfo('%s: owner %s is back at %s', self._core.prefix, owner.node, uri)
                 owner.uri, owner.last_ok, owner.refused_since, owner.lost = uri, now, None, ''
                 # its new incarnation rebuilt its registry and sent a FAILED for what it could not vouch for,
@@ -314,7 +318,7 @@ class OwnerWatch:
             self._lose(owner, '%s restarted without a journal: what it served is gone' % owner.node, dead=True)
             owner.uri = uri
             return
-        if owner.incarnation > 0:
+        if owner.incarnation != 0:
             if owner.refused_since is None:
                 owner.refused_since = now
             if now - owner.refused_since < self.grace:
