@@ -24,7 +24,7 @@ import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core import master_rejoin
+from temoto_core import master_rejoin, tcpros_accept
 from temoto_core.node import clear_stale_registration, on_signals, prime_log_parameter
 from temoto_core.params import list_param
 from temoto_core.rr.journal import Journal
@@ -156,6 +156,7 @@ class ActionEngineNode:
 def run_node(name: str = 'temoto_action_engine') -> None:
     """Entry of the node script: signals stop the graphs first, then rospy."""
     clear_stale_registration(name)
+    tcpros_accept.install()
     rospy.init_node(name, disable_signals=True)
     prime_log_parameter()      # its logging must not wait for the master (node.py)
     master_rejoin.ensure_started()     # the station's engine outlives a master on a robot that lost power

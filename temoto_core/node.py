@@ -34,7 +34,7 @@ import rosgraph.names
 import rospy
 import rospy.impl.paramserver
 
-from temoto_core import master_lookup, master_rejoin
+from temoto_core import master_lookup, master_rejoin, tcpros_accept
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -103,6 +103,7 @@ def init_node(name: str, **kwargs) -> None:
     faulthandler.register(signal.SIGUSR1, all_threads=True)
     kwargs['disable_signals'] = True
     clear_stale_registration(name, kwargs.get('anonymous', False))
+    tcpros_accept.install()             # one silent peer must not hold up every connection to this node
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
     prime_log_parameter()

@@ -18,7 +18,7 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
-from temoto_core import master_rejoin
+from temoto_core import master_rejoin, tcpros_accept
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import prime_log_parameter
 
@@ -221,6 +221,7 @@ def main(argv=None) -> int:
     try:
         from python_qt_binding import QtCore, QtWidgets
         app = QtWidgets.QApplication([sys.argv[0]])
+        tcpros_accept.install()
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
         prime_log_parameter()      # its logging must not wait for the master (node.py)
         # the station's screen outlives a master on the robot that lost power: the new master learns its

@@ -6,6 +6,7 @@ import time
 import rospy
 from std_msgs.msg import String
 
+from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
 from temoto_core.testing import wait_for
 
@@ -13,6 +14,7 @@ NS = 'temoto'
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FAKE_CATALOGUE = os.path.join(ROOT, 'temoto_sensor_manager', 'test_nodes', 'fake_sensors.yaml')
 ER_PARAMS = {'registration_timeout': 15.0, 'sigint_grace': 2.0, 'sigterm_grace': 1.0}
+CALL_BOUND = 30.0     # generous: a helper's call that hangs fails its test, not the whole run
 
 
 def start_er_manager(launcher, log_dir):
@@ -27,7 +29,7 @@ def start_sensor_manager(launcher, first_data_timeout=20.0, extra=FAKE_CATALOGUE
 
 
 def _json(service):
-    return json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
+    return json.loads(call_once(service, GetRegistry, GetRegistry._request_class(), CALL_BOUND).json)
 
 
 def er_processes(alive_only=True):
@@ -107,7 +109,8 @@ def start_sim(launcher, **params):
 def set_cable(device, state, mode=''):
     """Plug or unplug a simulated device (what `temoto sim unplug DEVICE --mode MODE` does)."""
     from vaultbot_sim.srv import SetDeviceState
-    resp = rospy.ServiceProxy('/vaultbot_sim/set_device_state', SetDeviceState)(device, state, mode)
+    resp = call_once('/vaultbot_sim/set_device_state', SetDeviceState,
+                     SetDeviceState._request_class(device=device, state=state, mode=mode), CALL_BOUND)
     if not resp.success:
         raise RuntimeError('set_device_state %s %s %s: %s' % (device, state, mode, resp.message))
     return time.monotonic()

@@ -1,0 +1,45 @@
+"""A peer that connects to a node's TCPROS port and never sends its handshake holds up nobody, and is closed
+after ``HANDSHAKE_S`` (temoto_core/tcpros_accept.py). Against a real node process; rospy alone served every
+later connection to the node behind that peer, for as long as it stayed silent."""
+import json
+import socket
+
+import rosgraph
+import rospy
+
+from temoto_core import tcpros_accept
+from temoto_core.rr.deadlines import call_once
+from temoto_test_nodes.srv import Control
+from rr_helpers import RegistrarNode
+
+HANG = 10.0          # generous: catches a connection that waits behind the silent peer
+
+
+def _tcpros_address(service: str):
+    uri = rosgraph.Master('/test_tcpros_accept').lookupService(service)
+    return rospy.core.parse_rosrpc_uri(uri)
+
+
+def _counts(service: str) -> dict:
+    return json.loads(call_once(service, Control, Control._request_class(json.dumps({'op': 'counts'})), HANG).result)
+
+
+def test_a_peer_silent_in_its_handshake_holds_up_no_later_connection_and_is_closed(rospy_client, procs):
+    node = RegistrarNode(procs, 'rr_silent_peer')
+    service = '/rr_silent_peer/control'
+    # a persistent connection made before the silent peer: it must keep working long after the handshake bound
+    kept = rospy.ServiceProxy(service, Control, persistent=True)
+    assert 'unloads' in json.loads(kept(json.dumps({'op': 'counts'})).result)
+    silent = socket.create_connection(_tcpros_address(service), timeout=HANG)
+    try:
+        for _ in range(3):                       # new connections, each after the silent one, each bounded
+            assert 'unloads' in _counts(service)
+        # the node gives up on the silent peer: the connection is closed from its end
+        silent.settimeout(tcpros_accept.HANDSHAKE_S + HANG)
+        assert silent.recv(1) == b''
+    finally:
+        silent.close()
+    # the connection made before it, idle all that time, is not bounded by the handshake's limit
+    assert 'unloads' in json.loads(kept(json.dumps({'op': 'counts'})).result)
+    kept.close()
+    assert node.process.proc.poll() is None
