@@ -33,6 +33,7 @@ class ErrorCode(enum.IntEnum):
     ACTION_FAIL = 18
     SHUTDOWN = 19
     NAME_TAKEN = 20             # a node name that a live node (or another managed process) already has
+    RECOVERING = 21             # a registrar still taking its registry back after a restart: ask again
 
 
 class Subsystem(enum.IntEnum):

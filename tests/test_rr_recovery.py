@@ -11,6 +11,7 @@ import sqlite3
 import time
 
 import pytest
+import rosgraph
 import rospy
 
 from temoto_core.errors import ErrorCode
@@ -301,3 +302,39 @@ def test_a_load_given_up_on_before_any_answer_is_released_after_its_journaled_ow
     wait_for(lambda: b.counts()['unloads'] == {'given_up': 1}, 20, 'the given-up load released at B')
     wait_for(lambda: registry_empty(b), 10, 'an empty registry at B')
     assert registry_empty(a)
+
+
+def test_an_unload_sent_to_a_restarted_owner_waits_until_its_registry_is_back(chain, procs, tmp_path):
+    """Chaos seed 17, two hosts, step 1098: a client unloaded a tracked object (failed, so its watch of the
+    Context Manager had ended) while the manager's new incarnation was starting. It had added its first
+    server (load_tracker), and with it its unload service, but not yet track_object: the unload was answered
+    "no server 'track_object'", which settled it, and the tracked object came back from the journal a moment
+    later, held for nobody. A registrar now refuses an unload until its registry is back (RECOVERING), and the
+    consumer keeps it owed until then."""
+    a, b, _c, _restart = chain
+    journal = str(tmp_path / 'rr_rb.sqlite3')
+    res = a.call('rr_rb', 'cam')
+    assert 'error' not in res, res
+    assert 'sent' in b.fail('cam')
+    a.wait_events(1)
+    wait_for(lambda: _journaled(journal, 'load_test'), 10, 'cam in the journal')
+    _kill(b)
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        started = pool.submit(RegistrarNode, procs, 'rr_rb', journal=journal, late_server_s=4.0)
+        # its first server is up, and with it its unload service; load_test, and cam with it, are not yet
+        wait_for(lambda: _service_known('/temoto/rr_rb/early_test'), 20, 'the first server of the new incarnation')
+        out = a.unload(res['id'])
+        b = started.result(30)
+    wait_for(lambda: b.counts()['unloads'] == {'cam': 1}, 20, 'the unload of cam taken at B')
+    assert 'taking its registry back' in out.get('error', '') and 'the unload is sent again when its owner ' \
+        'answers' in out['error'], out
+    wait_for(lambda: registry_empty(b), 10, 'an empty registry at B')
+    assert registry_empty(a)
+
+
+def _service_known(service: str) -> bool:
+    try:
+        rosgraph.Master('/test_rr_recovery').lookupService(service)
+        return True
+    except rosgraph.MasterError:
+        return False

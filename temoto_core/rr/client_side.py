@@ -289,6 +289,9 @@ class ClientSide:
         core = self._core
         try:
             response = self._unload_remote(query.target, query.external_id, query.request)
+            refused = TemotoError.from_msgs(response.error_stack, response.message) if response.code != 0 else None
+            if refused is not None and refused.code == ErrorCode.RECOVERING:
+                raise refused             # not taken yet: owed, as to an owner out of reach
         except TemotoError as err:
             # not delivered: owed to the owner, and sent again once it answers (owners.py)
             owed = ''
@@ -297,10 +300,9 @@ class ClientSide:
                 owed = ' now (released here; the unload is sent again when its owner answers)'
             raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'could not unload %s resource %d%s'
                                % (target_name(query.target), query.external_id, owed), core.prefix)
-        if response.code != 0:
-            raise TemotoError.from_msgs(response.error_stack, response.message).extended(
-                ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'unloading %s resource %d failed'
-                % (target_name(query.target), query.external_id), core.prefix)
+        if refused is not None:
+            raise refused.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'unloading %s resource %d failed'
+                                   % (target_name(query.target), query.external_id), core.prefix)
 
     def _unload_remote(self, target: Target, external_id: int, load_request):
         ns, rr_name, server_name = target
@@ -311,10 +313,13 @@ class ClientSide:
 
     def resend_unload(self, target: Target, external_id: int) -> bool:
         """An owed unload, sent again: True once the owner answered (it may no longer know the resource),
-        False if it still cannot be reached."""
+        False if it still cannot be reached, or is still taking its registry back (the resource may be on its
+        way back there)."""
         try:
             response = self._unload_remote(target, external_id, None)
         except TemotoError:
+            return False
+        if response.code != 0 and any(frame.code == ErrorCode.RECOVERING for frame in response.error_stack):
             return False
         if response.code != 0:
             rospy.loginfo('%s: owed unload of %s resource %d: %s', self._core.prefix, target_name(target),
