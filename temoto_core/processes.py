@@ -37,6 +37,14 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
             break
         try:
             if sig == signal.SIGABRT:
+                # the members first: a TeMoto node writes every thread's stack on SIGUSR1 (node.py), and the
+                # node a warm-respawn parent forked is a member that SIGABRT to the leader would only take
+                # down with it, silently (chaos seed 17: a wedged ER Manager left no trace of where it hung)
+                for member in group_members(pgid, exclude=pgid):
+                    try:
+                        os.kill(member, signal.SIGUSR1)
+                    except ProcessLookupError:
+                        pass
                 # only the leader: with PYTHONFAULTHANDLER set (the harness sets it) a Python child
                 # writes every thread's stack to its log before dying, so a hang explains itself
                 os.kill(pgid, sig)

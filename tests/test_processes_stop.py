@@ -1,0 +1,45 @@
+"""stop_process_group: a process that does not stop on SIGINT or SIGTERM writes where it hung before it is
+killed, also when it is not the group's leader (the node a warm-respawn parent forked, temoto_core/standby.py).
+The chaos history of seed 17 had a wedged ER Manager whose log ended with its parent's stack alone."""
+import os
+import subprocess
+import sys
+import textwrap
+
+from temoto_core.process_group import group_members
+from temoto_core.processes import stop_process_group
+from temoto_core.testing import wait_for
+
+# a leader that forks a child and waits for it, as standby.py does; both ignore SIGINT and SIGTERM, and the
+# child registers its stack dump on SIGUSR1, as temoto_core.node.init_node does
+WEDGED_PAIR = textwrap.dedent('''
+    import faulthandler, os, signal, sys, threading
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    child = os.fork()
+    if child == 0:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        def wedged_in_here():
+            print('child ready', flush=True)
+            threading.Event().wait()
+        wedged_in_here()
+    os.waitpid(child, 0)
+''')
+
+
+def test_a_wedged_child_of_the_group_leader_writes_its_stack_before_it_is_killed(tmp_path):
+    log_path = tmp_path / 'pair.log'
+    with open(log_path, 'wb') as log:
+        proc = subprocess.Popen([sys.executable, '-c', WEDGED_PAIR], stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    try:
+        wait_for(lambda: b'child ready' in log_path.read_bytes(), 20, 'the child to start')
+        stop_process_group(proc, sigint_grace=0.2, sigterm_grace=0.2)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, 9)
+            proc.wait(10)
+    assert proc.returncode is not None
+    wait_for(lambda: not group_members(proc.pid), 10, 'no member of the group left')
+    text = log_path.read_text(errors='replace')
+    assert 'in wedged_in_here' in text, text
