@@ -46,7 +46,7 @@ from .leash import OWNER_ENV, Leash, LeashError, address_for
 from .resolve import Plan, Resolver
 from .resource import Resource
 from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSpec, ProcessSupervisor,
-                         ReadyTimeout, StartCancelled, SupervisorError)
+                         ReadyTimeout, SpawnerStuck, StartCancelled, SupervisorError)
 
 PROCESS_KEY = 'process/%d'            # owner state: the processes of a loaded resource, by internal id
 
@@ -140,6 +140,8 @@ class ERManager:
             for spec in plan.specs:
                 try:
                     proc = self.supervisor.start(spec)
+                except SpawnerStuck as e:
+                    raise TemotoError(ErrorCode.RESOURCE_FAILED, Subsystem.ER_MANAGER, str(e)) from None
                 except SupervisorError as e:
                     raise TemotoError(ErrorCode.EXECUTABLE_NOT_FOUND, Subsystem.ER_MANAGER, str(e)) from None
                 proc.resource = resource

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import faulthandler
 import itertools
 import logging
 import os
@@ -47,7 +48,7 @@ import subprocess
 import threading
 import time
 from collections import deque
-from concurrent.futures import Future
+from concurrent.futures import Future, TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -56,6 +57,7 @@ from temoto_core.process_group import group_members, start_ticks
 from .preload import Zygote, ZygoteError
 
 _log = logging.getLogger('temoto_er_manager.supervisor')
+SPAWN_SLACK_S = 10.0      # beyond the zygote's imports, for a spawn on a loaded machine
 
 _PR_SET_PDEATHSIG = 1
 _libc = ctypes.CDLL(None, use_errno=True)
@@ -71,6 +73,10 @@ _STOP_SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
 
 class SupervisorError(Exception):
     """A process could not be started, or did not become ready."""
+
+
+class SpawnerStuck(SupervisorError):
+    """The spawner thread did not start a process within its bound: the manager's fault, not the request's."""
 
 
 class ProcessExitedEarly(SupervisorError):
@@ -257,7 +263,25 @@ class ProcessSupervisor:
             raise SupervisorError('the process supervisor is shut down')
         fut: Future = Future()
         self._spawn_q.put((spec, fut))
-        return fut.result()
+        # a spawn takes milliseconds, or the zygote's imports at most: a spawner stuck beyond that would hold
+        # every load of the manager for ever, silently (the chaos history of seed 17 twice had an ER Manager
+        # that answered no load after a restart, and left no trace of where it hung)
+        bound = self.preload_ready_timeout + SPAWN_SLACK_S
+        try:
+            return fut.result(timeout=bound)
+        except FutureTimeout:
+            fut.add_done_callback(self._stop_abandoned)
+            _log.error('the process spawner did not start %s within %.1f s; every thread\'s stack follows',
+                       spec.command, bound)
+            faulthandler.dump_traceback(all_threads=True)
+            raise SpawnerStuck('the process spawner did not start %s within %.1f s: it is stuck (the '
+                                  'stacks are in the manager\'s log)' % (spec.command, bound)) from None
+
+    def _stop_abandoned(self, fut: Future) -> None:
+        """A spawn whose caller gave up on it: what it started is stopped, not left running for nobody."""
+        if fut.exception() is None:
+            threading.Thread(target=self._stop_quietly, args=(fut.result(),), name='er-stop-abandoned',
+                             daemon=True).start()
 
     def _spawn_loop(self) -> None:
         while True:

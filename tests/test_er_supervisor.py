@@ -13,8 +13,9 @@ from temoto_core.errors import ErrorCode
 from temoto_core.testing import wait_for
 from temoto_er_manager.policy import ERConfig, RequestRefused, validate_request
 from temoto_er_manager.resolve import Resolver
+from temoto_er_manager import supervisor as supervisor_module
 from temoto_er_manager.supervisor import (ProcessExitedEarly, ProcessSpec, ProcessSupervisor, ReadyTimeout,
-                                          StartCancelled)
+                                          SpawnerStuck, StartCancelled)
 
 TEST_NODE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                          'temoto_er_manager', 'test_nodes', 'er_test_node')
@@ -291,3 +292,27 @@ def test_allowlisted_launch_prefix_runs_without_a_shell(tmp_path):
                         'prefix:="nice -n 5" other:=false')
     [s] = plan.specs
     assert s.argv[:4] == ['nice', '-n', '5', sys.executable] and s.argv[4].endswith('/er_test_node')
+
+
+def test_a_stuck_spawner_fails_the_start_with_the_stacks_and_stops_what_it_starts_late(sup, tmp_path, monkeypatch,
+                                                                                       capfd):
+    """The chaos history of seed 17 twice had an ER Manager that answered no load after a restart, for good,
+    and left no trace of where it hung. A start now waits for the spawner within a bound, and then fails,
+    naming the command, with every thread's stack in the log; what the spawner starts after its caller gave
+    up is stopped. Here the spawner is held up opening the child's log, a FIFO nobody reads yet."""
+    monkeypatch.setattr(supervisor_module, 'SPAWN_SLACK_S', 0.5)
+    sup.preload_ready_timeout = 0.0
+    fifo = tmp_path / 'held.log'
+    os.mkfifo(fifo)
+    stuck = ProcessSpec(argv=['sleep', '60'], env=dict(os.environ), log_path=str(fifo), label='held')
+    with pytest.raises(SpawnerStuck, match='did not start sleep 60 within 0.5 s: it is stuck'):
+        sup.start(stuck)
+    assert 'in _spawn' in capfd.readouterr().err       # the spawner's own stack, where it hung
+    # the spawner goes on: the process starts, late (read and write: the exit's log tail must not wait either)
+    reader = os.open(fifo, os.O_RDWR)
+    try:
+        late = wait_for(lambda: [p for p in sup.processes() if p.spec.label == 'held'], 10, 'the late start')
+        wait_for(lambda: not late[0].alive, 15, 'the late process stopped')
+        assert sup.exits == []                             # stopped on purpose: no unexpected exit reported
+    finally:
+        os.close(reader)
