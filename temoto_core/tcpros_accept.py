@@ -11,9 +11,15 @@ long as it stays silent:
   connection while a test's service call waited behind it, until pytest-timeout ended the test (the peer
   was not found).
 
-Here each inbound connection's handshake runs in a thread of its own, and its header must arrive within
-``HANDSHAKE_S``; a peer that is late gets its connection closed, with rospy's own warning. The header read
-is the only thing bounded: once the handshake is done, the socket is as rospy left it.
+Here the header must arrive within ``HANDSHAKE_S``; a peer that is late gets its connection closed, with
+rospy's own warning, and the connections behind it wait that long at most. The header read is the only
+thing bounded: once the handshake is done, the socket is as rospy left it.
+
+The handshakes stay in rospy's one accept thread, in the order they came. A thread per handshake was tried
+and broke rospy: a subscriber that connects twice to one publisher (rospy's subscriber side races so) keeps
+the later connection, and so does the publisher, which closes the other; handled in parallel, the two ends
+could keep different ones and close each other's, leaving none. An action's status channel was lost so,
+and its FAILED with it, twice in one day's clean-clone suites.
 
 ``install()`` patches rospy's ``TCPROSServer`` once per process, before its server starts; every TeMoto
 node gets it from ``temoto_core.node.init_node``.
@@ -35,7 +41,7 @@ _original_read = tcpros_base.read_ros_handshake_header
 
 
 def _read_header(sock, buff, buff_size: int) -> dict:
-    """rospy's header read; in a handshake thread of this module, within ``HANDSHAKE_S``."""
+    """rospy's header read; in the accept thread's handshake, within ``HANDSHAKE_S``."""
     if not getattr(_handshaking, 'active', False):
         return _original_read(sock, buff, buff_size)
     previous = sock.gettimeout()
@@ -46,19 +52,17 @@ def _read_header(sock, buff, buff_size: int) -> dict:
         sock.settimeout(previous)
 
 
-def _handshake(server, sock, client_addr) -> None:
-    _handshaking.active = True
-    _original_callback(server, sock, client_addr)     # it catches, logs and closes whatever fails
-
-
 def _accepted(server, sock, client_addr) -> None:
-    """The accept thread's handler: hand the connection on, and go back to accepting."""
-    threading.Thread(target=_handshake, args=(server, sock, client_addr), daemon=True,
-                     name='tcpros-handshake').start()
+    """The accept thread's handler: rospy's, with the header read bounded."""
+    _handshaking.active = True
+    try:
+        _original_callback(server, sock, client_addr)     # it catches, logs and closes whatever fails
+    finally:
+        _handshaking.active = False
 
 
 def install() -> None:
-    """Bound and parallelise the handshakes of every TCPROS server this process starts from now on."""
+    """Bound the handshakes of every TCPROS server this process starts from now on."""
     with _lock:
         tcpros_base.read_ros_handshake_header = _read_header
         tcpros_base.TCPROSServer._tcp_server_callback = _accepted
