@@ -249,6 +249,36 @@ def test_an_owner_a_call_was_given_up_on_is_read_again_until_a_late_request_can_
         watch.stop()
 
 
+def test_an_owner_uri_noticed_while_the_master_is_asked_is_not_overwritten_by_its_answer(rospy_client, monkeypatch):
+    """A call counts its owner before any response names its URI, so the watch asks the master; a response
+    that names the URI while the master is being asked must not be overwritten by the master's answer (CI
+    failure of the test above: the master knew no such node and said '', the watch then pinged nothing, and
+    a suspect owner was never read, so its watch never ended)."""
+    monkeypatch.setattr(owners, 'LATE_REQUEST_S', 0.3, raising=False)
+    core = RegistrarCore('rr_lookup_race', 'temoto', 0)
+    noticed, asked = threading.Event(), threading.Event()
+
+    def lookup(self, node):
+        asked.set()
+        noticed.wait(HANG)             # the response arrives while the master is asked...
+        return ''                      # ...which knows no such node
+    monkeypatch.setattr(owners.OwnerWatch, '_lookup', lookup)
+    reads = []
+    watch = owners.OwnerWatch(core, lambda node: False, lambda node: [], lambda *a: None, lambda *a: True,
+                              lambda registrar, quiet: reads.append(registrar) or True,
+                              period=0.05, bound=2.0, busy_bound=3.0)
+    try:
+        owner = watch.calling('/raced_owner', ('temoto', 'rr_owner'))
+        wait_for(asked.is_set, HANG, 'the watch to ask the master for the owner')
+        watch.notice('/raced_owner', rospy.get_node_uri(), 0)
+        noticed.set()
+        watch.done_calling(owner, answered=False)
+        wait_for(lambda: '/raced_owner' not in watch._owners, 15, 'the watch to read the owner and end')
+        assert reads, 'the suspect owner was never read'
+    finally:
+        watch.stop()
+
+
 def test_a_pooled_connection_broken_while_sending_is_retried_not_raised(rospy_client, procs):
     """rospy raises TransportTerminated, which is not a ROSException, when the socket fails while a request is
     sent: a pooled connection to an owner that had died broke a chaos client's load with an exception that

@@ -270,7 +270,11 @@ class OwnerWatch:
                     del self._owners[owner.node]
                     return
             if not owner.uri:
-                owner.uri = self._lookup(owner.node)
+                looked_up = self._lookup(owner.node)
+                with self._lock:
+                    # a response may have named the URI while the master was asked: it is the newer word
+                    if not owner.uri:
+                        owner.uri = looked_up
             verdict = None
             if owner.uri:
                 silent = time.monotonic() - owner.last_ok
