@@ -233,6 +233,12 @@ class Chaos:
             self._workers[index] = concurrent.futures.ThreadPoolExecutor(1, 'chaos-client-%d' % index)
 
     def stop(self) -> List[tuple]:
+        if self.violations:
+            # before anything stops: a wedged manager that a stop ends cleanly would leave no trace of where it hung
+            stacks = [stack for stack in (self.stack, self.station_stack) if stack is not None]
+            asked = dump_stacks([pid for stack in stacks for pid in stack.pids])
+            print('temoto chaos: %d node(s) wrote every thread\'s stack to their logs in %s'
+                  % (len(asked), os.path.join(self.opts.out_dir, 'logs')), file=sys.stderr)
         for worker in self._workers.values():
             worker.shutdown(wait=False, cancel_futures=True)   # a call under way ends when its client is stopped
         self._asking.shutdown(wait=False, cancel_futures=True)

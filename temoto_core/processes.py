@@ -70,6 +70,37 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
         return None
 
 
+def catches(pid: int, signum: int) -> bool:
+    """Whether process ``pid`` has a handler for ``signum`` (``SigCgt`` in /proc): a signal it does not catch
+    may kill it."""
+    try:
+        with open('/proc/%d/status' % pid) as f:
+            for line in f:
+                if line.startswith('SigCgt:'):
+                    return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return False
+
+
+def dump_stacks(pgids: Sequence[int]) -> List[int]:
+    """Ask every process in groups ``pgids`` that catches SIGUSR1 (a TeMoto node: ``node.py`` registers
+    faulthandler for it) to write every thread's stack to its log, and leave the rest alone. The pids asked.
+
+    For a run that found a wedged node: the stacks say where it hangs, and a stop that follows may end it
+    cleanly, leaving no other trace."""
+    asked = []
+    for pgid in pgids:
+        for pid in [pgid] + group_members(pgid, exclude=pgid):
+            if catches(pid, signal.SIGUSR1):
+                try:
+                    os.kill(pid, signal.SIGUSR1)
+                    asked.append(pid)
+                except ProcessLookupError:
+                    pass
+    return asked
+
+
 def tail(path: str, lines: int = 20) -> str:
     try:
         with open(path, 'rb') as f:

@@ -7,7 +7,7 @@ import sys
 import textwrap
 
 from temoto_core.process_group import group_members
-from temoto_core.processes import stop_process_group
+from temoto_core.processes import dump_stacks, stop_process_group
 from temoto_core.testing import wait_for
 
 # a leader that forks a child and waits for it, as standby.py does; both ignore SIGINT and SIGTERM, and the
@@ -43,3 +43,22 @@ def test_a_wedged_child_of_the_group_leader_writes_its_stack_before_it_is_killed
     wait_for(lambda: not group_members(proc.pid), 10, 'no member of the group left')
     text = log_path.read_text(errors='replace')
     assert 'in wedged_in_here' in text, text
+
+
+def test_stacks_are_asked_only_of_the_processes_that_catch_the_signal(tmp_path):
+    """``dump_stacks`` (a chaos run that found a violation, before it stops anything): the wedged child
+    writes its stack and keeps running; the leader, which does not catch SIGUSR1, is not killed by it."""
+    log_path = tmp_path / 'pair.log'
+    with open(log_path, 'wb') as log:
+        proc = subprocess.Popen([sys.executable, '-c', WEDGED_PAIR], stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    try:
+        wait_for(lambda: b'child ready' in log_path.read_bytes(), 20, 'the child to start')
+        [child] = group_members(proc.pid, exclude=proc.pid)
+        assert dump_stacks([proc.pid]) == [child]
+        wait_for(lambda: 'in wedged_in_here' in log_path.read_text(errors='replace'), 20, 'the child\'s stack')
+        assert proc.poll() is None and group_members(proc.pid, exclude=proc.pid) == [child]
+    finally:
+        os.killpg(proc.pid, 9)
+        proc.wait(10)
+    wait_for(lambda: not group_members(proc.pid), 10, 'no member of the group left')
