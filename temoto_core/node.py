@@ -34,7 +34,7 @@ import rosgraph.names
 import rospy
 import rospy.impl.paramserver
 
-from temoto_core import master_lookup, master_rejoin, tcpros_accept
+from temoto_core import master_lookup, master_rejoin, tcpros_accept, watchdog
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -107,6 +107,8 @@ def init_node(name: str, **kwargs) -> None:
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
     prime_log_parameter()
+    # a node whose own locks wedge kills itself with its stacks written, rather than answer nothing for good
+    watchdog.install(float(rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S)))
     master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back
 
 

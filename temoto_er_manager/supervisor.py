@@ -52,6 +52,7 @@ from concurrent.futures import Future, TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
+from temoto_core import watchdog
 from temoto_core.process_group import group_members, start_ticks
 
 from .preload import Zygote, ZygoteError
@@ -271,9 +272,12 @@ class ProcessSupervisor:
             return fut.result(timeout=bound)
         except FutureTimeout:
             fut.add_done_callback(self._stop_abandoned)
-            _log.error('the process spawner did not start %s within %.1f s; every thread\'s stack follows',
-                       spec.command, bound)
-            faulthandler.dump_traceback(all_threads=True)
+            why = 'the process spawner did not start %s within %.1f s' % (spec.command, bound)
+            _log.error('%s; every thread\'s stack follows', why)
+            # in a node, its watchdog restarts the manager, whose next incarnation adopts what runs; elsewhere
+            # (a test, a tool) the caller is told
+            if not watchdog.wedged(why):
+                faulthandler.dump_traceback(all_threads=True)
             raise SpawnerStuck('the process spawner did not start %s within %.1f s: it is stuck (the '
                                   'stacks are in the manager\'s log)' % (spec.command, bound)) from None
 

@@ -101,3 +101,23 @@ def test_a_node_forked_again_after_its_master_started_again_has_the_parameters_i
     finally:
         launcher.stop_all()
         master.stop()
+
+
+def test_a_wedged_node_writes_its_stacks_kills_itself_and_is_forked_again(procs, ros_master, tmp_path):
+    """Its watchdog (temoto_core/watchdog.py) finds a lock every thread needs held for good: the node says so
+    with every thread's stack, and SIGKILLs itself; its warm-respawn parent forks it again at once."""
+    marker = tmp_path / 'wedged'
+    parent = start(procs, tmp_path, 'standby_wedge', '_journal:=%s' % (tmp_path / 'j.sqlite'),
+                   '_wedge_once:=%s' % marker, '_watchdog_bound:=1.0')
+    first = wait_for(lambda: registered_pid(ros_master, 'standby_wedge'), 20, 'the node to answer')
+    wait_for(marker.exists, 20, 'the node to wedge')
+    second = wait_for(lambda: (lambda p: p not in (None, first) and p)(registered_pid(ros_master, 'standby_wedge')),
+                      30, 'the wedged node killed and forked again')
+    assert start_ticks(first) is None and parent.alive()
+    with open(parent.log_path) as f:
+        log = f.read()
+    assert '[temoto watchdog] pid %d is wedged: the logging module lock was not free' % first in log, log
+    assert 'in hold_the_logging_lock_for_good' in log, 'the stacks say where it hung'
+    assert 'the node (pid %d) was killed by SIGKILL; forking it again' % first in log
+    assert parent.stop() == 0
+    assert start_ticks(second) is None

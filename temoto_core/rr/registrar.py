@@ -31,7 +31,7 @@ from typing import Callable, Dict, Optional
 import rospkg
 import rospy
 
-from temoto_core import master_rejoin
+from temoto_core import master_rejoin, watchdog
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.node import prime_log_parameter
 from temoto_core.msg import RMPRequest, ResourceStatus
@@ -162,6 +162,7 @@ class ResourceRegistrar:
                                            lambda _req: GetRegistryResponse(json=self.registry().to_json()))
         self._unload_srv = None
         self._reclaim_srv = None
+        watchdog.watch('the lock of registrar %s' % core.prefix, core.lock)
 
     @property
     def journaled(self) -> bool:
@@ -339,6 +340,7 @@ class ResourceRegistrar:
             core.closed = True
             local_ids = list(client.by_local)
             served = list(server.by_internal.values())
+        watchdog.unwatch('the lock of registrar %s' % core.prefix)
         self._watch.stop()
         self._owners.stop()
         # consumers learn first that the resources are going away, so they can fail over

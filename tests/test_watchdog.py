@@ -1,0 +1,75 @@
+"""The node watchdog (temoto_core/watchdog.py): a lock every thread of a node needs, held for good, makes the
+node write every thread's stack and kill itself, instead of answering nothing for ever (the chaos history of
+seed 17 twice had a robot ER Manager wedged like this, with no trace of where)."""
+import signal
+import threading
+
+import pytest
+
+from temoto_core import watchdog
+from temoto_core.testing import wait_for
+from rr_helpers import RegistrarNode
+
+HANG = 20.0
+
+
+def held_for_good_by_a_thread(lock, release):
+    lock.acquire()
+    release.wait(HANG)
+    lock.release()
+
+
+def test_a_lock_held_past_the_bound_wedges_the_node_with_every_stack_written(capfd):
+    lock, release, why = threading.Lock(), threading.Event(), []
+    holder = threading.Thread(target=held_for_good_by_a_thread, args=(lock, release), daemon=True)
+    holder.start()
+    wait_for(lock.locked, HANG, 'the holder to take the lock')
+    dog = watchdog.Watchdog(bound=0.3, period=0.1, on_wedged=why.append)
+    dog.watch('the test lock', lock)
+    dog.start()
+    try:
+        wait_for(lambda: why, HANG, 'the watchdog to find the node wedged')
+    finally:
+        dog.stop()
+        release.set()
+        holder.join(HANG)
+    assert why[0].startswith('the test lock was not free for 0.'), why
+    err = capfd.readouterr().err
+    assert 'is wedged: the test lock was not free' in err
+    assert 'in held_for_good_by_a_thread' in err, 'the stacks say which thread holds it'
+
+
+def test_locks_that_are_only_busy_and_unwatched_locks_do_not_wedge_the_node():
+    busy, dropped, why = threading.Lock(), threading.Lock(), []
+    dog = watchdog.Watchdog(bound=0.5, period=0.05, on_wedged=why.append)
+    dog.watch('a busy lock', busy)
+    dog.watch('a lock no longer watched', dropped)
+    dog.unwatch('a lock no longer watched')
+    dropped.acquire()                          # held for good, but nobody watches it any more
+    dog.start()
+    try:
+        for _ in range(20):                    # held for a tenth of the bound each time, 20 times
+            with busy:
+                threading.Event().wait(0.05)
+        assert dog.check() == ''
+    finally:
+        dog.stop()
+        dropped.release()
+    assert why == []
+
+
+def test_a_bound_shorter_than_the_period_is_refused():
+    with pytest.raises(ValueError, match='period'):
+        watchdog.Watchdog(bound=0.5, period=1.0)
+
+
+def test_a_wedged_registrar_node_kills_itself_naming_its_registrar(rospy_client, procs):
+    """Across processes: the registrar's lock is watched in a real node."""
+    node = RegistrarNode(procs, 'rr_wedged', watchdog_bound=1.0)
+    assert node.command(op='wedge') == {}
+    wait_for(lambda: not node.process.alive(), HANG, 'the wedged node to kill itself')
+    assert node.process.returncode == -signal.SIGKILL
+    with open(node.process.log_path) as f:
+        log = f.read()
+    assert 'is wedged: the lock of registrar' in log and 'rr_wedged' in log, log[-3000:]
+    assert 'in hold_for_good' in log
