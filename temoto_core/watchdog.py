@@ -34,6 +34,7 @@ from typing import Callable, Dict, Optional
 # so a wedged owner is restarted before most calls to it expire
 DEFAULT_BOUND_S = 10.0
 DEFAULT_PERIOD_S = 1.0
+RETRY_S = 1.0
 
 
 def _die(why: str) -> None:
@@ -79,7 +80,9 @@ class Watchdog:
             locks = list(self._locks.items())
         for name, lock in locks:
             started = time.monotonic()
-            if not lock.acquire(timeout=self.bound):
+            # the second try: a process SIGSTOPped longer than the bound (a debugger, an operator) times the
+            # first wait out as it resumes, before the thread that held the lock could run again
+            if not (lock.acquire(timeout=self.bound) or lock.acquire(timeout=min(RETRY_S, self.bound))):
                 return '%s was not free for %.1f s' % (name, time.monotonic() - started)
             lock.release()
         return ''

@@ -73,3 +73,25 @@ def test_a_wedged_registrar_node_kills_itself_naming_its_registrar(rospy_client,
         log = f.read()
     assert 'is wedged: the lock of registrar' in log and 'rr_wedged' in log, log[-3000:]
     assert 'in hold_for_good' in log
+
+
+class ResumedFromAStop:
+    """A lock as the watchdog sees it in a process SIGSTOPped longer than the bound: the first wait times
+    out as the process resumes, and the holder releases it a moment later."""
+
+    def __init__(self):
+        self.tries = 0
+
+    def acquire(self, timeout):
+        self.tries += 1
+        return self.tries > 1
+
+    def release(self):
+        pass
+
+
+def test_a_process_resumed_after_a_long_stop_is_not_taken_for_wedged():
+    lock, why = ResumedFromAStop(), []
+    dog = watchdog.Watchdog(bound=0.3, period=0.1, on_wedged=why.append)
+    dog.watch('a lock held as the process was stopped', lock)
+    assert dog.check() == '' and lock.tries == 2
