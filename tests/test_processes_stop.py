@@ -27,13 +27,24 @@ WEDGED_PAIR = textwrap.dedent('''
 ''')
 
 
-def test_a_wedged_child_of_the_group_leader_writes_its_stack_before_it_is_killed(tmp_path):
-    log_path = tmp_path / 'pair.log'
+def start_wedged_pair(log_path):
+    """The pair, started in a session of its own; returns once the child runs."""
     with open(log_path, 'wb') as log:
         proc = subprocess.Popen([sys.executable, '-c', WEDGED_PAIR], stdout=log, stderr=subprocess.STDOUT,
                                 start_new_session=True)
     try:
         wait_for(lambda: b'child ready' in log_path.read_bytes(), 20, 'the child to start')
+    except TimeoutError:
+        os.killpg(proc.pid, 9)
+        proc.wait(10)
+        raise
+    return proc
+
+
+def test_a_wedged_child_of_the_group_leader_writes_its_stack_before_it_is_killed(tmp_path):
+    log_path = tmp_path / 'pair.log'
+    proc = start_wedged_pair(log_path)
+    try:
         stop_process_group(proc, sigint_grace=0.2, sigterm_grace=0.2)
     finally:
         if proc.poll() is None:
@@ -49,11 +60,8 @@ def test_stacks_are_asked_only_of_the_processes_that_catch_the_signal(tmp_path):
     """``dump_stacks`` (a chaos run that found a violation, before it stops anything): the wedged child
     writes its stack and keeps running; the leader, which does not catch SIGUSR1, is not killed by it."""
     log_path = tmp_path / 'pair.log'
-    with open(log_path, 'wb') as log:
-        proc = subprocess.Popen([sys.executable, '-c', WEDGED_PAIR], stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+    proc = start_wedged_pair(log_path)
     try:
-        wait_for(lambda: b'child ready' in log_path.read_bytes(), 20, 'the child to start')
         [child] = group_members(proc.pid, exclude=proc.pid)
         assert dump_stacks([proc.pid]) == [child]
         wait_for(lambda: 'in wedged_in_here' in log_path.read_text(errors='replace'), 20, 'the child\'s stack')
