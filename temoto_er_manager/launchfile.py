@@ -42,10 +42,20 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import roslaunch.config
+import roslaunch.core
+import roslaunch.loader
+import roslaunch.xmlloader
 import rospkg
 
 from .policy import RequestRefused, check_package_allowed
 from .supervisor import ProcessSpec
+
+# roslaunch is imported here, not at the first launch file: a manager under a warm-respawn parent then has it
+# before it is forked, and the first launch file after a restart no longer imports 529 modules (0.23 s) in a
+# load's thread while the new incarnation's other threads log and fork. Imports take the import lock, and a
+# fork and every rospy log call take logging's: a suspect (not a proven cause) for the two ER Managers of the
+# chaos history, seed 17, that wedged within a second of a restart
 
 # roslaunch's loader keeps module-level caches (rospack, anonymous names): one load at a time
 _load_lock = threading.Lock()
@@ -69,9 +79,6 @@ def load_launch_config(path: str, args: list[str], ns: str):
     params run two commands (~0.2 s per load) to set what the running roscore
     already set, and declares core nodes that are never started here.
     """
-    import roslaunch.config
-    import roslaunch.loader
-    import roslaunch.xmlloader
     with _load_lock:
         try:
             config = roslaunch.config.ROSLaunchConfig()
@@ -88,7 +95,6 @@ def plan_launch(path: str, args: list[str], ns: str, *, env: dict, log_path: str
                 find_executable: Callable[[str, str], str], package_allowlist: list[str],
                 sys_allowlist: list[str], interpreter_argv: Callable[[str], list[str]]) -> LaunchPlan:
     """Load ``path`` and build the plan; raises :class:`RequestRefused` (and changes nothing) when refused."""
-    import roslaunch.core
     config = load_launch_config(path, args, ns)
     plan = LaunchPlan(path=path, clear_params=list(config.clear_params),
                       params={key: p.value for key, p in config.params.items()},
