@@ -13,7 +13,7 @@ import os
 import socket
 import subprocess
 import sys
-from typing import Callable, Optional
+from typing import Optional
 
 from .zygote import MAX_MESSAGE, SINGLE_THREAD_ENV, send
 
@@ -49,7 +49,10 @@ class Zygote:
 
     # -- spawner thread ------------------------------------------------------------------------------
 
-    def start(self, preexec_fn: Optional[Callable[[], None]] = None) -> None:
+    def start(self, die_with: int = 0) -> None:
+        """Start the zygote. ``die_with``: the pid of the process whose thread starts it; the zygote then
+        takes SIGKILL as its death signal itself, as it starts (no code runs between fork and exec here:
+        see ``supervisor.py``), and exits at once if that process is already gone."""
         ctrl, ctrl_child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         events, events_child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         env = dict(self.env)
@@ -59,9 +62,9 @@ class Zygote:
             with open(self.log_path, 'ab', buffering=0) as log:
                 self.popen = subprocess.Popen(
                     [self.python, '-c', _BOOT, str(ctrl_child.fileno()), str(events_child.fileno()),
-                     json.dumps(self.modules)], env=env, cwd='/', stdin=subprocess.DEVNULL, stdout=log,
-                    stderr=subprocess.STDOUT, pass_fds=(ctrl_child.fileno(), events_child.fileno()),
-                    start_new_session=True, preexec_fn=preexec_fn)
+                     json.dumps(self.modules), str(die_with)], env=env, cwd='/', stdin=subprocess.DEVNULL,
+                    stdout=log, stderr=subprocess.STDOUT, pass_fds=(ctrl_child.fileno(), events_child.fileno()),
+                    start_new_session=True)
         except OSError as e:
             ctrl.close()
             events.close()

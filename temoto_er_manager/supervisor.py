@@ -34,7 +34,6 @@ the original):
 """
 from __future__ import annotations
 
-import ctypes
 import errno
 import faulthandler
 import itertools
@@ -53,23 +52,17 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from temoto_core import watchdog
-from temoto_core.process_group import group_members, start_ticks
+from temoto_core.process_group import group_members, popen_dying_with_this_thread, start_ticks
 
 from .preload import Zygote, ZygoteError
 
 _log = logging.getLogger('temoto_er_manager.supervisor')
 SPAWN_SLACK_S = 10.0      # beyond the zygote's imports, for a spawn on a loaded machine
 
-_PR_SET_PDEATHSIG = 1
-_libc = ctypes.CDLL(None, use_errno=True)
-_prctl = _libc.prctl          # resolved before any fork: the child must not load anything
-_signal = _libc.signal        # likewise: the C library's own signal(), callable between fork and exec
-_signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
-_signal.restype = ctypes.c_void_p
-_SIG_DFL = None               # NULL
 # A child must answer the stop signals whatever its parent does with them: a manager started from a
 # script's background job inherits SIGINT ignored, and its children would then only stop at SIGTERM.
-_STOP_SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
+# (A signal this process handles in Python is answered by default after exec anyway.)
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class SupervisorError(Exception):
@@ -303,14 +296,8 @@ class ProcessSupervisor:
 
     def _start_zygote(self) -> None:
         """On the spawner thread: the zygote dies with it (SIGKILL), whatever ``death_signal`` says."""
-        parent = os.getpid()
-
-        def in_child():
-            _prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-            if os.getppid() != parent:
-                os._exit(125)
         try:
-            self._zygote.start(in_child)
+            self._zygote.start(die_with=os.getpid())
             os.write(self._wake_w, b'x')      # let the reaper select on its exit reports
             _log.info('preload zygote pid %d started: importing %s (log %s)', self._zygote.pid,
                       ', '.join(self._zygote.modules), self._zygote.log_path)
@@ -354,17 +341,6 @@ class ProcessSupervisor:
 
     def _spawn(self, spec: ProcessSpec) -> ManagedProcess:
         os.makedirs(os.path.dirname(spec.log_path) or '.', exist_ok=True)
-        parent = os.getpid()
-        death_signal = self.death_signal
-
-        def in_child():                       # runs between fork and exec: no allocation, no imports
-            for sig in _STOP_SIGNALS:
-                _signal(sig, _SIG_DFL)
-            if death_signal:
-                _prctl(_PR_SET_PDEATHSIG, death_signal, 0, 0, 0)
-                if os.getppid() != parent:    # the manager died before prctl took effect
-                    os._exit(125)
-
         with open(spec.log_path, 'ab', buffering=0) as log:
             log.write(('[temoto_er_manager] %s $ %s\n' % (time.strftime('%Y-%m-%d %H:%M:%S'),
                                                           spec.command)).encode())
@@ -373,10 +349,17 @@ class ProcessSupervisor:
                 proc = self._spawn_from_zygote(zygote, spec, log.fileno())
                 if proc is not None:
                     return proc
+            options = dict(env=spec.env, cwd=spec.cwd, stdin=subprocess.DEVNULL, stdout=log,
+                           stderr=subprocess.STDOUT, close_fds=True, start_new_session=True)
+            ignored = [sig for sig in _STOP_SIGNALS if signal.getsignal(sig) is signal.SIG_IGN]
             try:
-                popen = subprocess.Popen(spec.argv, env=spec.env, cwd=spec.cwd, stdin=subprocess.DEVNULL,
-                                         stdout=log, stderr=subprocess.STDOUT, close_fds=True,
-                                         start_new_session=True, preexec_fn=in_child)
+                if self.death_signal or ignored:
+                    # the kernel sends the death signal when the thread that forked the child exits: this one
+                    popen = popen_dying_with_this_thread(spec.argv, self.death_signal, ignored, **options)
+                else:
+                    # nothing to do between fork and exec, so no Python runs there (a manager with a journal:
+                    # its leash outlives it instead). process_group.popen_dying_with_this_thread says why
+                    popen = subprocess.Popen(spec.argv, **options)
             except OSError as e:
                 raise SupervisorError('cannot start %s: %s' % (spec.command, e.strerror or e)) from e
         started = time.time()

@@ -297,7 +297,15 @@ def _system_exit_code(e: SystemExit) -> int:
 
 
 def main(argv: list) -> int:
-    """``python -m temoto_er_manager.zygote CTRL_FD EVENTS_FD MODULES_JSON``"""
+    """``python -m temoto_er_manager.zygote CTRL_FD EVENTS_FD MODULES_JSON [DIE_WITH]``
+
+    ``DIE_WITH``: the pid of the manager; the zygote dies with the manager's thread that started it
+    (SIGKILL), and exits at once if the manager died before that took effect."""
+    die_with = int(argv[3]) if len(argv) > 3 else 0
+    if die_with:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        if os.getppid() != die_with:
+            return 125
     ctrl = socket.socket(fileno=int(argv[0]))
     events = socket.socket(fileno=int(argv[1]))
     ctrl.settimeout(None)                          # blocking whatever a preloaded module sets as default

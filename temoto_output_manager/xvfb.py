@@ -18,7 +18,6 @@ Xvfb and owns its whole lifetime:
 """
 from __future__ import annotations
 
-import ctypes
 import os
 import select
 import shutil
@@ -29,22 +28,11 @@ import tempfile
 import time
 from typing import Optional
 
-_PR_SET_PDEATHSIG = 1
+from temoto_core.process_group import popen_dying_with_this_thread
 
 
 class XvfbError(RuntimeError):
     """Xvfb could not be started (missing binary, crashed, or not ready in time)."""
-
-
-def _die_with_parent(parent_pid: int):
-    """preexec_fn: ask the kernel to SIGTERM this child when its parent dies."""
-    def _prepare():
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
-            os._exit(126)
-        if os.getppid() != parent_pid:      # parent already gone before prctl took effect
-            os._exit(125)
-    return _prepare
 
 
 class Xvfb:
@@ -67,11 +55,10 @@ class Xvfb:
             raise XvfbError("no DISPLAY and '%s' is not installed (apt-get install xvfb)" % self.binary)
         read_fd, write_fd = os.pipe()
         try:
-            self.proc = subprocess.Popen(
+            self.proc = popen_dying_with_this_thread(
                 [exe, '-displayfd', str(write_fd), '-screen', '0', self.screen, '-nolisten', 'tcp', '-noreset'],
-                pass_fds=(write_fd,), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL, start_new_session=True,
-                preexec_fn=_die_with_parent(os.getpid()))
+                signal.SIGTERM, pass_fds=(write_fd,), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL, start_new_session=True)
         finally:
             os.close(write_fd)
         try:

@@ -109,8 +109,8 @@ def test_a_wedged_node_writes_its_stacks_kills_itself_and_is_forked_again(procs,
     marker = tmp_path / 'wedged'
     parent = start(procs, tmp_path, 'standby_wedge', '_journal:=%s' % (tmp_path / 'j.sqlite'),
                    '_wedge_once:=%s' % marker, '_watchdog_bound:=1.0')
-    first = wait_for(lambda: registered_pid(ros_master, 'standby_wedge'), 20, 'the node to answer')
-    wait_for(marker.exists, 20, 'the node to wedge')
+    # the wedged incarnation may be killed and forked again before its registration is read: it names itself
+    first = int(wait_for(lambda: marker.exists() and marker.read_text(), 20, 'the node to wedge'))
     second = wait_for(lambda: (lambda p: p not in (None, first) and p)(registered_pid(ros_master, 'standby_wedge')),
                       30, 'the wedged node killed and forked again')
     assert start_ticks(first) is None and parent.alive()
