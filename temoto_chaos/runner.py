@@ -38,7 +38,7 @@ from temoto_core import control_socket
 from temoto_core.hosts import TwoHosts
 from temoto_core.master import RosMaster
 from temoto_core.master_lookup import lookup_node, node_pid
-from temoto_core.processes import ProcessGroupLauncher, kill_leftovers, leftover_processes
+from temoto_core.processes import ProcessGroupLauncher, dump_stacks, kill_leftovers, leftover_processes
 from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
 
@@ -232,13 +232,18 @@ class Chaos:
         if self.opts.concurrent and index not in self._workers:
             self._workers[index] = concurrent.futures.ThreadPoolExecutor(1, 'chaos-client-%d' % index)
 
+    def dump_stacks(self) -> List[int]:
+        """Ask every node of the stacks for every thread's stack (in its log); the pids asked."""
+        stacks = [stack for stack in (self.stack, self.station_stack) if stack is not None]
+        asked = dump_stacks([pid for stack in stacks for pid in stack.pids])
+        print('temoto chaos: %d node(s) wrote every thread\'s stack to their logs in %s'
+              % (len(asked), os.path.join(self.opts.out_dir, 'logs')), file=sys.stderr)
+        return asked
+
     def stop(self) -> List[tuple]:
         if self.violations:
             # before anything stops: a wedged manager that a stop ends cleanly would leave no trace of where it hung
-            stacks = [stack for stack in (self.stack, self.station_stack) if stack is not None]
-            asked = dump_stacks([pid for stack in stacks for pid in stack.pids])
-            print('temoto chaos: %d node(s) wrote every thread\'s stack to their logs in %s'
-                  % (len(asked), os.path.join(self.opts.out_dir, 'logs')), file=sys.stderr)
+            self.dump_stacks()
         for worker in self._workers.values():
             worker.shutdown(wait=False, cancel_futures=True)   # a call under way ends when its client is stopped
         self._asking.shutdown(wait=False, cancel_futures=True)

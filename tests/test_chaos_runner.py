@@ -1,7 +1,10 @@
 """Pieces of the chaos runner against real processes (the whole runner: test_chaos.py)."""
 import os
 import shlex
+import subprocess
+import sys
 import threading
+import types
 
 from temoto_chaos.cli import chaos_options
 from temoto_chaos.runner import Chaos, ChaosOptions, ClientHandle, replay_command
@@ -47,3 +50,31 @@ def test_a_failures_replay_command_replays_every_step_up_to_it():
         (17, 6430, 6430, 2, run.clients, run.version)
     assert chaos_options(['--seed', '3']).steps == 300
     assert chaos_options(['--seed', '3', '--steps', '50', '--until', '6430']).steps == 50
+
+
+def test_a_run_that_found_a_violation_asks_the_stacks_nodes_for_their_stacks(tmp_path):
+    """The nodes of a stack that catch SIGUSR1 write every thread's stack to their logs (the first version
+    raised NameError there, at the end of a 10,000-step run that had found a violation)."""
+    log_path = tmp_path / 'node.log'
+    with open(log_path, 'wb') as log:
+        node = subprocess.Popen([sys.executable, '-c', NODE_WAITING_IN_HERE], stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    try:
+        wait_for(lambda: b'ready' in log_path.read_bytes(), 20, 'the node to start')
+        chaos = Chaos(ChaosOptions(seed=1, steps=1, out_dir=str(tmp_path)))
+        chaos.stack = types.SimpleNamespace(pids=[node.pid])       # what the runner reads of a demo Stack
+        assert chaos.dump_stacks() == [node.pid]
+        wait_for(lambda: 'in waiting_in_here' in log_path.read_text(errors='replace'), 20, 'the node\'s stack')
+    finally:
+        node.kill()
+        node.wait(10)
+
+
+NODE_WAITING_IN_HERE = '''
+import faulthandler, signal, threading
+faulthandler.register(signal.SIGUSR1, all_threads=True)
+def waiting_in_here():
+    print('ready', flush=True)
+    threading.Event().wait(60)
+waiting_in_here()
+'''
