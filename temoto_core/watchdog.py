@@ -63,9 +63,12 @@ class Watchdog:
         with self._guard:
             self._locks[name] = lock
 
-    def unwatch(self, name: str) -> None:
+    def unwatch(self, name: str, lock=None) -> None:
+        """Stop watching ``name``; with ``lock``, only while ``name`` still stands for that lock (a registrar
+        made again under the same name before the old one shut down keeps its watch)."""
         with self._guard:
-            self._locks.pop(name, None)
+            if lock is None or self._locks.get(name) is lock:
+                self._locks.pop(name, None)
 
     def start(self) -> 'Watchdog':
         self._thread.start()
@@ -132,9 +135,9 @@ def watch(name: str, lock) -> None:
         _installed.watch(name, lock)
 
 
-def unwatch(name: str) -> None:
+def unwatch(name: str, lock=None) -> None:
     if _installed is not None:
-        _installed.unwatch(name)
+        _installed.unwatch(name, lock)
 
 
 def wedged(why: str) -> bool:

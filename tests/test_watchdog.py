@@ -58,6 +58,21 @@ def test_locks_that_are_only_busy_and_unwatched_locks_do_not_wedge_the_node():
     assert why == []
 
 
+def test_an_old_lock_unwatched_under_a_name_a_new_lock_has_taken_leaves_the_new_one_watched():
+    """A registrar made again under the same name before the old one shut down: the old one's shutdown must
+    not end the new one's watch."""
+    old, new = threading.Lock(), threading.Lock()
+    dog = watchdog.Watchdog(bound=0.2, period=0.1, on_wedged=lambda why: None)
+    dog.watch('the lock of registrar r', old)
+    dog.watch('the lock of registrar r', new)
+    dog.unwatch('the lock of registrar r', old)
+    new.acquire()
+    try:
+        assert dog.check().startswith('the lock of registrar r was not free')
+    finally:
+        new.release()
+
+
 def test_a_bound_shorter_than_the_period_is_refused():
     with pytest.raises(ValueError, match='period'):
         watchdog.Watchdog(bound=0.5, period=1.0)

@@ -340,7 +340,7 @@ class ResourceRegistrar:
             core.closed = True
             local_ids = list(client.by_local)
             served = list(server.by_internal.values())
-        watchdog.unwatch('the lock of registrar %s' % core.prefix)
+        watchdog.unwatch('the lock of registrar %s' % core.prefix, core.lock)
         self._watch.stop()
         self._owners.stop()
         # consumers learn first that the resources are going away, so they can fail over
