@@ -91,3 +91,24 @@ def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
     wait_for(lambda: not proc.alive(), HANG, 'the node to stop')
     assert proc.returncode != 0
     assert 'master_check_period -1' in proc.log(40), proc.log(40)
+
+
+def test_a_new_master_that_learnt_one_registration_first_gets_all_the_others(own_master):
+    """rospy registers a publisher made while the master is down the moment a new master answers. That
+    master then knows the node, with one registration of many; the node's services could not be looked up,
+    and the unloads owed to it were never delivered (chaos seed 17, step 4669). The periodic check is
+    turned off here and run once by hand, after rospy's registration: the order the chaos history met."""
+    master, procs = own_master
+    sock = str(procs.workdir) + '/rr_partial.sock'
+    node = RegistrarNode(procs, 'rr_partial', control_socket=sock, master_check_period=1e6)
+    before = registered(master, '/rr_partial')
+    master.stop()
+    node.command(op='advertise', topic='/rr_partial/late')
+    master.start()
+    wait_for(lambda: '/rr_partial/late' in registered(master, '/rr_partial')[0], HANG,
+             "rospy's own registration of the publisher made while the master was down")
+    assert '/rr_partial/control' not in registered(master, '/rr_partial')[2]    # what the check must repair
+    assert node.command(op='rejoin') == {'registered': True}
+    publishers, subscribers, services = registered(master, '/rr_partial')
+    assert (publishers, subscribers, services) == (before[0] | {'/rr_partial/late'}, before[1], before[2])
+    assert node.command(op='rejoin') == {'registered': False}         # once is enough
