@@ -24,8 +24,8 @@ import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core import master_rejoin, tcpros_accept
-from temoto_core.node import clear_stale_registration, on_signals, prime_log_parameter
+from temoto_core import tcpros_accept
+from temoto_core.node import after_init_node, clear_stale_registration, on_signals
 from temoto_core.params import list_param
 from temoto_core.rr.journal import Journal
 from temoto_core.rr.registrar import journal_param
@@ -158,8 +158,8 @@ def run_node(name: str = 'temoto_action_engine') -> None:
     clear_stale_registration(name)
     tcpros_accept.install()
     rospy.init_node(name, disable_signals=True)
-    prime_log_parameter()      # its logging must not wait for the master (node.py)
-    master_rejoin.ensure_started()     # the station's engine outlives a master on a robot that lost power
+    # the station's engine outlives a master on a robot that lost power: it registers again (node.py)
+    after_init_node()
     node = ActionEngineNode()
     stop = threading.Event()
     on_signals(lambda signum: stop.set())     # from a thread: Event.set in a handler can deadlock

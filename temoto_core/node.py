@@ -106,9 +106,18 @@ def init_node(name: str, **kwargs) -> None:
     tcpros_accept.install()             # one silent peer must not hold up every connection to this node
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
+    after_init_node()
+
+
+def after_init_node() -> None:
+    """What every TeMoto node sets up right after ``rospy.init_node``, this module's ``init_node`` or its
+    own (the RViz host's and the action engine's, which handle their signals themselves)."""
     prime_log_parameter()
     # a node whose own locks wedge kills itself with its stacks written, rather than answer nothing for good
-    watchdog.install(float(rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S)))
+    bound = rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S)
+    if isinstance(bound, bool) or not isinstance(bound, (int, float)) or bound < 0:
+        raise ValueError('watchdog_bound %r: it must be a number of seconds, 0 for off' % (bound,))
+    watchdog.install(float(bound))
     master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back
 
 

@@ -18,9 +18,9 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
-from temoto_core import master_rejoin, tcpros_accept
+from temoto_core import tcpros_accept
 from temoto_core.master_reach import MasterReach
-from temoto_core.node import prime_log_parameter
+from temoto_core.node import after_init_node
 
 from temoto_output_manager.msg import DisplayEvent, DisplayInfo
 from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, ConfigureDisplay, ConfigureDisplayResponse,
@@ -223,10 +223,10 @@ def main(argv=None) -> int:
         app = QtWidgets.QApplication([sys.argv[0]])
         tcpros_accept.install()
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
-        prime_log_parameter()      # its logging must not wait for the master (node.py)
         # the station's screen outlives a master on the robot that lost power: the new master learns its
-        # services again (a host with no registrar has no other way back)
-        master_rejoin.ensure_started()
+        # services again (a host with no registrar has no other way back); its logging must not wait for the
+        # master, and a wedged host kills itself so that the Output Manager fails its displays (node.py)
+        after_init_node()
         settings = HostSettings(
             fixed_frame=str(rospy.get_param('~fixed_frame', 'base_link')),
             frame_rate=int(rospy.get_param('~frame_rate', 15)),

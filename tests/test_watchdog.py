@@ -110,3 +110,22 @@ def test_a_process_resumed_after_a_long_stop_is_not_taken_for_wedged():
     dog = watchdog.Watchdog(bound=0.3, period=0.1, on_wedged=why.append)
     dog.watch('a lock held as the process was stopped', lock)
     assert dog.check() == '' and lock.tries == 2
+
+
+# the nodes that handle their signals themselves, and so call rospy.init_node, then node.after_init_node
+OWN_INIT = {
+    'rviz_host': ('temoto_output_manager', 'rviz_host', {'show_robot': 'false', 'show_grid': 'false'}),
+    'action_engine': ('temoto_action_engine', 'temoto_action_engine', {'temoto_namespace': 'temoto'}),
+}
+
+
+@pytest.mark.parametrize('which', sorted(OWN_INIT))
+def test_a_node_with_its_own_init_reads_its_watchdog_bound_and_refuses_a_bad_one(rospy_client, procs, which):
+    """The RViz host and the action engine get the watchdog too: a bound that is not a number of seconds
+    stops them, naming the parameter, as it stops any other node."""
+    package, script, params = OWN_INIT[which]
+    proc = procs.node(package, script, name=which + '_bad_bound', namespace='temoto',
+                      params=dict(params, watchdog_bound='soon'))
+    wait_for(lambda: not proc.alive(), HANG, '%s to stop' % which)
+    assert proc.returncode != 0
+    assert "watchdog_bound 'soon'" in proc.log(60), proc.log(60)
