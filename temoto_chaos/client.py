@@ -21,6 +21,7 @@ from typing import Callable, Deque, Dict, Iterator, List
 
 import rospy
 
+from temoto_core import control_socket
 from temoto_core.errors import TemotoError
 from temoto_core.node import init_node, spin
 from temoto_core.rr import StatusEvent
@@ -195,16 +196,12 @@ class _Handler(socketserver.StreamRequestHandler):
             self.wfile.flush()
 
 
-class _Server(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
-    daemon_threads = True
-
-
 def main() -> None:
     init_node(NODE_NAME)
     namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
     socket_path = str(rospy.get_param('~control_socket'))
     client = ChaosClient(namespace, str(rospy.get_param('~station_namespace', '')))
-    server = _Server(socket_path, _Handler)
+    server = control_socket.Server(socket_path, _Handler)
     server.client = client
     threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()
     try:

@@ -4,7 +4,9 @@ A file-system socket is reached from every network namespace and works while the
 which is exactly when a test or a chaos runner needs to see both sides.
 """
 import json
+import os
 import socket
+import socketserver
 
 
 def ask(path: str, cmd: dict, timeout: float) -> dict:
@@ -16,3 +18,29 @@ def ask(path: str, cmd: dict, timeout: float) -> dict:
         sock.sendall(json.dumps(cmd).encode() + b'\n')
         with sock.makefile('rb') as answer:
             return json.loads(answer.readline())
+
+
+class Server(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
+    """A threaded Unix stream server whose path appears only once it listens.
+
+    Bound at its path, a socket file exists from ``bind()`` on, and a connection is refused until
+    ``listen()``; a node's other threads may run in between for several milliseconds. A runner that took
+    the file for the node's readiness asked at once, was refused, and reported a client that did not
+    answer (chaos seed 17, step 8077, right after a killed client started again). So the server binds at a
+    private path, listens, and only then moves its socket to ``path`` (``os.replace``, atomic; a socket
+    file a killed incarnation left there is replaced in the same step).
+    """
+    daemon_threads = True
+
+    def __init__(self, path: str, handler: type) -> None:
+        private = '%s.%d' % (path, os.getpid())
+        if os.path.exists(private):
+            os.unlink(private)
+        super().__init__(private, handler)       # bind and listen
+        try:
+            os.replace(private, path)
+        except OSError:
+            self.server_close()
+            os.unlink(private)
+            raise
+        self.server_address = path
