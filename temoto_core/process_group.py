@@ -53,7 +53,6 @@ def popen_dying_with_this_thread(argv: Sequence[str], death_signal: int, default
         _imp.release_lock()
 
 
-
 def exit_status(proc: subprocess.Popen) -> Optional[int]:
     """The child's exit code without reaping it (Popen convention: -N for signal N), or None if running."""
     if proc.returncode is not None:

@@ -53,9 +53,8 @@ from .supervisor import ProcessSpec
 
 # roslaunch is imported here, not at the first launch file: a manager under a warm-respawn parent then has it
 # before it is forked, and the first launch file after a restart no longer imports 529 modules (0.23 s) in a
-# load's thread while the new incarnation's other threads log and fork. Imports take the import lock, and a
-# fork and every rospy log call take logging's: a suspect (not a proven cause) for the two ER Managers of the
-# chaos history, seed 17, that wedged within a second of a restart
+# load's thread. (The ER Manager wedges of the chaos history, seed 17, which first pointed here, came from a
+# fork with a preexec_fn: process_group.popen_dying_with_this_thread says why.)
 
 # roslaunch's loader keeps module-level caches (rospack, anonymous names): one load at a time
 _load_lock = threading.Lock()
