@@ -18,11 +18,20 @@ in rospy's own registration loop, which registers that one name the moment the n
 new master then knows the node, with one registration out of many: every other service of the node could
 not be looked up, and an unload owed to it was never delivered (chaos seed 17, step 4669: two displays
 leaked at the station's Output Manager after the robot lost power twice in 25 steps).
+
+A process may hold a second node that rospy knows nothing of: librviz starts a roscpp node of its own
+(``/rviz_<number>``) in the RViz host, whose subscriptions carry the robot's transforms to the operator's
+screen. roscpp never registers again, so after the robot's reboot RViz never heard the new robot's ``/tf``:
+every display in the robot's frames lost its transform while the host still listed it as shown. Such a
+node is *adopted* (:func:`find_process_nodes`, :meth:`MasterRejoin.adopt`): its topics are read from its own
+XML-RPC API at the time they are registered again, its services are learnt once when it is adopted.
 """
+import dataclasses
 import http.client
+import os
 import threading
 import xmlrpc.client
-from typing import Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import rosgraph
 import rospy
@@ -36,6 +45,49 @@ MASTER_CALLER_ID = '/master'   # how the master signs the publisherUpdate it sen
 
 XMLRPC_ERRORS = (OSError, xmlrpc.client.Error, http.client.HTTPException)
 
+Registrations = Tuple[List[Tuple[str, str]], List[Tuple[str, str]], List[Tuple[str, str]]]
+
+
+@dataclasses.dataclass(frozen=True)
+class ProcessNode:
+    """Another node of this process, which registers itself with the master once and never again (roscpp's
+    inside librviz): its name, its XML-RPC URI and its services, as (name, rosrpc URI)."""
+    name: str
+    uri: str
+    services: Tuple[Tuple[str, str], ...] = ()
+
+
+def find_process_nodes(prefix: str, timeout: float = CALL_TIMEOUT, pid: Optional[int] = None) -> List[ProcessNode]:
+    """The nodes this process (or ``pid``) runs besides rospy's whose base name starts with ``prefix``, as the
+    master knows them now. Only nodes so named are asked their pid: a stopped process elsewhere would make
+    each question to it last its timeout. Raises an XML-RPC or socket error when the master does not answer."""
+    pid = os.getpid() if pid is None else pid
+    caller_id = rospy.get_name()
+    master = proxy(rosgraph.get_master_uri(), timeout)
+    code, message, (publishers, subscribers, services) = master.getSystemState(caller_id)
+    if code != 1:
+        raise xmlrpc.client.Fault(code, 'getSystemState: %s' % message)
+    names = sorted({node for _, nodes in publishers + subscribers + services for node in nodes
+                    if node.rsplit('/', 1)[-1].startswith(prefix) and node != caller_id})
+    found = []
+    for name in names:
+        code, _, uri = master.lookupNode(caller_id, name)
+        if code != 1:
+            continue
+        try:
+            code, _, node_pid = proxy(uri, timeout).getPid(caller_id)
+        except XMLRPC_ERRORS:
+            continue                          # gone, or not answering: not a node of this live process
+        if code != 1 or node_pid != pid:
+            continue
+        offered = []
+        for service in sorted(s for s, nodes in services if name in nodes):
+            code, _, service_uri = master.lookupService(caller_id, service)
+            if code == 1:
+                offered.append((service, service_uri))
+        found.append(ProcessNode(name, uri, tuple(offered)))
+    return found
+
 
 class MasterRejoin:
     """Registers this process's node again with a master that does not know it (see the module docstring)."""
@@ -48,14 +100,16 @@ class MasterRejoin:
         self._master_uri = rosgraph.get_master_uri()
         self._caller_id = rospy.get_name()
         self._stop = threading.Event()
-        self._warned_other: Optional[str] = None
+        self._warned_other: Dict[str, str] = {}      # node name: the other URI the master gave it, warned once
+        self._adopted: Dict[str, ProcessNode] = {}
+        self._adopted_lock = threading.Lock()
         # the run of the master this node last registered everything with ('' when it has no /run_id)
         self._run_id: Optional[str] = None
         self._thread = threading.Thread(target=self._run, name='temoto-master-rejoin', daemon=True)
 
     def start(self) -> 'MasterRejoin':
         try:
-            self._run_id = self._ask()[1]      # the master this node registered with at start
+            self._run_id = self._ask([])[1]    # the master this node registered with at start
         except XMLRPC_ERRORS:
             pass                               # no master now: the first check learns its run
         self._thread.start()
@@ -71,60 +125,102 @@ class MasterRejoin:
             except XMLRPC_ERRORS as err:      # the master went away mid-way: the next period tries again
                 rospy.logdebug('%s: registering again with %s failed: %s', self._caller_id, self._master_uri, err)
 
+    def adopt(self, node: ProcessNode) -> None:
+        """Register ``node`` again too whenever the master does not know it or is a new run."""
+        with self._adopted_lock:
+            self._adopted[node.name] = node
+
     def check(self) -> bool:
-        """Register again if the master does not know this node, or is a new run; True when it did. Raises
-        an XML-RPC or socket error when the master stops answering half-way."""
+        """Register again if the master does not know this node (or an adopted one), or is a new run; True
+        when it did. Raises an XML-RPC or socket error when the master stops answering half-way."""
         own_uri = rospy.get_node_uri()
         if not own_uri or not rospy.core.is_initialized():
             return False                      # rospy is still registering for the first time
+        with self._adopted_lock:
+            adopted = list(self._adopted.values())
         try:
-            known, run_id = self._ask()
+            known, run_id, adopted_known = self._ask(adopted)
         except XMLRPC_ERRORS:
             return False                      # no master (yet): nothing to register with
         new_run = bool(run_id) and self._run_id is not None and run_id != self._run_id
-        if known is not None and known != own_uri:
-            # another process took this node's name at the new master: registering would shut it down
-            if self._warned_other != known:
-                self._warned_other = known
-                rospy.logwarn('%s: the master names another node %s at %s; not registering again',
-                              self._caller_id, self._caller_id, known)
-            return False
-        if known == own_uri and not new_run:
-            if self._run_id is None or run_id:
-                self._run_id = run_id
-            return False
-        self._register_all(own_uri, new_run and known == own_uri)
-        self._run_id = run_id                 # only once everything is registered: a half-done pass is redone
-        return True
+        registered = False
+        if self._may_register(self._caller_id, own_uri, known) and (known != own_uri or new_run):
+            self._register(self._caller_id, own_uri, self._own_registrations(), new_run and known == own_uri)
+            registered = True
+        for node in adopted:
+            if self._may_register(node.name, node.uri, adopted_known[node.name]) and (
+                    adopted_known[node.name] != node.uri or new_run):
+                registrations = self._node_registrations(node)
+                if registrations is not None:
+                    self._register(node.name, node.uri, registrations, new_run and adopted_known[node.name] == node.uri)
+                    registered = True
+        # reached only when every registration was made: a pass that raised half-way is redone at the next period
+        if registered or run_id or self._run_id is None:
+            self._run_id = run_id
+        return registered
 
-    def _ask(self) -> Tuple[Optional[str], str]:
-        """(this node's URI at the master or None, the master's /run_id or '') in one round trip."""
+    def _may_register(self, name: str, uri: str, known: Optional[str]) -> bool:
+        """False when the master names another process ``name``: registering would shut that process down."""
+        if known is None or known == uri:
+            return True
+        if self._warned_other.get(name) != known:
+            self._warned_other[name] = known
+            rospy.logwarn('%s: the master names another node %s at %s; not registering it again',
+                          self._caller_id, name, known)
+        return False
+
+    def _ask(self, adopted: List[ProcessNode]) -> Tuple[Optional[str], str, Dict[str, Optional[str]]]:
+        """(this node's URI at the master or None, the master's /run_id or '', each adopted node's URI at the
+        master or None) in one round trip."""
         calls = xmlrpc.client.MultiCall(proxy(self._master_uri, self.timeout))
         calls.lookupNode(self._caller_id, self._caller_id)
         calls.getParam(self._caller_id, '/run_id')
-        (code, _, uri), (run_code, _, run_id) = tuple(calls())
-        return (uri if code == 1 else None), (str(run_id) if run_code == 1 else '')
+        for node in adopted:
+            calls.lookupNode(self._caller_id, node.name)
+        answers = tuple(calls())
+        (code, _, uri), (run_code, _, run_id) = answers[:2]
+        known = {node.name: (value if node_code == 1 else None)
+                 for node, (node_code, _, value) in zip(adopted, answers[2:])}
+        return (uri if code == 1 else None), (str(run_id) if run_code == 1 else ''), known
 
-    def _register_all(self, own_uri: str, partly_known: bool) -> None:
+    @staticmethod
+    def _own_registrations() -> Registrations:
         topics = rospy.impl.registration.get_topic_manager()
         services = rospy.impl.registration.get_service_manager()
+        return list(topics.get_publications()), list(topics.get_subscriptions()), list(services.get_services())
+
+    def _node_registrations(self, node: ProcessNode) -> Optional[Registrations]:
+        """An adopted node's topics, from its own API now (RViz subscribes and unsubscribes as displays come
+        and go), and its services as adopted; None when it does not answer."""
+        api = proxy(node.uri, self.timeout)
+        try:
+            publications = self._ok(api.getPublications(self._caller_id), 'the publications of', node.name)
+            subscriptions = self._ok(api.getSubscriptions(self._caller_id), 'the subscriptions of', node.name)
+        except XMLRPC_ERRORS as err:
+            # a node of this very process that does not answer is shutting down with it: registering the
+            # rest must not wait for it (the pass would be redone, this node's registrations with it, forever)
+            rospy.logwarn('%s: %s (of this process) did not say what it registers: %s', self._caller_id,
+                          node.name, err)
+            return None
+        return ([tuple(p) for p in publications or []], [tuple(s) for s in subscriptions or []],
+                list(node.services))
+
+    def _register(self, name: str, uri: str, registrations: Registrations, partly_known: bool) -> None:
+        publications, subscriptions, offered = registrations
         master = proxy(self._master_uri, self.timeout)
-        node = proxy(own_uri, self.timeout)
-        publications, subscriptions = topics.get_publications(), topics.get_subscriptions()
-        offered = services.get_services()
+        node = proxy(uri, self.timeout)
         for topic, msg_type in publications:
-            self._ok(master.registerPublisher(self._caller_id, topic, msg_type, own_uri), 'publisher', topic)
+            self._ok(master.registerPublisher(name, topic, msg_type, uri), 'publisher', topic)
         for topic, msg_type in subscriptions:
-            publishers = self._ok(master.registerSubscriber(self._caller_id, topic, msg_type, own_uri),
-                                  'subscriber', topic)
+            publishers = self._ok(master.registerSubscriber(name, topic, msg_type, uri), 'subscriber', topic)
             if publishers:
                 node.publisherUpdate(MASTER_CALLER_ID, topic, publishers)
         for service, service_uri in offered:
-            self._ok(master.registerService(self._caller_id, service, service_uri, own_uri), 'service', service)
+            self._ok(master.registerService(name, service, service_uri, uri), 'service', service)
         rospy.logwarn('%s: the master at %s %s (it restarted): registered %d publisher(s), %d subscriber(s) and '
-                      '%d service(s) again', self._caller_id, self._master_uri,
-                      'is a new run that knew only part of this node' if partly_known else 'did not know this node',
-                      len(publications), len(subscriptions), len(offered))
+                      '%d service(s) of %s again', self._caller_id, self._master_uri,
+                      'is a new run that knew only part of %s' % name if partly_known else 'did not know %s' % name,
+                      len(publications), len(subscriptions), len(offered), name)
 
     def _ok(self, answer, kind: str, name: str):
         code, message, value = answer

@@ -18,7 +18,7 @@ from typing import Optional
 
 import rospy
 from std_msgs.msg import Header
-from temoto_core import tcpros_accept
+from temoto_core import master_rejoin, tcpros_accept
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import after_init_node
 
@@ -178,6 +178,7 @@ def _probe(topic: str, on_message):
 
 STARTUP_FRAMES = 3              # rendered frames before the host offers its services
 STARTUP_RENDER_TIMEOUT = 20.0
+LIBRVIZ_NODE_PREFIX = 'rviz_'     # librviz's ros::init names its roscpp node 'rviz', made anonymous: rviz_<number>
 
 
 def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bool:
@@ -211,6 +212,27 @@ def _robots(value) -> list:
         return robots_from_names(str(value or ''))
     except ValueError as err:
         raise SystemExit('~robots: %s' % err)
+
+
+def _adopt_librviz_node() -> None:
+    """librviz's roscpp node carries the robot's transforms (and every display's data) to the screen, and
+    roscpp never registers again with a master that restarted: after the robot's reboot RViz would not hear
+    the new robot's /tf, and every display in its frames would lose its transform while listed as shown. The
+    master check registers it again with this node (temoto_core/master_rejoin.py)."""
+    rejoin = master_rejoin.ensure_started()
+    if rejoin is None:
+        return                           # ~master_check_period 0: the user turned the check off
+    try:
+        nodes = master_rejoin.find_process_nodes(LIBRVIZ_NODE_PREFIX)
+    except master_rejoin.XMLRPC_ERRORS as err:
+        raise SystemExit('the master did not say which node librviz started: %s' % err)
+    if not nodes:
+        raise SystemExit("the master knows no node '%s*' of this process: librviz's roscpp node could not be "
+                         'registered again after a restart of the master' % LIBRVIZ_NODE_PREFIX)
+    for node in nodes:
+        rejoin.adopt(node)
+        rospy.loginfo('librviz runs roscpp node %s; registered again with a new master along with this one',
+                      node.name)
 
 
 def main(argv=None) -> int:
@@ -266,6 +288,7 @@ def main(argv=None) -> int:
         # only shuts roscpp down and leaves Qt running: a host then ignored SIGINT until SIGKILL. Ours again.
         signal.signal(signal.SIGINT, request_stop)
         signal.signal(signal.SIGTERM, request_stop)
+        _adopt_librviz_node()
         # Offer the services only once RViz has rendered: under CPU load Mesa's llvmpipe (22.3) now and then
         # segfaults in the first frames (about 1 start in 15 with both cores busy). A host that dies there never
         # looked ready, so the Output Manager sees a failed start it can retry, not a display lost just after add.

@@ -85,6 +85,52 @@ def test_a_node_with_no_registrar_outlives_its_master_and_registers_again(own_ma
     wait_for(lambda: registered(master, node) == before, HANG, 'every registration of %s back' % which)
 
 
+def librviz_node(master, host_proc):
+    """The roscpp node librviz started inside the host's process, as the master knows it now."""
+    publishers, subscribers, services = system_state(master)
+    names = {n for _, nodes in publishers + subscribers + services for n in nodes if '/rviz_' in n
+             and not n.endswith('/rviz_host_rejoin')}
+    found = []
+    for name in names:
+        code, _, uri = proxy(master.uri, 2.0).lookupNode('/test_master_rejoin', name)
+        if code == 1 and proxy(uri, 2.0).getPid('/test_master_rejoin')[2] == host_proc.pid:
+            found.append((name, uri))
+    return found
+
+
+def connected_publishers(node_uri, topic):
+    """The nodes a node receives ``topic`` from, by its own bus information: connections, not registrations."""
+    code, _, bus = proxy(node_uri, 2.0).getBusInfo('/test_master_rejoin')
+    assert code == 1
+    # roscpp's rows: (id, destination URI or node, direction, transport, topic, connected, ...)
+    return {row[1] for row in bus if row[4] == topic and row[2] == 'i' and row[5]}
+
+
+def test_the_rviz_hosts_own_roscpp_node_hears_the_returned_robots_transforms(own_master):
+    """librviz runs a roscpp node of its own in the host, and roscpp never registers again: after the robot
+    (and the master on it) rebooted, RViz never heard the new robot's /tf, and every display in its frames
+    lost its transform while the host still listed it as shown. The host adopts that node, and its master
+    check registers it again: the transforms published after the return reach it."""
+    master, procs = own_master
+    package, script, params, last_service = NO_REGISTRAR['rviz_host']
+    proc = procs.node(package, script, name='rviz_host_rejoin', namespace='temoto', params=params)
+    wait_for(lambda: '/temoto/rviz_host_rejoin/list_displays' in registered(master, '/temoto/rviz_host_rejoin')[2]
+             or not proc.alive(), 30, 'the RViz host to offer its services')
+    assert proc.alive(), proc.log(40)
+    [(name, uri)] = librviz_node(master, proc)
+    before = registered(master, name)
+    assert {'/tf', '/tf_static'} <= before[1], before
+    master.stop()
+    master.start()
+    wait_for(lambda: registered(master, name) == before, HANG, 'every registration of %s back' % name)
+    procs.node('temoto_test_nodes', 'tf_talker', name='robot_tf_after_reboot')
+    talker_uri = lambda: proxy(master.uri, 2.0).lookupNode('/test_master_rejoin', '/robot_tf_after_reboot')[2]
+    wait_for(lambda: talker_uri() in connected_publishers(uri, '/tf'), HANG,
+             "librviz's node to receive /tf from a publisher that started after the master's restart")
+    assert 'registered 0 publisher' not in proc.log(200)
+    assert "librviz runs roscpp node %s" % name in proc.log(200), proc.log(40)
+
+
 def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
     _, procs = own_master
     proc = procs.node('temoto_test_nodes', 'rr_node', name='rr_bad_period', params={'master_check_period': -1})
