@@ -23,16 +23,19 @@ A process may hold a second node that rospy knows nothing of: librviz starts a r
 (``/rviz_<number>``) in the RViz host, whose subscriptions carry the robot's transforms to the operator's
 screen. roscpp never registers again, so after the robot's reboot RViz never heard the new robot's ``/tf``:
 every display in the robot's frames lost its transform while the host still listed it as shown. Such a
-node is *adopted* (:func:`find_process_nodes`, :meth:`MasterRejoin.adopt`): its topics are read from its own
-XML-RPC API at the time they are registered again, its services are learnt once when it is adopted.
+node is *adopted* (:func:`nodes_of_processes`, :meth:`MasterRejoin.adopt`): its topics are read from its own
+XML-RPC API at the time they are registered again, its services are learnt once when it is adopted. The
+ER Manager adopts the nodes of the processes it runs the same way (a roscpp throttle on the station of a
+robot's topic would go quiet otherwise), and disowns each when its process exits.
 """
 import dataclasses
 import http.client
-import os
 import threading
+import urllib.parse
 import xmlrpc.client
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Iterable, List, Optional, Tuple
 
+import psutil
 import rosgraph
 import rospy
 import rospy.impl.registration
@@ -57,36 +60,58 @@ class ProcessNode:
     services: Tuple[Tuple[str, str], ...] = ()
 
 
-def find_process_nodes(prefix: str, timeout: float = CALL_TIMEOUT, pid: Optional[int] = None) -> List[ProcessNode]:
-    """The nodes this process (or ``pid``) runs besides rospy's whose base name starts with ``prefix``, as the
-    master knows them now. Only nodes so named are asked their pid: a stopped process elsewhere would make
-    each question to it last its timeout. Raises an XML-RPC or socket error when the master does not answer."""
-    pid = os.getpid() if pid is None else pid
-    caller_id = rospy.get_name()
-    master = proxy(rosgraph.get_master_uri(), timeout)
-    code, message, (publishers, subscribers, services) = master.getSystemState(caller_id)
+def nodes_of_processes(pids: Iterable[int], timeout: float = CALL_TIMEOUT) -> List[ProcessNode]:
+    """The nodes the processes ``pids`` serve, as the master knows them now, this process's rospy node left
+    out: a node whose XML-RPC address is a port one of them listens on, on this node's host. Nothing is
+    asked of the nodes themselves (a stopped process would make each question last its timeout), and a name
+    needs no guessing (librviz's and roscpp's anonymous nodes). Raises an XML-RPC or socket error when the
+    master does not answer."""
+    ports = _listening_ports(pids)
+    if not ports:
+        return []
+    own_host = urllib.parse.urlsplit(rospy.get_node_uri() or '').hostname
+    state = system_state(timeout)
+    names = sorted({node for _, nodes in state[0] + state[1] + state[2] for node in nodes} - {rospy.get_name()})
+    calls = xmlrpc.client.MultiCall(proxy(rosgraph.get_master_uri(), timeout))
+    for name in names:
+        calls.lookupNode(rospy.get_name(), name)
+    found = []
+    for name, (code, _, uri) in zip(names, tuple(calls()) if names else ()):
+        address = urllib.parse.urlsplit(uri) if code == 1 else None
+        if address is not None and address.hostname == own_host and address.port in ports:
+            found.append(ProcessNode(name, uri, _services_of(name, state, timeout)))
+    return found
+
+
+def _listening_ports(pids: Iterable[int]) -> set:
+    ports = set()
+    for pid in pids:
+        try:
+            ports.update(c.laddr.port for c in psutil.Process(pid).net_connections('tcp')
+                         if c.status == psutil.CONN_LISTEN)
+        except psutil.Error:
+            continue                          # gone: it serves nothing
+    return ports
+
+
+def _services_of(name: str, state: list, timeout: float) -> Tuple[Tuple[str, str], ...]:
+    """(service, rosrpc URI) of every service node ``name`` offers, per the master's system state."""
+    services = sorted(s for s, nodes in state[2] if name in nodes)
+    if not services:
+        return ()
+    calls = xmlrpc.client.MultiCall(proxy(rosgraph.get_master_uri(), timeout))
+    for service in services:
+        calls.lookupService(rospy.get_name(), service)
+    return tuple((service, uri) for service, (code, _, uri) in zip(services, tuple(calls())) if code == 1)
+
+
+def system_state(timeout: float = CALL_TIMEOUT) -> list:
+    """The master's [publishers, subscribers, services]. Raises an XML-RPC or socket error when it does not
+    answer, or refuses."""
+    code, message, state = proxy(rosgraph.get_master_uri(), timeout).getSystemState(rospy.get_name())
     if code != 1:
         raise xmlrpc.client.Fault(code, 'getSystemState: %s' % message)
-    names = sorted({node for _, nodes in publishers + subscribers + services for node in nodes
-                    if node.rsplit('/', 1)[-1].startswith(prefix) and node != caller_id})
-    found = []
-    for name in names:
-        code, _, uri = master.lookupNode(caller_id, name)
-        if code != 1:
-            continue
-        try:
-            code, _, node_pid = proxy(uri, timeout).getPid(caller_id)
-        except XMLRPC_ERRORS:
-            continue                          # gone, or not answering: not a node of this live process
-        if code != 1 or node_pid != pid:
-            continue
-        offered = []
-        for service in sorted(s for s, nodes in services if name in nodes):
-            code, _, service_uri = master.lookupService(caller_id, service)
-            if code == 1:
-                offered.append((service, service_uri))
-        found.append(ProcessNode(name, uri, tuple(offered)))
-    return found
+    return state
 
 
 class MasterRejoin:
@@ -129,6 +154,11 @@ class MasterRejoin:
         """Register ``node`` again too whenever the master does not know it or is a new run."""
         with self._adopted_lock:
             self._adopted[node.name] = node
+
+    def disown(self, name: str) -> None:
+        """No longer speak for node ``name`` (its process is gone: registering it would bring it back)."""
+        with self._adopted_lock:
+            self._adopted.pop(name, None)
 
     def check(self) -> bool:
         """Register again if the master does not know this node (or an adopted one), or is a new run; True
@@ -196,11 +226,14 @@ class MasterRejoin:
         try:
             publications = self._ok(api.getPublications(self._caller_id), 'the publications of', node.name)
             subscriptions = self._ok(api.getSubscriptions(self._caller_id), 'the subscriptions of', node.name)
+        except ConnectionRefusedError:
+            # nobody listens at its address: its process is gone, and registering it would bring it back
+            rospy.logwarn('%s: %s is gone; no longer registering it again', self._caller_id, node.name)
+            self.disown(node.name)
+            return None
         except XMLRPC_ERRORS as err:
-            # a node of this very process that does not answer is shutting down with it: registering the
-            # rest must not wait for it (the pass would be redone, this node's registrations with it, forever)
-            rospy.logwarn('%s: %s (of this process) did not say what it registers: %s', self._caller_id,
-                          node.name, err)
+            # stopped or busy: the rest is registered now, this one at the next new run
+            rospy.logwarn('%s: %s did not say what it registers: %s', self._caller_id, node.name, err)
             return None
         return ([tuple(p) for p in publications or []], [tuple(s) for s in subscriptions or []],
                 list(node.services))
@@ -231,19 +264,21 @@ class MasterRejoin:
 
 
 _started: Optional[MasterRejoin] = None
+_decided = False                  # the parameter was read: a check that is off is not asked for again
 _start_lock = threading.Lock()
 
 
 def ensure_started() -> Optional[MasterRejoin]:
     """This process's watch, started on the first call with ``~master_check_period`` (s; 0 turns it off);
-    None when off. Raises ValueError naming the parameter when it is not a number of seconds."""
-    global _started
+    None when off. Raises ValueError naming the parameter when it is not a number of seconds. Only the first
+    call asks the master (later ones may come while it is down)."""
+    global _started, _decided
     with _start_lock:
-        if _started is None:
+        if not _decided:
             period = rospy.get_param('~master_check_period', DEFAULT_PERIOD)
             if isinstance(period, bool) or not isinstance(period, (int, float)) or period < 0:
                 raise ValueError('master_check_period %r: it must be a number of seconds, 0 for off' % (period,))
-            if period == 0:
-                return None
-            _started = MasterRejoin(float(period)).start()
+            if period > 0:
+                _started = MasterRejoin(float(period)).start()
+            _decided = True
         return _started

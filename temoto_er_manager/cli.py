@@ -35,7 +35,7 @@ def process_rows(registry: dict, processes: dict) -> list[dict]:
     for p in processes.get('processes', []):
         if p['state'] == 'exited':
             continue
-        rows.append({'pid': p['pid'], 'pids': p.get('pids') or [p['pid']], 'nodes': p.get('node_names', []),
+        rows.append({'pid': p['pid'], 'pids': p.get('pids') or [p['pid']], 'nodes': p.get('node_names') or p.get('nodes', []),
                      'uptime': p['uptime'], 'consumers': consumers.get(p['pid'], 0),
                      'state': p['state'], 'resource': p['label'], 'resource_id': p.get('resource_id'),
                      'log_path': p['log_path'], 'command': p['command']})

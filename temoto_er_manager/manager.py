@@ -25,7 +25,7 @@ import json
 import os
 import threading
 import time
-from typing import Optional
+from typing import List, Optional
 
 import psutil
 import rosgraph
@@ -37,7 +37,7 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_core.rr import ResourceRegistrar
 from temoto_core.rr.registrar import journal_param
 
-from temoto_core import master_lookup as master
+from temoto_core import master_lookup as master, master_rejoin
 from temoto_core.process_group import start_ticks
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as NAME
 from .policy import ERConfig, RequestRefused, validate_request
@@ -165,6 +165,7 @@ class ERManager:
         self.rr.put_owner_state(PROCESS_KEY % rid, json.dumps(_record_of(resource)))
         rospy.loginfo('%s: started %s for %s: pid %s, log %s', NAME, plan.label, client,
                       ', '.join(str(p.pid) for p in resource.procs), plan.log_path)
+        self._speak_for_nodes(resource.procs)
 
     def _set_params(self, plan) -> None:
         if not plan.params and not plan.clear_params:
@@ -319,6 +320,43 @@ class ERManager:
             self._resources[rid] = resource
         rospy.loginfo('%s: adopted %s (pid %s) after a restart', NAME, resource.label,
                       ', '.join(str(p.pid) for p in procs))
+        self._speak_for_nodes(procs)
+
+    def _speak_for_nodes(self, procs: list) -> None:
+        """Have this node's master check register the ROS nodes of ``procs`` again with a master that
+        restarted (the robot host rebooted, and this manager is on the station): a node registers only when it
+        starts, and a roscpp program (a throttle of a robot's topic) never again, so its subscriptions would go
+        quiet with no error anywhere. Done in the background: the master is asked what each node offers."""
+        rejoin = master_rejoin.ensure_started()
+        if rejoin is not None and procs:
+            threading.Thread(target=self._find_nodes, args=(rejoin, list(procs)), name='er-speak-for-nodes',
+                             daemon=True).start()
+
+    def _find_nodes(self, rejoin: master_rejoin.MasterRejoin, procs: list) -> None:
+        """Each process's nodes, found by the ports it listens on (a program's node may be anonymous: a
+        throttle's is). A plain executable may register its node after it counted as started, so it is looked
+        for until its registration bound; one that registers none is not a ROS node."""
+        for proc in procs:
+            deadline = time.monotonic() + self.config.registration_timeout
+            delay = self.config.ready_poll_interval
+            while True:
+                try:
+                    nodes = master_rejoin.nodes_of_processes([proc.pid, *_descendants(proc.pid)])
+                except master_rejoin.XMLRPC_ERRORS as err:
+                    rospy.logwarn('%s: could not learn the nodes of pid %d (%s): a restarted master will not get '
+                                  'them back until they start again', NAME, proc.pid, err)
+                    break
+                found = {node.name for node in nodes}
+                if not proc.alive or time.monotonic() >= deadline or (nodes and set(proc.spec.node_names) <= found):
+                    break
+                time.sleep(delay)             # the process is still registering: looked at again, less often
+                delay = min(2 * delay, 1.0)
+            proc.nodes = sorted(found)
+            for node in nodes:
+                rejoin.adopt(node)
+            if not proc.alive:                # exited meanwhile, perhaps after _on_exit disowned its nodes
+                for node in nodes:
+                    rejoin.disown(node.name)
 
     def _untold_children(self, known: set) -> list:
         """[(pid, start)] of the previous incarnations' children that their leash does not know: processes
@@ -368,6 +406,9 @@ class ERManager:
     # -- failures ----------------------------------------------------------------------------------
 
     def _on_exit(self, proc: ManagedProcess, info: ExitInfo) -> None:
+        rejoin = master_rejoin.ensure_started()
+        for name in proc.nodes if rejoin is not None else ():
+            rejoin.disown(name)               # registering it again would bring a dead node back to the master
         if proc.spec.node_names:
             # a node that died without unregistering would stay in `rosnode list` with its topics
             threading.Thread(target=self._cleanup_master, args=(list(proc.spec.node_names),),
@@ -435,6 +476,14 @@ def _record_of(resource: Resource) -> dict:
             'processes': [{'pid': p.pid, 'start': start_ticks(p.pid), 'started': p.started, 'argv': p.spec.argv,
                            'label': p.spec.label, 'node_names': p.spec.node_names, 'log_path': p.spec.log_path}
                           for p in resource.procs]}
+
+
+def _descendants(pid: int) -> List[int]:
+    """A process's children, theirs, and so on (a node under a launch-prefix wrapper)."""
+    try:
+        return [child.pid for child in psutil.Process(pid).children(recursive=True)]
+    except psutil.Error:
+        return []
 
 
 def _tail(path: str, lines: int) -> str:

@@ -59,7 +59,8 @@ class Resource:
         return {
             'resource_id': self.resource_id, 'label': self.label, 'pid': self.pid,
             'pids': [p['pid'] for p in procs], 'command': self.plan.command, 'log_path': self.plan.log_path,
-            'node_names': [n for p in procs for n in p['node_names']], 'started': started,
+            'node_names': [n for p in procs for n in p['node_names']], 'nodes': [n for p in procs for n in p['nodes']],
+            'started': started,
             'uptime': end - started, 'state': self.state(),
             'returncode': failed.returncode if failed else None,
             'processes': procs,

@@ -49,7 +49,7 @@ import time
 from collections import deque
 from concurrent.futures import Future, TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, List, Optional
 
 from temoto_core import watchdog
 from temoto_core.process_group import group_members, popen_dying_with_this_thread, start_ticks
@@ -180,6 +180,9 @@ class ManagedProcess:
         self.stopping = False               # set before any stop signal: the exit is intentional
         self.exit_info: Optional[ExitInfo] = None
         self.cond = threading.Condition()
+        # the ROS nodes it serves, as found at the master by the ports it listens on (an anonymous node
+        # included): the ones a restarted master gets back from the ER Manager
+        self.nodes: List[str] = []
 
     @property
     def alive(self) -> bool:
@@ -200,7 +203,7 @@ class ManagedProcess:
             'log_path': self.spec.log_path, 'node_names': list(self.spec.node_names),
             'started': self.started, 'uptime': (info.when if info else time.time()) - self.started,
             'state': self.state, 'returncode': info.returncode if info else None,
-            'preloaded': self.zygote is not None, 'adopted': self.adopted,
+            'preloaded': self.zygote is not None, 'adopted': self.adopted, 'nodes': list(self.nodes),
         }
 
 

@@ -178,7 +178,6 @@ def _probe(topic: str, on_message):
 
 STARTUP_FRAMES = 3              # rendered frames before the host offers its services
 STARTUP_RENDER_TIMEOUT = 20.0
-LIBRVIZ_NODE_PREFIX = 'rviz_'     # librviz's ros::init names its roscpp node 'rviz', made anonymous: rviz_<number>
 
 
 def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bool:
@@ -223,12 +222,12 @@ def _adopt_librviz_node() -> None:
     if rejoin is None:
         return                           # ~master_check_period 0: the user turned the check off
     try:
-        nodes = master_rejoin.find_process_nodes(LIBRVIZ_NODE_PREFIX)
+        nodes = master_rejoin.nodes_of_processes([os.getpid()])
     except master_rejoin.XMLRPC_ERRORS as err:
         raise SystemExit('the master did not say which node librviz started: %s' % err)
     if not nodes:
-        raise SystemExit("the master knows no node '%s*' of this process: librviz's roscpp node could not be "
-                         'registered again after a restart of the master' % LIBRVIZ_NODE_PREFIX)
+        raise SystemExit("the master knows no other node of this process: librviz's roscpp node could not be "
+                         'registered again after a restart of the master')
     for node in nodes:
         rejoin.adopt(node)
         rospy.loginfo('librviz runs roscpp node %s; registered again with a new master along with this one',

@@ -3,7 +3,13 @@
 
 Across two hosts, with the robot's return, in test_two_hosts.py.
 """
+import json
+import os
+import subprocess
+
 import pytest
+
+from temoto_core import control_socket
 
 from temoto_core.master import RosMaster, free_port
 from temoto_core.processes import ProcessGroupLauncher
@@ -129,6 +135,56 @@ def test_the_rviz_hosts_own_roscpp_node_hears_the_returned_robots_transforms(own
              "librviz's node to receive /tf from a publisher that started after the master's restart")
     assert 'registered 0 publisher' not in proc.log(200)
     assert "librviz runs roscpp node %s" % name in proc.log(200), proc.log(40)
+
+
+def nodes_of_pid(master, pid):
+    """(name, URI) of the nodes process ``pid`` serves, as the master knows them."""
+    publishers, subscribers, services = system_state(master)
+    found = []
+    for name in {n for _, nodes in publishers + subscribers + services for n in nodes}:
+        code, _, uri = proxy(master.uri, 2.0).lookupNode('/test_master_rejoin', name)
+        try:
+            if code == 1 and proxy(uri, 2.0).getPid('/test_master_rejoin')[2] == pid:
+                found.append((name, uri))
+        except OSError:
+            continue                   # a node that died: not ours
+    return found
+
+
+def er_nodes(master, pid):
+    """The nodes `temoto ps` says process ``pid`` serves (the ER Manager's own account, through the CLI)."""
+    out = subprocess.run(['temoto', 'ps', '--json'], env=master.env, capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    return [n for row in json.loads(out.stdout) if pid in row['pids'] for n in row['nodes']]
+
+
+def test_a_roscpp_program_the_er_manager_runs_hears_a_topic_published_after_the_masters_restart(own_master):
+    """A throttle on the station of a robot's topic (topic_tools, roscpp: its node is anonymous and never
+    registers again). After the robot's reboot it heard nothing more, with no error anywhere. The ER
+    Manager finds the nodes of what it runs by the ports they listen on, and its master check registers them
+    again."""
+    master, procs = own_master
+    procs.node('temoto_er_manager', 'temoto_er_manager', namespace='temoto',
+               params={'sys_allowlist': '[/usr/lib/topic_tools/throttle]', 'log_dir': str(procs.workdir)})
+    sock = str(procs.workdir) + '/client.sock'
+    procs.node('temoto_chaos', 'chaos_client', name='rejoin_client',
+               params={'control_socket': sock, 'temoto_namespace': 'temoto'})
+    wait_for(lambda: os.path.exists(sock), HANG, "the client's control socket")
+    loaded = control_socket.ask(sock, {'op': 'load_process', 'topic': '/rejoin/status_out', 'rate': 5}, 30)
+    assert loaded['ok'], loaded
+    [(name, uri)] = wait_for(lambda: nodes_of_pid(master, loaded['pid']), HANG, "the throttle's node")
+    before = registered(master, name)
+    assert '/rejoin/status_out' in before[1], before    # its output is advertised at its first message
+    wait_for(lambda: name in er_nodes(master, loaded['pid']), HANG, 'the ER Manager to find the node of its child')
+    master.stop()
+    master.start()
+    wait_for(lambda: registered(master, name) == before, HANG, 'every registration of %s back' % name)
+    procs.node('temoto_test_nodes', 'talker', name='talker_after_reboot', namespace='rejoin')
+    talker_uri = lambda: proxy(master.uri, 2.0).lookupNode('/test_master_rejoin', '/rejoin/talker_after_reboot')[2]
+    wait_for(lambda: talker_uri() in connected_publishers(uri, '/rejoin/status_out'), HANG,
+             'the throttle to receive a topic whose publisher started after the master restarted')
+    wait_for(lambda: '/rejoin/status_out_throttled' in registered(master, name)[0], HANG,
+             'the throttle to pass on what it receives')
 
 
 def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
