@@ -1,5 +1,6 @@
 """A node outlives its master: the new master at the same address gets the node's registrations back
-(temoto_core/master_rejoin.py). Real roscore, restarted on its port; a real registrar node.
+(temoto_core/master_rejoin.py), and what needs the master while it is away says so. Real roscore, stopped
+and restarted on its port; real registrar nodes.
 
 Across two hosts, with the robot's return, in test_two_hosts.py.
 """
@@ -214,3 +215,30 @@ def test_a_new_master_that_learnt_one_registration_first_gets_all_the_others(own
     publishers, subscribers, services = registered(master, '/rr_partial')
     assert (publishers, subscribers, services) == (before[0] | {'/rr_partial/late'}, before[1], before[2])
     assert node.command(op='rejoin') == {'registered': False}         # once is enough
+
+
+def test_a_load_that_needs_a_new_status_channel_while_the_master_is_away_is_refused_at_once_naming_it(own_master):
+    """rospy registers a new publisher in a loop that lasts until the master answers: a consumer's first
+    load while the master was away (the robot rebooting) held the owner until the caller's deadline, and the
+    caller heard of a deadline, not of the master. The load is refused at once, naming the master, and
+    changes nothing; once the master is back the same load is served."""
+    master, procs = own_master
+    owner = RegistrarNode(procs, 'rr_owner', control_socket=str(procs.workdir) + '/owner.sock')
+    consumer = RegistrarNode(procs, 'rr_consumer', control_socket=str(procs.workdir) + '/consumer.sock')
+    first = consumer.call('rr_owner', 'warm')          # the consumer learns where the owner's services are
+    assert 'id' in first, first
+    assert consumer.unload(first['id']) == {}
+    # the owner closes the consumer's unused status channel after its grace
+    wait_for(lambda: '/temoto/rr_consumer/status' not in registered(master, '/rr_owner')[0], 30,
+             "the owner to close the consumer's idle status channel")
+    owner_before = registered(master, '/rr_owner')
+    master.stop()
+    refused = consumer.command(op='call', rr='rr_owner', name='while_away', deadline=20.0)
+    assert 'does not answer' in refused.get('error', '') and master.uri.split('//')[1].rstrip('/') in \
+        refused['error'], refused
+    assert owner.registry()['server_queries'] == []
+    assert 'while_away' not in owner.counts()['loads']
+    master.start()
+    wait_for(lambda: registered(master, '/rr_owner') == owner_before, HANG, 'the owner to register again')
+    served = consumer.call('rr_owner', 'while_away')
+    assert 'id' in served and owner.counts()['loads'].get('while_away') == 1, served

@@ -6,14 +6,22 @@ publisher sends before its first subscriber connects, so a channel is connected
 moment after finds someone to go to. Channels are counted, so the publisher of a
 consumer that has gone (an action that ended) is unregistered after a grace
 instead of kept for the life of the manager.
+
+A new channel needs the master. rospy registers a new publisher in a loop that lasts until the master
+answers, under its topic manager's lock: a channel made while the master is away (the robot's reboot, a
+cut link to the robot that runs it) held its load until its caller's deadline, with a reason that did not
+name the master, and it held every other status of this registrar behind it. So a load asks the master
+first (a TCP connect, 0.2 s at most) and is refused at once, naming the master, when it does not answer;
+and no channel is ever made under the lock that sending a status takes.
 """
 import threading
 import time
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import rospy
 
 from temoto_core.errors import ErrorFrame
+from temoto_core.master_reach import MasterReach
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr.query import Consumer
 
@@ -23,9 +31,13 @@ from temoto_core.rr.query import Consumer
 CHANNEL_GRACE = 5.0
 
 
+class MasterAway(Exception):
+    """A new status channel could not be registered: the master does not answer."""
+
+
 class StatusChannels:
     def __init__(self, namespace: str, rr_name: str, prefix: str, connect_timeout: float,
-                 incarnation: int = 0) -> None:
+                 incarnation: int = 0, master_reach: Optional[MasterReach] = None) -> None:
         self._incarnation = incarnation      # sent with every status: receivers drop older incarnations'
         self._namespace = namespace
         self._rr_name = rr_name
@@ -33,6 +45,8 @@ class StatusChannels:
         self._connect_timeout = connect_timeout
         self._lock = threading.Lock()
         self._publishers: Dict[str, rospy.Publisher] = {}
+        self._making: Dict[str, threading.Event] = {}     # status topic -> set once its publisher is made
+        self._master_reach = master_reach
         self._users: Dict[str, int] = {}     # status topic -> consumers (and loads in flight) using it
         self._idle: Dict[str, float] = {}    # status topic -> when its last user left
 
@@ -52,19 +66,43 @@ class StatusChannels:
                           external_id, consumer.status_topic, err)
 
     def _publisher(self, topic: str) -> rospy.Publisher:
-        with self._lock:
-            pub = self._publishers.get(topic)
-            if pub is None:
-                pub = self._publishers[topic] = rospy.Publisher(topic, ResourceStatus, queue_size=1000,
-                                                                tcp_nodelay=True)
+        """The channel's publisher, made by one thread while the others wait for it. It is made outside the
+        lock: rospy may hold the making thread until the master answers, and a status on another channel
+        must not wait for that."""
+        while True:
+            with self._lock:
+                pub = self._publishers.get(topic)
+                if pub is not None:
+                    return pub
+                making = self._making.get(topic)
+                if making is None:
+                    making = self._making[topic] = threading.Event()
+                    break
+            making.wait()                     # made by another thread now; looked up again (it may have failed)
+        try:
+            pub = rospy.Publisher(topic, ResourceStatus, queue_size=1000, tcp_nodelay=True)
+            with self._lock:
+                self._publishers[topic] = pub
             return pub
+        finally:
+            with self._lock:
+                del self._making[topic]
+            making.set()
 
-    def acquire(self, topic: str) -> None:
+    def acquire(self, topic: str, master_needed: bool = False) -> None:
         """Count one more user of a consumer's status channel and make sure it is connected.
 
         The first request from a consumer waits (bounded) for the connection; later
-        requests find it open.
+        requests find it open. ``master_needed``: a channel not open yet is refused with
+        :class:`MasterAway`, naming the master, when the master does not answer now.
         """
+        if master_needed and topic and self._master_reach is not None:
+            with self._lock:
+                opened = topic in self._publishers
+            if not opened and not self._master_reach.probe():
+                raise MasterAway('the master at %s:%d does not answer, so the status channel %s cannot be '
+                                 'registered and no status would reach this consumer'
+                                 % (self._master_reach.address + (topic,)))
         self.acquire_all([topic])
 
     def acquire_all(self, topics: List[str]) -> None:

@@ -32,6 +32,7 @@ import rospkg
 import rospy
 
 from temoto_core import master_rejoin, watchdog
+from temoto_core.master_reach import MasterReach
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.node import prime_log_parameter
 from temoto_core.msg import RMPRequest, ResourceStatus
@@ -123,7 +124,7 @@ class ResourceRegistrar:
         self.incarnation = core.incarnation
         self._links = Links()
         self._channels = StatusChannels(core.namespace, core.name, core.prefix, status_connect_timeout,
-                                        core.incarnation)
+                                        core.incarnation, MasterReach())
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)

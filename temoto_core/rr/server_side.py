@@ -12,7 +12,7 @@ import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.rr.channels import StatusChannels
+from temoto_core.rr.channels import MasterAway, StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.links import Links
 from temoto_core.rr.messages import STATUS_CODES, as_sent, legal_name, node_uri
@@ -51,7 +51,11 @@ class ServerSide:
         # The consumer's status channel is connected before it is attached to anything: a FAILED raised
         # the moment after it is attached must find a subscriber to go to. Every path below that does not
         # attach the consumer gives the channel back.
-        self._channels.acquire(consumer.status_topic)
+        try:
+            self._channels.acquire(consumer.status_topic, master_needed=True)
+        except MasterAway as err:
+            rospy.logwarn('%s: refused a load from %s: %s', core.prefix, consumer.client_name, err)
+            return failure_response(response, core.error(ErrorCode.RR_FAIL, str(err)))
         attached = False
         caller = (consumer.client_name, consumer.uri)
         with core.lock:
