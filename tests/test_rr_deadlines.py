@@ -279,6 +279,33 @@ def test_an_owner_uri_noticed_while_the_master_is_asked_is_not_overwritten_by_it
         watch.stop()
 
 
+def test_a_watch_that_starts_while_the_master_is_away_reaches_an_owner_it_has_met(rospy_client, monkeypatch):
+    """A consumer's watch of an owner ends when nothing is held from it. A call to that owner while the master
+    is away (the robot rebooting) started a new watch, which asked the master for the owner's address, got
+    none, pinged nothing, and lost the owner after the bound as "its host is cut off or down": the call was
+    cut though the owner was up (found with a stopped master, test_master_rejoin.py). The watch uses the
+    address it last met the owner at; an owner it never met is lost naming the master."""
+    core = RegistrarCore('rr_met', 'temoto', 0)
+    monkeypatch.setattr(owners.OwnerWatch, '_lookup', lambda self, node: '')     # the master does not answer
+    watch = owners.OwnerWatch(core, lambda node: False, lambda node: [], lambda *a: None, lambda *a: True,
+                              lambda registrar, quiet: True, period=0.05, bound=0.3, busy_bound=0.5)
+    try:
+        watch.notice('/met_owner', rospy.get_node_uri(), 0)      # a response named it (the owner: this node)
+        wait_for(lambda: '/met_owner' not in watch._owners, HANG, 'the watch to end: nothing is held')
+        owner = watch.calling('/met_owner', ('temoto', 'rr_owner'))
+        started = owner.last_ok
+        wait_for(lambda: owner.lost or owner.last_ok - started > 2 * watch.bound, HANG,
+                 'the owner to answer past the bound, or to be lost')
+        assert not owner.lost, owner.lost
+        stranger = watch.calling('/never_met', ('temoto', 'rr_stranger'))
+        wait_for(lambda: stranger.lost, HANG, 'an owner never met to be lost')
+        assert 'the master' in stranger.lost and 'does not name it' in stranger.lost, stranger.lost
+        watch.done_calling(owner, answered=True)
+        watch.done_calling(stranger, answered=True)
+    finally:
+        watch.stop()
+
+
 def test_a_pooled_connection_broken_while_sending_is_retried_not_raised(rospy_client, procs):
     """rospy raises TransportTerminated, which is not a ROSException, when the socket fails while a request is
     sent: a pooled connection to an owner that had died broke a chaos client's load with an exception that

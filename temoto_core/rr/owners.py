@@ -169,6 +169,9 @@ class OwnerWatch:
         self._me = rospy.get_name()
         self._owners: Dict[str, Owner] = {}
         self._node_of: Dict[Tuple[str, str], str] = {}     # registrar -> the node last found serving it
+        # node -> the URI it last answered at, or a response named: a watch that starts while the master is
+        # away (the robot rebooting) still reaches an owner it has met (the calls to it found its services)
+        self._last_uri: Dict[str, str] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
 
@@ -182,6 +185,8 @@ class OwnerWatch:
                     return               # an answer from an older incarnation: fenced
                 if uri and uri != owner.uri:
                     owner.uri, owner.last_ok, owner.lost, owner.refused_since = uri, time.monotonic(), '', None
+                if uri:
+                    self._last_uri[node] = uri
                 owner.incarnation = incarnation
                 owner.noticed += 1
 
@@ -272,9 +277,10 @@ class OwnerWatch:
             if not owner.uri:
                 looked_up = self._lookup(owner.node)
                 with self._lock:
-                    # a response may have named the URI while the master was asked: it is the newer word
+                    # a response may have named the URI while the master was asked: it is the newer word;
+                    # the master's is newer than the one last met, which serves while the master is away
                     if not owner.uri:
-                        owner.uri = looked_up
+                        owner.uri = looked_up or self._last_uri.get(owner.node, '')
             verdict = None
             if owner.uri:
                 silent = time.monotonic() - owner.last_ok
@@ -285,15 +291,19 @@ class OwnerWatch:
                                             (None, 0))
             now = time.monotonic()
             if verdict:
-                if owner.lost:             # back after a partition: what it holds for this side is checked
-                    with self._lock:
+                with self._lock:
+                    self._last_uri[owner.node] = owner.uri
+                    if owner.lost:         # back after a partition: what it holds for this side is checked
                         owner.suspect = True
                         owner.recheck_until = now + LATE_REQUEST_S
                 owner.last_ok, owner.refused_since, owner.lost = now, None, ''
                 self._settle(owner)
             elif verdict is None:
                 silent = now - owner.last_ok
-                if silent >= self.bound:
+                if silent >= self.bound and not owner.uri:
+                    self._lose(owner, 'no address for %s for %.1f s: the master (%s) does not name it, and this '
+                                      'node never met it' % (owner.node, silent, rosgraph.get_master_uri()))
+                elif silent >= self.bound:
                     if not _SHARED.get('accepts', owner.uri, self.period / 2,
                                        lambda: accepts(owner.uri, ACCEPT_TIMEOUT), ACCEPT_TIMEOUT + 0.1, True):
                         self._lose(owner, 'no answer from %s for %.1f s: its host is cut off or down'
