@@ -53,8 +53,9 @@ Registrations = Tuple[List[Tuple[str, str]], List[Tuple[str, str]], List[Tuple[s
 
 @dataclasses.dataclass(frozen=True)
 class ProcessNode:
-    """Another node of this process, which registers itself with the master once and never again (roscpp's
-    inside librviz): its name, its XML-RPC URI and its services, as (name, rosrpc URI)."""
+    """A node this one speaks for to a master that restarted, because it registers once and never again
+    (librviz's roscpp node in the RViz host; a node of a process the ER Manager runs): its name, its XML-RPC
+    URI and its services, as (name, rosrpc URI)."""
     name: str
     uri: str
     services: Tuple[Tuple[str, str], ...] = ()
