@@ -115,6 +115,20 @@ def system_state(timeout: float = CALL_TIMEOUT) -> list:
     return state
 
 
+def refresh_subscription(topic: str, msg_type: str, timeout: float = CALL_TIMEOUT) -> int:
+    """Ask the master again for the publishers of ``topic``, which this node subscribes to, and hand them to
+    rospy as the master's own update would: a publisher the master told this node of in an update that never
+    arrived (sent across a link that went down a moment later) is connected now. Returns how many publishers
+    the master names. Raises an XML-RPC or socket error when the master or this node does not answer."""
+    own_uri = rospy.get_node_uri()
+    code, message, publishers = proxy(rosgraph.get_master_uri(), timeout).registerSubscriber(
+        rospy.get_name(), topic, msg_type, own_uri)
+    if code != 1:
+        raise xmlrpc.client.Fault(code, 'registerSubscriber %s: %s' % (topic, message))
+    proxy(own_uri, timeout).publisherUpdate(MASTER_CALLER_ID, topic, publishers)
+    return len(publishers)
+
+
 class MasterRejoin:
     """Registers this process's node again with a master that does not know it (see the module docstring)."""
 

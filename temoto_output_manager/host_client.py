@@ -10,10 +10,10 @@ import threading
 import time
 from typing import Callable, List, Optional
 
-import rosgraph
 import rosgraph.network
 import rospy
 
+from temoto_core import service_uris
 from temoto_core.service_uris import ServiceProxy
 from temoto_output_manager.srv import (AddDisplay, ConfigureDisplay, ListDisplays, RemoveDisplay, Screenshot,
                                        SetView)
@@ -135,9 +135,11 @@ class RvizHostClient:
 
 
 def _service_answers(service: str, timeout: float) -> bool:
-    """True when ``service`` is registered and its server accepts a connection (the same probe as rospy's)."""
+    """True when ``service`` is registered and its server accepts a connection (the same probe as rospy's).
+    Found as every call of this client finds it: with the master away, at the address last known (a host
+    that runs was taken for one that never came up, and every display shown meanwhile failed so)."""
     try:
-        uri = rosgraph.Master(rospy.get_name()).lookupService(service)
+        uri = service_uris.lookup(service, time.monotonic() + timeout)
         host, port = rospy.core.parse_rosrpc_uri(uri)
     except Exception:           # not registered yet, master busy, or a malformed URI: not ready
         return False

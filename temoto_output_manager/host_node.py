@@ -16,11 +16,13 @@ import sys
 import time
 from typing import Optional
 
+import rosgraph
 import rospy
 from std_msgs.msg import Header
 from temoto_core import master_rejoin, tcpros_accept
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import after_init_node
+from temoto_core.xmlrpc_util import proxy
 
 from temoto_output_manager.msg import DisplayEvent, DisplayInfo
 from temoto_output_manager.srv import (AddDisplay, AddDisplayResponse, ConfigureDisplay, ConfigureDisplayResponse,
@@ -74,15 +76,22 @@ class RvizHostNode:
 
     # ------------------------------------------------------------ validation without RViz
     def _check_topic_type(self, cls: str, topic: str) -> None:
-        """Refuse a topic that carries another message type than the display reads."""
+        """Refuse a topic that carries another message type than the display reads, and any topic while the
+        master does not answer (asked with a bound: rospy's own question has none, and a master across a cut
+        link held this service thread until the Output Manager's call ran out)."""
+        resolved = rospy.resolve_name(topic)
+        self.host.refuse_without_master(resolved)
         expected = MESSAGE_TYPE.get(cls)
         if not expected:
             return
-        resolved = rospy.resolve_name(topic)
         try:
-            published = dict(rospy.get_published_topics())
-        except Exception as e:   # master unreachable: RViz would not get data either
+            code, message, published = proxy(rosgraph.get_master_uri(), MASTER_TIMEOUT).getPublishedTopics(
+                rospy.get_name(), '')
+            if code != 1:
+                raise RuntimeError(message)
+        except Exception as e:   # the master went away meanwhile: RViz would not get data either
             raise HostError('cannot check topic %s at the master: %s' % (resolved, e)) from None
+        published = dict(published)
         actual = published.get(resolved)
         if actual and actual != expected:
             raise HostError('topic %s carries %s but %s displays %s' % (resolved, actual, cls, expected))
@@ -178,6 +187,7 @@ def _probe(topic: str, on_message):
 
 STARTUP_FRAMES = 3              # rendered frames before the host offers its services
 STARTUP_RENDER_TIMEOUT = 20.0
+MASTER_TIMEOUT = 2.0            # s for a question to the master that answers (it answers in ~1 ms)
 
 
 def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bool:

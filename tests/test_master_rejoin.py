@@ -242,3 +242,25 @@ def test_a_load_that_needs_a_new_status_channel_while_the_master_is_away_is_refu
     wait_for(lambda: registered(master, '/rr_owner') == owner_before, HANG, 'the owner to register again')
     served = consumer.call('rr_owner', 'while_away')
     assert 'id' in served and owner.counts()['loads'].get('while_away') == 1, served
+
+
+def test_a_display_shown_while_the_master_is_away_is_refused_at_once_naming_it(own_master):
+    """RViz subscribes through roscpp, which waits for the master on the thread that renders: a display shown
+    while the master was away (the robot rebooting) froze the operator's whole view until it came back, and
+    the request ran out its deadline. The host refuses it at once, naming the master; what it shows stays."""
+    master, procs = own_master
+    procs.node('temoto_er_manager', 'temoto_er_manager', namespace='st',
+               params={'temoto_namespace': 'st', 'log_dir': str(procs.workdir)})
+    procs.node('temoto_output_manager', 'temoto_output_manager', namespace='st',
+               params={'temoto_namespace': 'st', 'host/show_robot': 'false', 'host/show_grid': 'false'})
+    sock = str(procs.workdir) + '/viewer.sock'
+    procs.node('temoto_chaos', 'chaos_client', name='viewer',
+               params={'control_socket': sock, 'temoto_namespace': 'rb', 'station_namespace': 'st'})
+    wait_for(lambda: os.path.exists(sock), HANG, "the client's control socket")
+    shown = control_socket.ask(sock, {'op': 'show_display', 'type': 'laser scan', 'topic': 'scan'}, 60)
+    assert shown['ok'], shown
+    master.stop()
+    refused = control_socket.ask(sock, {'op': 'show_display', 'type': 'laser scan', 'topic': 'other_scan'}, 60)
+    assert not refused['ok'] and 'does not answer' in refused['error'] and 'freeze' in refused['error'], refused
+    held = control_socket.ask(sock, {'op': 'state'}, 10)['held']
+    assert [info['failed'] for info in held.values()] == [''], held     # the first display is still shown

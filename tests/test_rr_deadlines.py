@@ -306,6 +306,23 @@ def test_a_watch_that_starts_while_the_master_is_away_reaches_an_owner_it_has_me
         watch.stop()
 
 
+def test_a_consumer_whose_status_channel_was_never_connected_hears_the_failed_anyway(rospy_client, procs):
+    """A status channel is connected when the master tells the consumer of the owner's new publisher. That
+    update can be lost (sent across a link that went down a moment later), and then nothing the owner says
+    arrives: a display's FAILED never reached its client (chaos seed 17, step 3914). The consumer's owner
+    watch finds the owner answering but unheard, asks the master for the publishers again, and reads the
+    owner's registry."""
+    owner = RegistrarNode(procs, 'rr_unheard_owner')
+    consumer = RegistrarNode(procs, 'rr_unheard_consumer')
+    held = consumer.call('rr_unheard_owner', 'cam')
+    assert 'id' in held, held
+    assert consumer.command(op='deafen', node='/rr_unheard_owner') == {'dropped': 1}
+    owner.fail('cam', 'broke while nobody could hear it')
+    [event] = consumer.wait_events(1, timeout=HANG)
+    assert event['id'] == held['id'] and event['code'] == ResourceStatus.FAILED, event
+    consumer.unload(held['id'])
+
+
 def test_a_pooled_connection_broken_while_sending_is_retried_not_raised(rospy_client, procs):
     """rospy raises TransportTerminated, which is not a ROSException, when the socket fails while a request is
     sent: a pooled connection to an owner that had died broke a chaos client's load with an exception that

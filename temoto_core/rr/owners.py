@@ -60,6 +60,10 @@ DEFAULT_BOUND = 0.7
 DEFAULT_BUSY_BOUND = 3.0
 # how long a connect to a silent owner may take; a cut link takes it all (detection must stay within 1 s)
 ACCEPT_TIMEOUT = 0.1
+# an owner that answers, while this node holds something from it, and whose statuses have had no way here
+# (no connection from it on this node's status topic) for this long: see OwnerWatch._hear
+UNHEARD_BOUND = 1.0
+UNHEARD_RETRY_S = 2.0      # seconds between two attempts to hear an owner again
 RECONCILE_SPACING = 0.5    # seconds between two reads of a suspect owner's registry
 # a request whose caller gave up may still reach its owner this long after: TCP sends a request caught in
 # a cut link again with a growing backoff (after a 3 s cut, up to about 6 s after it was first sent), and a
@@ -121,7 +125,8 @@ _SHARED = _SharedVerdicts()
 class Owner:
     """What is known of one owner incarnation (guarded by the watch's lock)."""
     __slots__ = ('node', 'uri', 'incarnation', 'last_ok', 'refused_since', 'lost', 'calls', 'owed', 'started',
-                 'noticed', 'registrars', 'suspect', 'next_reconcile', 'recheck_until')
+                 'noticed', 'registrars', 'suspect', 'next_reconcile', 'recheck_until', 'unheard_since',
+                 'next_hear_again')
 
     def __init__(self, node: str, uri: str, incarnation: Optional[int]) -> None:
         self.node = node
@@ -140,6 +145,8 @@ class Owner:
         self.suspect = False           # it may hold references this side does not know of: reconcile
         self.next_reconcile = 0.0      # not before (a reconciliation reads the owner's whole registry)
         self.recheck_until = 0.0       # a request given up on may still arrive: read again until then
+        self.unheard_since: Optional[float] = None   # since when its statuses have had no way to this node
+        self.next_hear_again = 0.0     # not before (see OwnerWatch._hear)
 
 
 class OwnerWatch:
@@ -148,11 +155,14 @@ class OwnerWatch:
                  on_lost: Callable[[Target, int, str], None], send_unload: Callable[[Target, int], bool],
                  reconcile: Callable[[Tuple[str, str], Callable[[], bool]], bool],
                  period: float = DEFAULT_PERIOD, bound: float = DEFAULT_BOUND, grace: float = 10.0,
-                 busy_bound: float = DEFAULT_BUSY_BOUND) -> None:
+                 busy_bound: float = DEFAULT_BUSY_BOUND, hears_from: Optional[Callable[[str], bool]] = None,
+                 hear_again: Optional[Callable[[], None]] = None) -> None:
         """``holds_from(node)``: whether anything active is held from ``node``; ``held_from(node)``: the
         (target, external id) of those resources;
         ``on_lost``: handle one of them as failed; ``send_unload``: send one unload again, True once the
-        owner has answered (whatever it said), False if it could not be reached."""
+        owner has answered (whatever it said), False if it could not be reached;
+        ``hears_from(node)``: whether this node's status subscriber is connected to ``node``;
+        ``hear_again()``: ask the master again for the publishers of that subscriber (raises when it cannot)."""
         if not 0 < period < bound:
             raise ValueError('owner liveness: the check period (%r s) must be positive and shorter than the '
                              'bound (%r s)' % (period, bound))
@@ -162,6 +172,8 @@ class OwnerWatch:
         self._on_lost = on_lost
         self._send_unload = send_unload
         self._reconcile = reconcile
+        self._hears_from = hears_from
+        self._hear_again = hear_again
         if busy_bound < bound:
             raise ValueError('owner liveness: the bound for a busy owner (%r s) must not be shorter than the '
                              'bound (%r s)' % (busy_bound, bound))
@@ -297,6 +309,8 @@ class OwnerWatch:
                         owner.suspect = True
                         owner.recheck_until = now + LATE_REQUEST_S
                 owner.last_ok, owner.refused_since, owner.lost = now, None, ''
+                if held:
+                    self._hear(owner, now)
                 self._settle(owner)
             elif verdict is None:
                 silent = now - owner.last_ok
@@ -314,6 +328,34 @@ class OwnerWatch:
             else:
                 self._gone(owner, now)
             self._stop.wait(self.period)
+
+    def _hear(self, owner: Owner, now: float) -> None:
+        """An owner that answers, of which something is held here: its statuses must have a way to this node.
+
+        A status channel is connected when the master tells this node of the owner's new publisher. That
+        update can be lost (the master sent it across a link that went down a moment later: chaos seed 17,
+        step 3914, a display's FAILED never reached its client), and then nothing the owner says arrives, for
+        good. So once it has had no way here for ``UNHEARD_BOUND``, the master is asked again for the
+        publishers, and the owner's registry is read, so that a FAILED sent meanwhile is handled now."""
+        if self._hears_from is None or self._hears_from(owner.node):
+            owner.unheard_since = None
+            return
+        if owner.unheard_since is None:
+            owner.unheard_since = now
+        if now - owner.unheard_since < UNHEARD_BOUND or now < owner.next_hear_again:
+            return
+        owner.next_hear_again = now + UNHEARD_RETRY_S
+        rospy.logwarn('%s: no status from %s can reach this node (no connection from it on its status topic for '
+                      '%.1f s): asking the master for its publishers again, and reading its registry',
+                      self._core.prefix, owner.node, now - owner.unheard_since)
+        if self._hear_again is not None:
+            try:
+                self._hear_again()
+            except (OSError, xmlrpc.client.Error) as err:     # the master is away: its registry is read anyway
+                rospy.logwarn('%s: could not ask the master for the publishers of %s: %s', self._core.prefix,
+                              owner.node, err)
+        with self._lock:
+            owner.suspect = True
 
     def _gone(self, owner: Owner, now: float) -> None:
         """Nobody answers at the owner's URI any more: follow it to a new incarnation, or lose it."""

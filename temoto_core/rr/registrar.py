@@ -140,7 +140,8 @@ class ResourceRegistrar:
                                       float(rospy.get_param('~owner_check_period', owners.DEFAULT_PERIOD)),
                                       float(rospy.get_param('~owner_liveness_bound', owners.DEFAULT_BOUND)),
                                       recovery_grace,
-                                      float(rospy.get_param('~owner_busy_bound', owners.DEFAULT_BUSY_BOUND)))
+                                      float(rospy.get_param('~owner_busy_bound', owners.DEFAULT_BUSY_BOUND)),
+                                      hears_from=self._hears_from, hear_again=self._hear_again)
         except ValueError as err:
             raise core.error(ErrorCode.BAD_REQUEST, str(err))
         self._client.owners = self._owners
@@ -164,6 +165,17 @@ class ResourceRegistrar:
         self._unload_srv = None
         self._reclaim_srv = None
         watchdog.watch('the lock of registrar %s' % core.prefix, core.lock)
+
+    def _hears_from(self, node: str) -> bool:
+        """Whether this registrar's status subscriber has a connection from ``node`` (the node that published
+        on it, as its TCPROS header names it)."""
+        impl = getattr(getattr(self, '_status_sub', None), 'impl', None)
+        if impl is None:
+            return True                  # starting (nothing is held yet) or shut down: nothing to hear
+        return any(getattr(c, 'callerid_pub', '') == node for c in impl.connections)
+
+    def _hear_again(self) -> None:
+        master_rejoin.refresh_subscription(self.status_topic, ResourceStatus._type)
 
     @property
     def journaled(self) -> bool:
