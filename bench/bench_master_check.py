@@ -20,6 +20,7 @@ Prints a markdown table and writes bench/results/master_check.json.
 import json
 import os
 import sys
+import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -27,8 +28,10 @@ sys.path.insert(0, ROOT)
 
 import rospy  # noqa: E402
 
-from common import loopback_master, pct  # noqa: E402
+from common import pct  # noqa: E402
 from temoto_core import master_rejoin  # noqa: E402
+from temoto_core.master import RosMaster, free_port  # noqa: E402
+from temoto_core.processes import ProcessGroupLauncher  # noqa: E402
 from temoto_core.master_reach import MasterReach  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 
@@ -51,7 +54,10 @@ def timed(fn) -> float:
 
 
 def main() -> int:
-    master, procs = loopback_master('bench_master_check_')
+    # a fixed port: the restarted master must be found where the old one was, as a rebooted robot's is
+    master = RosMaster(tempfile.mkdtemp(prefix='bench_master_check_'), port=free_port()).start()
+    master.point_this_process()
+    procs = ProcessGroupLauncher(master.env, master.workdir)
     try:
         throttles = [procs.command([THROTTLE, 'messages', '/bench/in_%d' % i, '1', '/bench/out_%d' % i],
                                    'throttle_%d' % i) for i in range(NODES)]

@@ -149,7 +149,7 @@ class MasterRejoin:
 
     def start(self) -> 'MasterRejoin':
         try:
-            self._run_id = self._ask([])[1]    # the master this node registered with at start
+            self._run_id = self._ask()[1]      # the master this node registered with at start
         except XMLRPC_ERRORS:
             pass                               # no master now: the first check learns its run
         self._thread.start()
@@ -184,10 +184,15 @@ class MasterRejoin:
         with self._adopted_lock:
             adopted = list(self._adopted.values())
         try:
-            known, run_id, adopted_known = self._ask(adopted)
+            known, run_id = self._ask()
+            new_run = bool(run_id) and self._run_id is not None and run_id != self._run_id
+            # an adopted node is asked about only when the run cannot tell whether the master knows it (a
+            # master with no /run_id), or on a new run (whose answer guards a name another process took):
+            # the check that runs every second stays two questions, however many nodes are adopted
+            asked = adopted and (new_run or not run_id or self._run_id is None)
+            adopted_known = self._lookup_nodes(adopted) if asked else {node.name: node.uri for node in adopted}
         except XMLRPC_ERRORS:
             return False                      # no master (yet): nothing to register with
-        new_run = bool(run_id) and self._run_id is not None and run_id != self._run_id
         registered = False
         if self._may_register(self._caller_id, own_uri, known) and (known != own_uri or new_run):
             self._register(self._caller_id, own_uri, self._own_registrations(), new_run and known == own_uri)
@@ -214,19 +219,20 @@ class MasterRejoin:
                           self._caller_id, name, known)
         return False
 
-    def _ask(self, adopted: List[ProcessNode]) -> Tuple[Optional[str], str, Dict[str, Optional[str]]]:
-        """(this node's URI at the master or None, the master's /run_id or '', each adopted node's URI at the
-        master or None) in one round trip."""
+    def _ask(self) -> Tuple[Optional[str], str]:
+        """(this node's URI at the master or None, the master's /run_id or '') in one round trip."""
         calls = xmlrpc.client.MultiCall(proxy(self._master_uri, self.timeout))
         calls.lookupNode(self._caller_id, self._caller_id)
         calls.getParam(self._caller_id, '/run_id')
-        for node in adopted:
+        (code, _, uri), (run_code, _, run_id) = tuple(calls())
+        return (uri if code == 1 else None), (str(run_id) if run_code == 1 else '')
+
+    def _lookup_nodes(self, nodes: List[ProcessNode]) -> Dict[str, Optional[str]]:
+        """Each node's URI at the master, or None, in one round trip."""
+        calls = xmlrpc.client.MultiCall(proxy(self._master_uri, self.timeout))
+        for node in nodes:
             calls.lookupNode(self._caller_id, node.name)
-        answers = tuple(calls())
-        (code, _, uri), (run_code, _, run_id) = answers[:2]
-        known = {node.name: (value if node_code == 1 else None)
-                 for node, (node_code, _, value) in zip(adopted, answers[2:])}
-        return (uri if code == 1 else None), (str(run_id) if run_code == 1 else ''), known
+        return {node.name: (value if code == 1 else None) for node, (code, _, value) in zip(nodes, tuple(calls()))}
 
     @staticmethod
     def _own_registrations() -> Registrations:
