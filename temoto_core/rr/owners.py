@@ -38,6 +38,7 @@ back as a new incarnation; and whatever its registry says has FAILED for this no
 heard the status, is handled as that FAILED arriving now (a status is a topic message, and one sent before
 this node could connect to the new incarnation is lost).
 """
+import http.client
 import threading
 import time
 import xmlrpc.client
@@ -351,7 +352,8 @@ class OwnerWatch:
         if self._hear_again is not None:
             try:
                 self._hear_again()
-            except (OSError, xmlrpc.client.Error) as err:     # the master is away: its registry is read anyway
+            except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
+                # the master is away or answered garbage: the owner's registry is read anyway
                 rospy.logwarn('%s: could not ask the master for the publishers of %s: %s', self._core.prefix,
                               owner.node, err)
         with self._lock:
