@@ -339,6 +339,7 @@ class ERManager:
         for proc in procs:
             deadline = time.monotonic() + self.config.registration_timeout
             delay = self.config.ready_poll_interval
+            nodes, found = [], set()          # what is known if the master does not answer at all
             while True:
                 try:
                     nodes = master_rejoin.nodes_of_processes([proc.pid, *_descendants(proc.pid)])
