@@ -40,6 +40,7 @@ import rosgraph
 import rospy
 import rospy.impl.registration
 
+from temoto_core.params import seconds_param
 from temoto_core.xmlrpc_util import proxy
 
 DEFAULT_PERIOD = 1.0      # s between two checks: a returned master has everything again within about this
@@ -296,10 +297,8 @@ def ensure_started() -> Optional[MasterRejoin]:
     global _started, _decided
     with _start_lock:
         if not _decided:
-            period = rospy.get_param('~master_check_period', DEFAULT_PERIOD)
-            if isinstance(period, bool) or not isinstance(period, (int, float)) or period < 0:
-                raise ValueError('master_check_period %r: it must be a number of seconds, 0 for off' % (period,))
+            period = seconds_param(rospy.get_param('~master_check_period', DEFAULT_PERIOD), 'master_check_period')
             if period > 0:
-                _started = MasterRejoin(float(period)).start()
+                _started = MasterRejoin(period).start()
             _decided = True
         return _started

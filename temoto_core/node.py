@@ -35,6 +35,7 @@ import rospy
 import rospy.impl.paramserver
 
 from temoto_core import master_lookup, master_rejoin, tcpros_accept, watchdog
+from temoto_core.params import seconds_param
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -114,10 +115,7 @@ def after_init_node() -> None:
     own (the RViz host's and the action engine's, which handle their signals themselves)."""
     prime_log_parameter()
     # a node whose own locks wedge kills itself with its stacks written, rather than answer nothing for good
-    bound = rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S)
-    if isinstance(bound, bool) or not isinstance(bound, (int, float)) or bound < 0:
-        raise ValueError('watchdog_bound %r: it must be a number of seconds, 0 for off' % (bound,))
-    watchdog.install(float(bound))
+    watchdog.install(seconds_param(rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S), 'watchdog_bound'))
     master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back
 
 

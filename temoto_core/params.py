@@ -15,3 +15,11 @@ def list_param(value, name: str, separator: str = ',') -> List[str]:
     if isinstance(value, list) and all(isinstance(v, str) for v in value):
         return value
     raise ValueError('parameter ~%s must be a list of strings, got %r' % (name, value))
+
+
+def seconds_param(value, name: str) -> float:
+    """A duration parameter in seconds, 0 meaning off. Raises ValueError naming ``name`` for anything else
+    (a negative number, a bool, a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+        raise ValueError('%s %r: it must be a number of seconds, 0 for off' % (name, value))
+    return float(value)

@@ -280,7 +280,6 @@ class RvizHost:
         topic_label = topic_property(cls)
         if topic_label is None and topic:
             raise HostError('%s takes no topic (got %s)' % (cls, topic))
-        self.refuse_without_master(topic)
         enabled = _pop_flag(config, 'Enabled')
         visible = _pop_flag(config, VISIBLE)
         defaults = None
@@ -372,9 +371,10 @@ class RvizHost:
         return self.master_reach is not None and self.master_reach.unreachable_now()
 
     def refuse_without_master(self, topic: str) -> None:
-        """A subscription needs the master, and roscpp waits for it on this thread, the one that renders: a
-        display shown while the master was away (the robot rebooting, a cut link to it) froze the whole view
-        until it came back, while the display's own request ran out. Refused at once instead, naming it."""
+        """A subscription needs the master, and roscpp waits for it on the thread that renders: a display
+        shown while the master was away (the robot rebooting, a cut link to it) froze the whole view until it
+        came back, while the display's own request ran out. Refused at once instead, naming it. Asked by the
+        node's service thread before it hands a display with a topic to the main thread."""
         if topic and self._master_down():
             raise HostError('the master at %s:%d does not answer: subscribing to %s would wait for it, and the '
                             'view would freeze until it is back' % (self.master_reach.address + (topic,)))
@@ -400,8 +400,6 @@ class RvizHost:
         label = topic_property(hd.cls)
         if topic and label is None:
             raise HostError('%s takes no topic (got %s)' % (hd.cls, topic))
-        if topic and topic != hd.topic:
-            self.refuse_without_master(topic)
         config = dict(config)
         visible = _pop_flag(config, VISIBLE, default=None)
         if not hd.visible and ALPHA in config:       # a hidden display keeps Alpha 0: the new value waits
