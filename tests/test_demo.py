@@ -235,6 +235,11 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     assert 'its host is cut off or down' in partition['message'], partition
 
 
+# two simulated hosts whose stall limits follow each sensor's rhythm (0.19 s for the station's 20 Hz scanner):
+# beside the other worker, the scanner once went 0.20 s without a message just after the link healed, was
+# found stalled, and the view failed back early, by the held candidate rather than by the timed fail-back
+# (a clean-clone suite at 2634e2e; its three runs before passed); so it runs alone
+@pytest.mark.alone
 def test_demo_across_two_hosts_under_hot_standby_shows_the_station_scanner_while_the_robot_is_cut_off(
         tmp_path_factory):
     """The station's own sensor (the lab's fixed scanner, served by the station's Sensor Manager) ends the view's

@@ -28,7 +28,8 @@ def _png(color, marks=True):
 
 def write_synthetic_bag(path, with_screenshots=True):
     """Scripted run: D435 shown at +3 s, unplugged (crash) at +10 s, Hokuyo cloud at +11.4 s,
-    Hokuyo unplugged (stall) at +20 s, SICK scan at +21.5 s."""
+    Hokuyo unplugged (stall) at +20 s (and a fail-back attempt of the D435 fails at +20.5 s), SICK scan at
+    +21.5 s."""
     import rosbag
     import rospy
     from sensor_msgs.msg import CompressedImage
@@ -56,8 +57,8 @@ def write_synthetic_bag(path, with_screenshots=True):
         m.header.stamp = ts(t)
         bag.write(T.DEVICE_STATES, m, ts(t + 0.001))
 
-    def status(bag, t, topic, manager, rid):
-        m = ResourceStatus(manager_name=manager, server_name='x', resource_id=rid, status_code=1, message='dead')
+    def status(bag, t, topic, manager, rid, message='dead'):
+        m = ResourceStatus(manager_name=manager, server_name='x', resource_id=rid, status_code=1, message=message)
         m.header.stamp = ts(t)
         bag.write(topic, m, ts(t + 0.001))
 
@@ -91,8 +92,12 @@ def write_synthetic_bag(path, with_screenshots=True):
         ticks(bag, cloud, 11.3, 19.5, 0.5)        # 11.3, 13.3, ... 19.3
         display(bag, 11.4, 'first_frame', cloud, 'arm')
         devices(bag, 20.0, d435=False, hokuyo=False, modes=('crash', 'stall', 'crash'))
-        status(bag, 21.0, '/temoto/sensor_manager_interface_1_0/status', 'temoto_sensor_manager', 4)
-        action(bag, 21.004, event='sensor_failed', sensor_name='hokuyo_utm30lx', priority_index=1)
+        # a fail-back attempt of the unplugged D435 fails meanwhile: a FAILED that is not the Hokuyo's
+        status(bag, 20.5, '/temoto/temoto_sensor_manager/status', 'temoto_er_manager', 8,
+               'vaultbot_sim/d435_driver: process 9 exited with code 1')
+        stalled = 'sensor hokuyo_utm30lx stalled: no message on /hokuyo/scan for 0.300 s (limit 0.300 s)'
+        status(bag, 21.0, '/temoto/sensor_manager_interface_1_0/status', 'temoto_sensor_manager', 4, stalled)
+        action(bag, 21.004, event='sensor_failed', sensor_name='hokuyo_utm30lx', priority_index=1, message=stalled)
         display(bag, 21.01, 'removed', cloud, 'arm')
         action(bag, 21.2, event='sensor_active', priority_index=2, label='base LIDAR scan',
                sensor_name='sick_lms511', topic=sick)

@@ -304,6 +304,14 @@ def _first_frame(run: Run, topic: str, after: float) -> Optional[float]:
     return ev.t if ev else None
 
 
+def _same_failure(status: Status, reached: str) -> bool:
+    """Whether ``status`` is the failure whose message reached the action (``reached``; '' when the action
+    did not say: any FAILED then). Another FAILED may fall in the same window: a fail-back attempt of a
+    sensor unplugged before failed while the shown one stalled, and was taken for its origin."""
+    head = status.message.strip().splitlines()[0][:80] if status.message.strip() else ''
+    return not reached or not head or head in reached
+
+
 def analyse(run: Run) -> Analysis:
     t0 = run.chatter[0][0] if run.chatter else run.start
     actives = [e for e in run.actions if e.get('event') == 'sensor_active']
@@ -320,10 +328,11 @@ def analyse(run: Run) -> Analysis:
         before = [s for s in stages if s.active_t <= u.t]
         if before:
             f.failed_sensor, f.failed_topic = before[-1].label, before[-1].topic
-        st = _first(run.statuses, lambda s: s.code == FAILED and u.t <= s.t < nxt)
+        act = _first(run.actions, lambda e: e.get('event') == 'sensor_failed' and u.t <= e['t'] < nxt)
+        reached = str(act.get('message', '')) if act else ''
+        st = _first(run.statuses, lambda s: s.code == FAILED and u.t <= s.t < nxt and _same_failure(s, reached))
         if st:
             f.failed_t, f.failed_by = st.t, '%s (%s)' % (st.manager, st.server)
-        act = _first(run.actions, lambda e: e.get('event') == 'sensor_failed' and u.t <= e['t'] < nxt)
         if act:
             f.action_t = act['t']
             sub = _first(stages, lambda s: s.active_t >= act['t'])
