@@ -142,3 +142,33 @@ def test_a_manager_drops_the_status_channel_of_a_consumer_that_left(owner, rospy
     client.shutdown()
     wait_for(lambda: not published_by_owner(client.status_topic), 30,
              'the owner to unregister its publisher of %s' % client.status_topic)
+
+
+def _raw_consumer(procs, owner, resource: str):
+    """A plain-rospy consumer named ``raw_lazarus`` that holds ``resource`` at ``owner``."""
+    proc = procs.node('temoto_test_nodes', 'raw_consumer', name='raw_lazarus',
+                      params={'owner': owner.name, 'resource': resource})
+    wait_for(lambda: rospy.get_param('/raw_lazarus/loaded', None) is True and _consumers_of(owner, resource),
+             20, 'the load of %s by the raw consumer' % resource)
+    rospy.delete_param('/raw_lazarus/loaded')
+    return proc
+
+
+def test_a_dead_raw_consumer_is_released_though_its_name_came_back_before_the_check(procs, rospy_client):
+    """A consumer that sends no URI (plain rospy) is known by the incarnation that called. Resolved by name at
+    the owner's next check, both references were charged to the new incarnation started under the name
+    before that check, and the dead one's was never released (outside check, 3 of 3)."""
+    owner = RegistrarNode(procs, 'rr_id_raw_owner', check_period=5.0)
+    _one_watch_pass_later(owner, procs, 'raw')       # the next pass is 5 s away: the restart lands before it
+    old = _raw_consumer(procs, owner, 'held_by_dead_raw')
+    os.killpg(old.pid, signal.SIGKILL)
+    wait_for(lambda: not old.alive(), 10, 'the end of the first raw consumer')
+    new = _raw_consumer(procs, owner, 'held_by_live_raw')
+    new_uri = _consumers_of(owner, 'held_by_live_raw')[0]['client_uri']
+
+    wait_for(lambda: _released(owner, 'held_by_dead_raw'), 30, 'release of the dead raw consumer')
+    assert new_uri.startswith('http://'), 'the live consumer is known by its incarnation from its load on'
+    _one_watch_pass_later(owner, procs, 'raw_after')
+    assert not _released(owner, 'held_by_live_raw')
+    assert [c['client_uri'] for c in _consumers_of(owner, 'held_by_live_raw')] == [new_uri]
+    os.killpg(new.pid, signal.SIGKILL)

@@ -6,11 +6,15 @@ sees); each consumer gets its own external id (what it holds). An equal request
 that arrives while the first is loading waits for the outcome and gets the full
 response, never a half-filled one.
 """
+import http.client
+import xmlrpc.client
 from typing import Callable, Dict, List, Optional, Tuple
 
+import rosgraph
 import rospy
 
 from temoto_core.errors import ErrorCode, ErrorFrame, TemotoError
+from temoto_core.master_lookup import lookup_node
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import MasterAway, StatusChannels
 from temoto_core.rr.core import RegistrarCore
@@ -47,7 +51,8 @@ class ServerSide:
         except TemotoError as err:
             return failure_response(response, err)
         consumer = Consumer(request.trr.status_topic, request.trr.client_name, request.trr.temoto_namespace,
-                            request.trr.client_uri, request.trr.incarnation)
+                            request.trr.client_uri or self._calling_incarnation(request.trr.client_name),
+                            request.trr.incarnation)
         # The consumer's status channel is connected before it is attached to anything: a FAILED raised
         # the moment after it is attached must find a subscriber to go to. Every path below that does not
         # attach the consumer gives the channel back.
@@ -71,6 +76,20 @@ class ServerSide:
                     self.calls_in_flight[caller] = left
             if not attached:
                 self._channels.release(consumer.status_topic)
+
+    def _calling_incarnation(self, client_name: str) -> str:
+        """The URI the master has under ``client_name`` now, while it calls: a client that sends no URI (one
+        not built on a registrar) is known by the incarnation that made the request. Resolved later, the name
+        could already belong to a new incarnation that started under it, which would then be charged with
+        the dead one's references, and they would never be released. '' (resolved by the consumer watch)
+        when the master does not answer within 0.5 s or does not know the name."""
+        if not client_name:
+            return ''
+        try:
+            return lookup_node(rosgraph.get_master_uri(), client_name, timeout=0.5) or ''
+        except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
+            rospy.logdebug('%s: no URI for consumer %s yet: %s', self._core.prefix, client_name, err)
+            return ''
 
     def _serve(self, server: Server, request, response, consumer: Consumer):
         core = self._core
