@@ -38,7 +38,9 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_sensor_manager.catalogue import Catalogue, SensorEntry, TopicSpec
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SENSOR, START_SENSOR_TYPE
+from temoto_sensor_manager.diagnostics import DriverReports
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
+from temoto_sensor_manager.start_times import StartTimes
 from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
 
 SUB = Subsystem.SENSOR_MANAGER
@@ -46,6 +48,7 @@ SUB = Subsystem.SENSOR_MANAGER
 # before its rate counts; the VaultBot's simulated drivers need 0.4 to 0.9 s (BENCHMARKS.md, bench_sim.py)
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
+START_TIMES_KEY = 'start_times'       # owner state: {sensor name: seconds from a driver's start to its data}
 SENSOR_KEY = 'sensor/%d'              # owner state: the driver process of a served sensor, by internal id
 # seconds beyond its stall limit that a driver already seen stalling (and shared again) gets to show data
 # again: the new subscription's connection on a loaded machine; its start-up allowance does not apply
@@ -74,6 +77,7 @@ class _Attempt:
     def __init__(self) -> None:
         self.cond = threading.Condition()
         self.failure = ''
+        self.pid = 0        # the driver's, once the ER Manager has answered
 
     def wake(self) -> None:
         with self.cond:
@@ -109,6 +113,7 @@ class SensorManager:
         self.catalogue = catalogue
         self.first_data_timeout = first_data_timeout      # the cap, and the limit of a topic of unknown rate
         self.first_data_allowance = first_data_allowance
+        self.start_times = StartTimes(first_data_allowance)
         self.er_manager = er_manager
         self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB)
         self._lock = threading.Lock()
@@ -120,10 +125,13 @@ class SensorManager:
         # given that driver again (an equal request shares it) waits its stall limit, not its start-up
         self._stalled: Dict[int, str] = {}
         self.watchdog = Watchdog(self._on_stall)
+        self.reports = DriverReports(self._on_driver_error)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
         kept = self.rr.owner_state()
         self._restore_reliabilities(kept.get(RELIABILITIES_KEY))
+        if kept.get(START_TIMES_KEY):
+            self.start_times.restore(json.loads(kept[START_TIMES_KEY]))
         self._records = {int(k.split('/')[1]): json.loads(v) for k, v in kept.items() if k.startswith('sensor/')}
         # one callback for every driver process held, also those a restart brings back
         self.rr.register_status_callback(self._on_process_status)
@@ -194,15 +202,21 @@ class SensorManager:
                 probe.close()
             raise
         process_id = started.trr.resource_id
+        answered = time.monotonic()
         with self._lock:
+            attempt.pid = started.pid
             self._attempts[process_id] = attempt
             early = self._early_failures.pop(process_id, None)
         if early is not None:
             attempt.fail(early)
+        reported = self.reports.error_of(started.pid)     # the driver told of its device before the answer
+        if reported:
+            attempt.fail('it reported an error: %s' % reported)
         with self._lock:
             stalled = self._stalled.get(started.pid, '')
         try:
-            limit = max(entry.output_topics[key].first_data_limit(self.first_data_allowance, self.first_data_timeout)
+            allowance = self.start_times.allowance(entry.name)
+            limit = max(entry.output_topics[key].first_data_limit(allowance, self.first_data_timeout)
                         for key in launch.topics)
             if stalled:
                 limit = min(limit, STALLED_RECHECK_S + max(entry.output_topics[key].silence_limit()
@@ -225,8 +239,10 @@ class SensorManager:
                                       entry.name, ', '.join(silent), limit, started.pid, stalled))
             if silent:
                 raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
-                                  '(pid %d) started' % (entry.name, ', '.join(silent), limit,
-                                                        started.pid))
+                                  '(pid %d) started (%s)' % (entry.name, ', '.join(silent), limit,
+                                                             started.pid, self.start_times.describe(entry.name)))
+            if not stalled:
+                self.start_times.add(entry.name, time.monotonic() - answered)
             try:
                 self.rr.link(process_id)      # refused if the process failed meanwhile
             except TemotoError as err:
@@ -302,9 +318,11 @@ class SensorManager:
             '%s %.3f' % (e.name, e.reliability.value) for e in self.catalogue.entries))
 
     def _keep_reliabilities(self) -> None:
+        """Journal what this manager has learnt of its devices: reliabilities and start times."""
         if self.rr.journaled:
             self.rr.put_owner_state(RELIABILITIES_KEY, json.dumps(
                 {e.name: e.reliability.samples() for e in self.catalogue.entries}))
+            self.rr.put_owner_state(START_TIMES_KEY, json.dumps(self.start_times.samples()))
 
     # -- failures ------------------------------------------------------------------------------
     def _on_process_status(self, event: StatusEvent) -> None:
@@ -322,6 +340,20 @@ class SensorManager:
             attempt.fail(event.message)
         if held is not None:
             self._mark_failed(held, 'sensor %s crashed: %s' % (held.entry.name, event.message), report=False)
+
+    def _on_driver_error(self, pid: int, text: str) -> None:
+        """A node of the driver process ``pid`` reported an error on /diagnostics (``diagnostics.py``): the
+        candidate being started fails at once, and a held sensor is reported FAILED."""
+        with self._lock:
+            attempts = [a for a in self._attempts.values() if a.pid == pid]
+            held = [h for h in self._held.values() if h.pid == pid and not h.failed]
+            if held:
+                self._stalled[pid] = 'it reported an error: %s' % text
+        for attempt in attempts:
+            attempt.fail('it reported an error: %s' % text)
+        for h in held:
+            self._mark_failed(h, 'sensor %s: its driver (pid %d) reported an error: %s' % (h.entry.name, pid, text),
+                              report=True)
 
     def _on_stall(self, probe: TopicProbe, silence: float, limit: float) -> None:
         held = probe.owner
@@ -373,6 +405,7 @@ class SensorManager:
 
     def shutdown(self) -> None:
         self.watchdog.stop()
+        self.reports.close()
         try:
             self.rr.shutdown()
         except Exception as err:

@@ -107,6 +107,21 @@ def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stoppe
     wait_for(lambda: pid_gone(pid), 15, 'the stalled driver to be stopped with its sensor')
 
 
+def test_a_driver_started_with_its_device_unplugged_in_stall_mode_reports_it_and_fails_at_once(smi):
+    """A stalled device at start used to cost the candidate its whole first-data allowance (the demo's
+    "every sensor failed" came 12 s after the last unplug); the driver now says so on /diagnostics."""
+    sm = smi()
+    set_cable('hokuyo', 'unplugged', 'stall')
+    try:
+        with pytest.raises(TemotoError) as info:
+            sm.start_sensor('lidar', ['lidar_data'], executable='hokuyo.launch')
+    finally:
+        set_cable('hokuyo', 'plugged')
+    message = str(info.value)
+    assert 'reported an error' in message and 'hokuyo: device not responding' in message, message
+    assert 'within' not in message, message
+
+
 def publishers_of(topic):
     import rosgraph
     pubs, _subs, _srvs = rosgraph.Master('/sensor_sim_test').getSystemState()

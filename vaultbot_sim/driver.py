@@ -7,6 +7,12 @@ A driver behaves like a real one whose cable can be pulled:
 - while running, unplug/crash exits with code 1 within a few milliseconds of the
   states message (os._exit from the callback: a real crash does not clean up),
   and unplug/stall stops publishing for the rest of the process's life.
+
+It reports its device on ``/diagnostics`` through ``diagnostic_updater``, as a
+real driver does: OK while it publishes, ERROR "device not responding" when its
+device is unplugged (stall mode) at its start, the case a silent driver cannot
+otherwise tell from a slow one. A driver hung while running (stall mode after
+the start) says nothing more, there or anywhere: that is the stall detector's case.
 """
 from __future__ import annotations
 
@@ -15,7 +21,9 @@ import sys
 import threading
 import time
 
+import diagnostic_updater
 import rospy
+from diagnostic_msgs.msg import DiagnosticStatus
 from temoto_core.node import ok
 from sensor_msgs.msg import JointState
 
@@ -25,6 +33,7 @@ from vaultbot_sim.msg import DeviceStates
 from vaultbot_sim.scene import Scene
 
 EXIT_DEVICE_LOST = 1
+DIAGNOSTICS_CONNECT_S = 1.0   # at most, for a subscriber of /diagnostics to connect before a start-up error
 
 
 class DriverBase:
@@ -51,6 +60,13 @@ class DriverBase:
         self.world_hist = JointHistory()
         self._states_seen = threading.Event()
         self._js_seen = threading.Event()
+        self.publishing = False
+        self.hung = False                 # stalled while running: silent everywhere, /diagnostics included
+        self.diagnostics = diagnostic_updater.Updater()
+        self.diagnostics.setHardwareID(self.device)
+        self.diagnostics.add(self.device, self._device_status)
+        # its own thread: the updater reads ~diagnostic_period from the master, which must never delay data
+        threading.Thread(target=self._report_periodically, name='diagnostics', daemon=True).start()
         rospy.Subscriber(self.sim_ns + '/device_states', DeviceStates, self._on_states, queue_size=5,
                          tcp_nodelay=True)
         if not self._states_seen.wait(self.startup_timeout):
@@ -58,6 +74,7 @@ class DriverBase:
                       f'after {self.startup_timeout:.0f} s (is vaultbot_sim running?)')
         if self.cable.verdict == 'stall':
             rospy.logwarn('%s: device not responding (unplugged, stall): publishing nothing', self.device)
+            self._report_now()
         self.robot_urdf = self._param(self.sim_ns + '/robot_urdf')
         self.world_urdf = self._param(self.sim_ns + '/world_urdf')
         self.frame_prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))    # its robot's TF frames
@@ -82,6 +99,29 @@ class DriverBase:
             time.sleep(0.05)
         self.fail(f'{self.device}: parameter {name} not set (is vaultbot_sim running?)')
 
+    def _device_status(self, stat: diagnostic_updater.DiagnosticStatusWrapper):
+        if self.cable.verdict == 'stall':
+            stat.summary(DiagnosticStatus.ERROR, '%s: device not responding (cable unplugged)' % self.device)
+        elif self.publishing:
+            stat.summary(DiagnosticStatus.OK, 'publishing at %.0f Hz' % self.rate)
+        else:
+            stat.summary(DiagnosticStatus.OK, 'starting')
+        return stat
+
+    def _report_now(self) -> None:
+        """Publish the device's status at once. A publisher made a moment ago drops what it sends before its
+        subscribers connect (ROS 1), so a start-up error waits a bounded moment for one."""
+        pub = self.diagnostics.publisher
+        deadline = time.monotonic() + DIAGNOSTICS_CONNECT_S
+        while not pub.get_num_connections() and time.monotonic() < deadline and ok():
+            time.sleep(0.01)
+        self.diagnostics.force_update()
+
+    def _report_periodically(self) -> None:
+        while ok() and not self.hung:
+            self.diagnostics.update()         # rate-limited to its ~diagnostic_period (1 s)
+            time.sleep(0.25)
+
     def fail(self, text: str) -> None:
         """Exit the way a driver does when it cannot reach its device."""
         rospy.logerr(text)
@@ -91,7 +131,10 @@ class DriverBase:
 
     def _on_states(self, msg: DeviceStates) -> None:
         cables = [Cable(d.name, d.plugged, d.mode) for d in msg.devices]
+        before = self.cable.verdict
         verdict = self.cable.update(cables)
+        if before == 'run' and verdict == 'stall':
+            self.hung = True
         self._states_seen.set()
         if verdict == 'crash':
             self.fail(f'{self.device}: device disconnected (cable unplugged): exiting')
@@ -125,6 +168,7 @@ class DriverBase:
                 self.publish(stamp)
                 if first:
                     rospy.loginfo('%s: publishing at %.0f Hz', self.device, self.rate)
+                    self.publishing = True
                     first = False
             next_t += period
             delay = next_t - time.monotonic()
