@@ -41,6 +41,11 @@ def one_run(out: str, args: Sequence[str] = ()) -> dict:
     wall = time.monotonic() - t
     result = {'rc': proc.returncode, 'wall_s': wall, 'failures': [], 'failbacks': []}
     try:
+        with open(os.path.join(out, 'demo.json')) as f:
+            result['all_failed_s'] = json.load(f).get('all_failed_s')
+    except (OSError, ValueError):
+        pass
+    try:
         with open(os.path.join(out, 'report.json')) as f:
             report = json.load(f)
         result['failures'] = report['failures']

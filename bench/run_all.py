@@ -16,7 +16,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ORDER = ['rr', 'journal', 'recovery', 'hosts', 'master_check', 'er', 'node_stop', 'sim', 'sensor', 'stall', 'output', 'action_start',
-         'demo', 'standby', 'chaos']
+         'demo', 'all_failed', 'standby', 'chaos']
 
 
 def scripts():

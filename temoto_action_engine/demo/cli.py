@@ -121,11 +121,16 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--standby', choices=('cold', 'warm', 'hot'), default='cold',
                    help='the view\'s standby policy: cold starts the next sensor on a failure, warm keeps its driver '
                    'running, hot also streams it into a hidden display (default %(default)s)')
+    p.add_argument('--unplug-all', action='store_true',
+                   help='once the first view is up, unplug every device of the view one right after another, '
+                   'and time the action\'s "every sensor failed" from the last unplug (demo.json: all_failed_s)')
     p.add_argument('--voice', action='store_true',
                    help='say the instruction (espeak-ng) to the speech node instead of typing it; the failures '
                    'are announced (on a topic, in WAV files beside the bag, aloud with --live); the bag holds the '
                    'audio and what was heard')
     args = p.parse_args(argv)
+    if args.unplug_all and (args.hosts == 2 or args.replug or args.kill_managers):
+        p.error('--unplug-all runs alone: without --hosts 2, --replug and --kill-managers')
     if args.voice and args.hosts == 2:
         p.error('--voice runs on one host; --hosts 2 does not take it yet')
     if args.hosts == 2:
@@ -154,5 +159,5 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
                        modes={'d435': args.d435_mode, 'hokuyo': args.hokuyo_mode, 'sick': 'crash'},
                        priority=priority, report=not args.no_report, kill_managers=args.kill_managers,
                        seed=args.seed, hosts=args.hosts, robot=args.robot, standby=args.standby,
-                       replug=args.replug, voice=args.voice)
+                       replug=args.replug, voice=args.voice, unplug_all=args.unplug_all)
     return run_demo(opts)

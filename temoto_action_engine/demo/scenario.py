@@ -82,6 +82,7 @@ class DemoOptions:
     standby: str = 'cold'        # the view's standby policy: cold, warm or hot
     replug: bool = False         # at the end, plug the first device back and wait for the fail-back
     voice: bool = False          # the instruction spoken (espeak-ng) to the speech node, the failures announced
+    unplug_all: bool = False     # after the first view, unplug every device at once and time "every sensor failed"
 
 
 class Progress:
@@ -453,12 +454,31 @@ class Demo:
                 self._hold_host()
             if k == 0 and self.opts.kill_managers:
                 self._kill_managers()
+            if k == 0 and self.opts.unplug_all:
+                self._unplug_all(timeout)
+                break
         if self.opts.replug:
             self._replug(labels[0], timeout)
         if self.hosts is not None:
             last = len(self.opts.priority) - 1
             self._partition(last, labels[last], labels[last + 1] if last + 1 < len(labels) else '')
         self._empty_view()
+
+    def _unplug_all(self, timeout: float) -> None:
+        """Every device of the view unplugged one right after another (its mode from the options), then the
+        action's all_failed event, timed from the last unplug."""
+        devices = [PRIORITY_ENTRIES[name][1] for name in self.opts.priority]
+        for device in devices:
+            mode = self.opts.modes.get(device, 'crash')
+            self._mark('unplug', device=device, mode=mode)
+            self.set_device(device, False, mode)
+        last = time.monotonic()
+        self.watcher.wait_action(lambda e: e.get('event') == 'all_failed', last, timeout,
+                                 'the action to say every sensor failed')
+        took = time.monotonic() - last
+        self.results['all_failed_s'] = took
+        self._mark('all_failed', seconds=took)
+        self.progress.line('every sensor failed, said %.2f s after the last unplug (%s)' % (took, ', '.join(devices)))
 
     # ------------------------------------------------------------------ --hosts 2
     def _partition(self, index: int, label: str, station_label: str) -> None:
@@ -660,6 +680,10 @@ class Demo:
                                   StopGraph)(graph_name=graphs[-1])
         if resp.code != 0:
             raise RuntimeError('stopping graph %s: %s' % (graphs[-1], resp.message))
+        if self.opts.unplug_all:       # every display went with its sensor: the screen is empty already
+            self._screenshot('empty_view')
+            self.progress.line('action stopped, view empty')
+            return
         try:
             self.watcher.wait_removed(since, 10.0)
             self._screenshot('empty_view')
