@@ -9,6 +9,10 @@ arrived meanwhile the entry is pushed again to ``last + limit``, otherwise the
 topic has been silent for its whole limit and the stall callback runs. So the
 thread wakes about once per limit per topic, and a stall is reported at most a
 scheduling delay after the limit, never a poll period later.
+
+A silence is called a stall only once it is longer than the limit plus the time
+the machine held this manager's own threads back meanwhile (``starvation.py``):
+a starved machine is not a silent sensor.
 """
 import heapq
 import itertools
@@ -19,10 +23,13 @@ from typing import Callable, List, Optional
 import rospy
 
 from temoto_sensor_manager.arrivals import ArrivalModel
+from temoto_sensor_manager.starvation import MachinePressure, thread_wait
 
 
 # seconds: the longest an adaptive probe goes unchecked (its limit may have shrunk since the last look)
 ADAPTIVE_RECHECK = 0.1
+LATE_WAKE = 0.02        # seconds: a wake-up later than this says this process was held back
+CATCH_UP = 0.05         # seconds the receive threads get to read what waited after such a wake-up
 
 
 class TopicProbe:
@@ -44,11 +51,20 @@ class TopicProbe:
         self.armed = False
         self.quiet_from = 0.0                # silence counts from max(last, quiet_from): see Watchdog.arm
         self.owner = None                    # set by the watchdog user (what stalled)
+        self.reader_tid = 0                  # the thread that reads this topic's messages
+        self.reader_wait: Optional[float] = None   # its run-queue time at the last message (starvation.py)
+        self.silence_from = -1.0             # the silence that the lateness below belongs to
+        self.late = 0.0                      # how late the watchdog woke at most, during that silence
+        self.starved = 0.0                   # the starvation allowed for at the last look (for the message)
         self._on_first = on_first
         self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
 
     def _on_msg(self, _msg) -> None:
         now = time.monotonic()
+        if not self.reader_tid:
+            self.reader_tid = threading.get_native_id()
+        if self.armed:
+            self.reader_wait = thread_wait(self.reader_tid)
         if self.count:
             gap = now - self.last
             if gap > self.max_gap:
@@ -70,9 +86,19 @@ class TopicProbe:
 
     def describe_limit(self, limit: float) -> str:
         """How ``limit`` was found, for a stall's message."""
+        starved = ', plus %.3f s the machine held this manager back' % self.starved if self.starved > 0.0005 else ''
         if self.arrivals is None or limit >= self.limit:
-            return 'limit %.3f s' % limit
-        return 'adaptive limit %.3f s of at most %.3f s: %s' % (limit, self.limit, self.arrivals.describe())
+            return 'limit %.3f s%s' % (limit, starved)
+        return 'adaptive limit %.3f s of at most %.3f s%s: %s' % (limit, self.limit, starved,
+                                                                  self.arrivals.describe())
+
+    def reader_starved(self) -> float:
+        """Seconds the receive thread waited for a CPU since it read the last message (0 if unknown)."""
+        before = self.reader_wait
+        if before is None or not self.reader_tid:
+            return 0.0
+        now = thread_wait(self.reader_tid)
+        return max(0.0, now - before) if now is not None else 0.0
 
     def connections(self) -> int:
         """How many publishers of the topic this probe is connected to now (0 once closed)."""
@@ -96,6 +122,7 @@ class Watchdog:
         self._seq = itertools.count()
         self._cond = threading.Condition()
         self._stopped = False
+        self.pressure = MachinePressure()
         self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
         self._thread.start()
 
@@ -142,9 +169,23 @@ class Watchdog:
                 heapq.heappop(self._heap)
                 if not probe.armed:
                     continue
+                self.pressure.sample(now)
                 since = max(probe.last, probe.quiet_from)
+                if probe.silence_from != since:
+                    probe.silence_from, probe.late = since, 0.0
+                late = now - deadline
+                probe.late = max(probe.late, late)
                 limit = probe.current_limit()
                 due = since + limit
+                if due <= now and late > LATE_WAKE:
+                    # this thread ran late, and so may the receive thread, with messages waiting unread:
+                    # it gets a moment to catch up before the silence is judged
+                    due = now + CATCH_UP
+                elif due <= now:
+                    # long enough, unless the machine held this manager back meanwhile (starvation.py)
+                    probe.starved = probe.late + min(probe.limit, max(probe.reader_starved(),
+                                                                      self.pressure.excess(since, now)))
+                    due += probe.starved
                 if due > now:
                     heapq.heappush(self._heap, (self._next_look(probe, due, now), next(self._seq), probe))
                     continue

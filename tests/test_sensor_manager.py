@@ -197,6 +197,42 @@ def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_
     sm.stop_sensor(res.resource_id)
 
 
+def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_stall(smi):
+    """The Sensor Manager is stopped (SIGSTOP) for several of a healthy stream's learnt limits, three times:
+    when it runs again, its watchdog wakes late beside a receive thread with messages waiting unread, and
+    it used to fail the sensor on a silence that was its own (watchdog.py, starvation.py). A stall that
+    follows is still caught by the rhythm's limit."""
+    import os
+    import signal
+    from temoto_core.master_lookup import lookup_node, node_pid
+    sm = smi()
+    events = []
+    sm.register_update_callback(events.append)
+    res = sm.start_sensor('fake patient')
+    watch = TopicWatch(res.topic('data'))
+    try:
+        wait_for(lambda: watch.count > 2 * arrivals.WARMUP, 20, 'enough messages to learn the rhythm')
+        pid = node_pid(lookup_node(os.environ['ROS_MASTER_URI'], '/temoto_sensor_manager'))
+        for _ in range(3):
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                time.sleep(0.6)          # the fault itself: held back for several learnt limits (~0.1 s)
+            finally:
+                os.kill(pid, signal.SIGCONT)
+            seen = watch.count
+            # the watchdog looks at least every 0.1 s: half a second of data later it has judged the silence
+            wait_for(lambda: watch.count >= seen + 25 and catalogue()['fake_patient']['active'], 10,
+                     'half a second of data after the manager ran again')
+            assert not failed_events(events), events[0].message
+    finally:
+        watch.close()
+    sent = FakeCables().send('stall', 'patient')
+    wait_for(lambda: failed_events(events), 10, 'the stall FAILED at the client')
+    assert time.monotonic() - sent < 2.5, events[0].message       # the catalogue's limit is 5 s
+    assert 'adaptive limit' in events[0].message, events[0].message
+    sm.stop_sensor(res.resource_id)
+
+
 def test_a_driver_that_fails_to_start_or_stays_silent_makes_way_for_the_next(smi):
     before = catalogue()
     sm = smi()

@@ -90,7 +90,8 @@ def test_silence_limit_defaults_to_three_periods_and_at_least_100_ms():
 def fixed_probe(topic, limit, last):
     """What the watchdog reads of a probe, with a fixed limit."""
     return types.SimpleNamespace(topic=topic, limit=limit, last=last, armed=False, quiet_from=0.0,
-                                 current_limit=lambda: limit, arrivals=None)
+                                 current_limit=lambda: limit, arrivals=None, silence_from=-1.0, late=0.0,
+                                 starved=0.0, reader_starved=lambda: 0.0)
 
 
 def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
@@ -178,3 +179,20 @@ def test_reliability_continues_from_a_kept_window():
     wider = Reliability(0.8, window=20)
     wider.restore(before.samples())     # another window: the kept samples are the newest, the prior fills up
     assert wider.value == pytest.approx((10 * 0.8 + sum(before.samples())) / 20)
+
+
+def test_watchdog_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
+    """A silence during which the probe's receive thread sat on a run queue (messages sent, unread) is the
+    machine's, not the sensor's: the stall comes that much later (at most one limit later), and still comes."""
+    fired = threading.Event()
+    stalls = []
+    dog = Watchdog(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
+    try:
+        probe = fixed_probe('starved', 0.1, last=time.monotonic())
+        probe.reader_starved = lambda: 0.08
+        dog.arm([probe])
+        assert fired.wait(5.0)
+        assert stalls[0] >= 0.18, stalls      # the limit (0.1 s) and the 0.08 s the reader was held back
+        assert probe.starved >= 0.08
+    finally:
+        dog.stop()
