@@ -1,11 +1,14 @@
 """The engine node across processes: chatter is grounded and runs; services and the CLI work."""
 import json
+import os
 import threading
 
 import pytest
+import rospy
 
 from temoto_action_engine import cli
 from temoto_action_engine.testing import write_plugin
+from temoto_core.master import connected
 from temoto_core.wait import wait_for
 
 NS = 'aetest'
@@ -47,7 +50,14 @@ class Listener:
             self.events.append(json.loads(msg.data))
 
     def connected(self):
-        return all(s.get_num_connections() > 0 for s in self.subs) and self.chatter.get_num_connections() > 0
+        """The engine's feedback and events publishers have this process connected, and the engine's chatter
+        subscriber is connected here. A subscriber counts a connection as soon as it *starts* connecting
+        (rospy), so its own count let the test speak while the engine's publisher had no connection yet,
+        and the engine's answer was dropped (outside check: 1 failed run in 3)."""
+        me = rospy.get_name()
+        return self.chatter.get_num_connections() > 0 and all(
+            connected(os.environ['ROS_MASTER_URI'], '/ae_node_engine', me, '/%s/action_engine/%s' % (NS, topic))
+            for topic in ('feedback', 'events'))
 
     def say(self, text):
         self.chatter.publish(self.String(data=text))
