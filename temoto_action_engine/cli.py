@@ -10,9 +10,30 @@ import argparse
 import json
 import os
 import sys
+import time
 
 DEFAULT_NS = os.environ.get('TEMOTO_NAMESPACE', 'temoto')
 SERVICE_WAIT_S = 5.0
+SAY_WAIT_S = 30.0       # `temoto say` right after `roslaunch ... &` finds the engine still starting
+
+
+def _wait_for_service(full: str, timeout: float) -> None:
+    """rospy's wait, through a master that is not up yet (its wait raises at once then), with one line of
+    progress when the wait is longer than a second."""
+    import rospy
+    deadline = time.monotonic() + timeout
+    told = False
+    while True:
+        try:
+            rospy.wait_for_service(full, timeout=max(0.1, min(1.0, deadline - time.monotonic())))
+            return
+        except rospy.ROSException:
+            if time.monotonic() >= deadline:
+                raise
+            if not told:
+                print('waiting for the action engine (%s), up to %.0f s ...' % (full, timeout), flush=True)
+                told = True
+            time.sleep(0.2)     # the master may not answer yet: rospy's wait then returns at once
 
 
 def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
@@ -20,7 +41,7 @@ def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
     import rospy
     full = '/%s/action_engine/%s' % (ns.strip('/'), name)
     try:
-        rospy.wait_for_service(full, timeout=timeout)
+        _wait_for_service(full, timeout)
     except rospy.ROSException:
         raise SystemExit('error: %s is not available (is the action engine running in namespace %r?)'
                          % (full, ns)) from None
@@ -47,9 +68,13 @@ def say(argv: list[str]) -> int:
     """temoto say "track the hand and show it on the screen" """
     p = _parser('temoto say', 'Ground an instruction and run it as an action graph.')
     p.add_argument('text', nargs='+', help='the instruction')
+    p.add_argument('--wait', type=float, default=SAY_WAIT_S,
+                   help='seconds to wait for the action engine to come up (default %(default).0f)')
     args = p.parse_args(argv)
+    if args.wait <= 0:
+        p.error('--wait must be a positive number of seconds')
     from .srv import StartGraph
-    resp = _service(args.ns, 'start_graph', StartGraph)(graph_json='', text=' '.join(args.text))
+    resp = _service(args.ns, 'start_graph', StartGraph, args.wait)(graph_json='', text=' '.join(args.text))
     print(resp.message)
     if resp.code == 0:
         print('graph: %s (stop it with: temoto graphs stop %s)' % (resp.graph_name, resp.graph_name))
