@@ -6,15 +6,30 @@ the service response, so the file is written where the command runs.
 from __future__ import annotations
 
 import argparse
+import http.client
 import sys
 import time
+import xmlrpc.client
 from typing import Optional
+
+import rosgraph
+
+from temoto_core.master_lookup import lookup_node
 
 from .host_client import RvizHostClient, RvizHostError, host_node_name
 
 
 def _client(args) -> RvizHostClient:
-    client = RvizHostClient(host_node_name(args.namespace), timeout=args.timeout)
+    node = host_node_name(args.namespace)
+    try:
+        running = lookup_node(rosgraph.get_master_uri(), node, timeout=min(args.timeout, 1.0)) is not None
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
+        raise RvizHostError('the ROS master at %s does not answer: %s' % (rosgraph.get_master_uri(), err)) from None
+    if not running:
+        # not a fault: the Output Manager starts the host for the first display and stops it with the last
+        raise RvizHostError('no RViz host is running in namespace %r (%s): it starts with the first display '
+                            'and stops with the last' % (args.namespace, node))
+    client = RvizHostClient(node, timeout=args.timeout)
     client.wait_ready(args.timeout)
     return client
 

@@ -53,7 +53,7 @@ def _list(ns: str) -> int:
                                                       for k, v in sorted(s['output_topics'].items()))))
     for s in rows:
         for topic, limit in sorted(s.get('watched', {}).items()):
-            print('watching %s of %s: stalled after %.0f ms of silence' % (topic, s['name'], limit * 1e3))
+            print('watching %s of %s: stall limit %.0f ms' % (topic, s['name'], limit * 1e3))
     for problem in data.get('problems', []):
         print('catalogue problem: %s' % problem)
     return 0

@@ -172,3 +172,21 @@ def test_a_dead_raw_consumer_is_released_though_its_name_came_back_before_the_ch
     assert not _released(owner, 'held_by_live_raw')
     assert [c['client_uri'] for c in _consumers_of(owner, 'held_by_live_raw')] == [new_uri]
     os.killpg(new.pid, signal.SIGKILL)
+
+
+def test_unloading_what_the_owner_let_go_already_succeeds(owner, procs, rospy_client):
+    """A resource the owner released behind the holder's back (a FAILED cleaned up, or a consumer it could
+    not reach, during a partition) is gone everywhere: the holder's unload answers so, not "unloading failed"
+    with the owner's "no resource" (outside check)."""
+    from temoto_core.srv import UnloadResource
+    holder = RegistrarNode(procs, 'rr_let_go')
+    holder.call(owner.name, 'let_go_behind_its_back')
+    ext = _consumers_of(owner, 'let_go_behind_its_back')[0]['resource_id']
+    local = holder.registry()['client_queries'][0]['local_ids'][0]
+    # the owner drops it, as its consumer watch or a cleanup does while the holder is cut off
+    gone = rospy.ServiceProxy('/temoto/%s/unload' % owner.name, UnloadResource)(server_name='load_test',
+                                                                                resource_id=ext)
+    assert gone.code == 0, gone.message
+    out = holder.unload(local)
+    assert 'error' not in out, out
+    assert holder.registry()['client_queries'] == []

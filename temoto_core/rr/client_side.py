@@ -300,6 +300,12 @@ class ClientSide:
                 owed = ' now (released here; the unload is sent again when its owner answers)'
             raise err.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'could not unload %s resource %d%s'
                                % (target_name(query.target), query.external_id, owed), core.prefix)
+        if refused is not None and any(frame.code == ErrorCode.RESOURCE_NOT_FOUND for frame in response.error_stack):
+            # the owner let it go already (a consumer it could not reach, a FAILED it cleaned up during a
+            # partition): gone there and here, which is what the unload asked for
+            rospy.loginfo('%s: %s resource %d was gone at its owner already: %s', core.prefix,
+                          target_name(query.target), query.external_id, response.message)
+            return
         if refused is not None:
             raise refused.extended(ErrorCode.RESOURCE_UNLOAD_FAIL, core.subsystem, 'unloading %s resource %d failed'
                                    % (target_name(query.target), query.external_id), core.prefix)
