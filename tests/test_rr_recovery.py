@@ -62,6 +62,15 @@ def _in_journal(path: str, internal_id: int) -> bool:
         db.close()
 
 
+def _journaled_state(path: str, state: str) -> bool:
+    """Whether the journal has committed a served resource in ``state``."""
+    db = sqlite3.connect('file:%s?mode=ro' % path, uri=True)
+    try:
+        return db.execute('SELECT count(*) FROM served WHERE state = ?', (state,)).fetchone()[0] > 0
+    finally:
+        db.close()
+
+
 def _forget_in_journal(path: str, internal_id: int) -> None:
     """What a SIGKILL between a change and its commit loses: a served resource, its consumer and its hold."""
     db = sqlite3.connect(path)
@@ -338,3 +347,23 @@ def _service_known(service: str) -> bool:
         return True
     except rosgraph.MasterError:
         return False
+
+
+def test_a_failed_resource_keeps_its_reason_across_its_owner_s_restart(chain, tmp_path):
+    """The journal keeps why a served resource failed: after the owner's restart its registry says why,
+    not "the journal keeps no reason" (outside check)."""
+    a, b, c, restart = chain
+    a.call('rr_rb', 'cam_with_reason', [('nested', 'rr_rc/load_test/driver_with_reason')])
+    c.fail('driver_with_reason', 'cable pulled for the reason test')
+    a.wait_events(1)
+
+    def failed_with(reg: dict):
+        return [q['failure'] for q in reg['server_queries'] if q['state'] == 'failed' and q.get('failure')]
+    wait_for(lambda: failed_with(b.registry()), 10, 'the failure at the owner')
+    # the journal commits within its pause: the kill comes after the FAILED state is on disk
+    wait_for(lambda: _journaled_state(str(tmp_path / 'rr_rb.sqlite3'), 'failed'), 10, 'the failure journaled')
+    _kill(b)
+    b = restart()
+    reasons = wait_for(lambda: failed_with(b.registry()), 20, 'the failed resource back in the registry')
+    assert any('cable pulled for the reason test' in r for r in reasons), reasons
+    assert not any('keeps no reason' in r for r in reasons), reasons

@@ -45,6 +45,7 @@ CREATE TABLE IF NOT EXISTS holds (
     local_id INTEGER PRIMARY KEY, namespace TEXT NOT NULL, rr TEXT NOT NULL, server TEXT NOT NULL,
     external_id INTEGER NOT NULL, parent INTEGER);
 CREATE TABLE IF NOT EXISTS owner_state (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS failures (internal_id INTEGER PRIMARY KEY, reason TEXT NOT NULL);
 """
 
 
@@ -67,6 +68,7 @@ class JournaledServed:
     request: bytes
     response: bytes
     consumers: List[JournaledConsumer]
+    reason: str = ''          # why it failed, when its state is FAILED ('' in a journal of an older version)
 
 
 @dataclasses.dataclass
@@ -116,7 +118,7 @@ class Journal:
                 self.previous_run = self._meta(db, 'run_id', run_id)
                 if run_id and self.previous_run != run_id:
                     # another master: nothing it recorded exists any more
-                    for table in ('served', 'consumers', 'held', 'holds'):
+                    for table in ('served', 'consumers', 'held', 'holds', 'failures'):
                         db.execute('DELETE FROM %s' % table)
                     db.execute('UPDATE meta SET value = ? WHERE key = ?', (run_id, 'run_id'))
                 self._id_floor = int(self._meta(db, 'id_floor', '0'))
@@ -220,14 +222,18 @@ class Journal:
         with self._transaction() as db:
             db.execute('DELETE FROM consumers WHERE server = ? AND external_id = ?', (server, external_id))
 
-    def mark(self, internal_id: int, state: str) -> None:
+    def mark(self, internal_id: int, state: str, reason: str = '') -> None:
+        """A served resource's new state, and why (a FAILED's reason survives a restart of the owner)."""
         with self._transaction() as db:
             db.execute('UPDATE served SET state = ? WHERE internal_id = ?', (state, internal_id))
+            if reason:
+                db.execute('INSERT OR REPLACE INTO failures VALUES (?, ?)', (internal_id, reason))
 
     def unserve(self, internal_id: int) -> None:
         """A served resource is gone: with its consumers, and the links to what it held."""
         with self._transaction() as db:
             db.execute('DELETE FROM served WHERE internal_id = ?', (internal_id,))
+            db.execute('DELETE FROM failures WHERE internal_id = ?', (internal_id,))
             db.execute('DELETE FROM consumers WHERE internal_id = ?', (internal_id,))
             db.execute('UPDATE holds SET parent = NULL WHERE parent = ?', (internal_id,))
 
@@ -282,7 +288,9 @@ class Journal:
             for server, ext, internal, topic, name, ns, uri, incarnation in db.execute(
                     'SELECT * FROM consumers ORDER BY external_id'):
                 consumers.setdefault(internal, []).append(JournaledConsumer(ext, topic, name, ns, uri, incarnation))
-            served = [JournaledServed(i, server, state, rtype, bytes(req), bytes(res), consumers.get(i, []))
+            reasons = dict(db.execute('SELECT internal_id, reason FROM failures').fetchall())
+            served = [JournaledServed(i, server, state, rtype, bytes(req), bytes(res), consumers.get(i, []),
+                                      reasons.get(i, ''))
                       for i, server, state, rtype, req, res in db.execute('SELECT * FROM served ORDER BY internal_id')]
             holds = [JournaledHold(local_id, (ns, rr, server), ext, rtype, bytes(req), bytes(res), parent)
                      for local_id, ns, rr, server, ext, parent, rtype, req, res in db.execute(

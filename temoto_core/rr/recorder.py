@@ -164,7 +164,8 @@ class Recorder:
     def failed(self, query: ServerQuery) -> None:
         if self.writer is not None:
             internal_id, state = query.internal_id, query.state.value
-            self.writer.put(lambda: self.journal.mark(internal_id, state))
+            reason = str(query.failure) if query.failure is not None else ''
+            self.writer.put(lambda: self.journal.mark(internal_id, state, reason))
 
     def gone(self, query: ServerQuery) -> None:
         if self.writer is not None:

@@ -121,8 +121,8 @@ class Recovery:
                     server.by_key.setdefault(query.key, query)
                 else:
                     query.move(FAILED)
-                    query.failure = core.error(ErrorCode.RESOURCE_FAILED,
-                                               'failed before this incarnation started (the journal keeps no reason)')
+                    query.failure = core.error(ErrorCode.RESOURCE_FAILED, 'failed before this incarnation started: %s'
+                                               % (entry.reason or 'no reason was journaled'))
                 for local_id, parent in list(self._parents.items()):
                     if parent == query.internal_id and local_id in self._client.by_local:
                         self._links.attach(local_id, query)
