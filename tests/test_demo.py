@@ -118,6 +118,28 @@ def test_report_files_exist_and_screenshots_show_data(demo_run):
         # a scan is a few thin lines: a real but small share of the 960x600 view
         assert diff_fraction(shots[name], shots['empty_view']) > 0.0005, name
     assert diff_fraction(shots['arm_cloud'], shots['rgbd']) > 0.005
+    # the recorded topics as the bag holds them: the engine's events under their inert name, never the live one
+    listed = report.split('## Recorded topics', 1)[1]
+    assert '`/temoto_demo/recorded/temoto/action_engine/events`' in listed, listed
+    assert '`/temoto/action_engine/events`' not in listed and '`/temoto/human_chatter`' not in listed, listed
+
+
+def test_every_view_lasts_at_least_two_seconds_in_the_bag(demo_run):
+    """The demo stopped right after the last failover: the SICK scan lasted 0.15 s (4 messages) in the bag,
+    so neither the bag nor its replay showed the last view."""
+    from pathlib import Path
+    from rosbags.highlevel import AnyReader
+    from temoto_action_engine.demo import topics as T
+    _, out, _ = demo_run
+    spans = {}
+    with AnyReader([Path(str(out / 'failover.bag'))]) as reader:
+        streams = [c for c in reader.connections if c.topic.startswith(T.STREAMS_PREFIX + '/')]
+        for conn, stamp, _ in reader.messages(connections=streams):
+            first, _last = spans.get(conn.topic, (stamp, stamp))
+            spans[conn.topic] = (first, stamp)
+    lasted = {t[len(T.STREAMS_PREFIX):]: (b - a) * 1e-9 for t, (a, b) in spans.items()}
+    for stream in ('/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan'):
+        assert lasted.get(stream, 0) >= 2.0, lasted
 
 
 BAG_BUDGET_BYTES = 30 * 1024 * 1024
@@ -146,9 +168,10 @@ def test_the_bag_holds_every_displayed_stream_with_tf_and_the_robot_within_its_b
 
 
 def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros_master):
-    """The instruction, the cables and the registrars' statuses are in the bag under inert names: a plain
-    `rosbag play` publishes none of the topics a live stack listens to (it used to start a graph and
-    unplug a live driver)."""
+    """The instruction, the cables, the registrars' statuses, the action engine's events and feedback and the
+    displays' events are in the bag under inert names: a plain `rosbag play` publishes none of the topics a
+    live stack listens to (it used to start a graph and unplug a live driver, and then made a live speech
+    node announce failures that never happened)."""
     import rospy
     from std_msgs.msg import Header, String
     from vaultbot_sim.msg import DeviceStates
@@ -160,8 +183,11 @@ def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros
     counts = bag_topics(bag)
     assert not [t for t in counts if T.acts_on_a_live_system(t)], sorted(counts)
     assert counts.get(T.inert_name('/temoto/human_chatter')) == 1
+    assert counts.get(T.inert_name('/temoto/action_engine/events'), 0) > 0
     heard = []
     subs = [rospy.Subscriber('/temoto/human_chatter', String, heard.append),
+            rospy.Subscriber('/temoto/action_engine/events', String, heard.append),
+            rospy.Subscriber('/temoto/action_engine/feedback', String, heard.append),
             rospy.Subscriber('/vaultbot_sim/device_states', DeviceStates, heard.append),
             rospy.Subscriber('/temoto/temoto_sensor_manager/status', ResourceStatus, heard.append)]
     ticks = []
@@ -326,13 +352,15 @@ def test_a_spoken_demo_hears_the_instruction_announces_each_failure_and_records_
             if 'speech' in conn.topic:
                 msg = reader.deserialize(raw, conn.msgtype)
                 said.setdefault(conn.topic, []).append(msg.data)
-    assert [json.loads(h)['text'] for h in said['/temoto/speech/heard']] == ['show the environment']
+    heard, announcements = '/temoto_demo/recorded/temoto/speech/heard', '/temoto_demo/recorded/temoto/speech/announcements'
+    assert '/temoto/speech/heard' not in said and '/temoto/speech/announcements' not in said, sorted(said)
+    assert [json.loads(h)['text'] for h in said[heard]] == ['show the environment']
     assert '/temoto/speech/audio' not in said and sum(len(a) for a in said['/temoto_demo/recorded/temoto/speech/audio']) \
         > 16000 * 2 * 0.5, 'the spoken instruction, inert, at least half a second of it'
     expected = ['showing the RGB-D camera cloud', 'the RGB-D camera cloud failed',
                 'switching to the arm LIDAR stitched cloud', 'the arm LIDAR stitched cloud failed',
                 'switching to the base LIDAR scan']
-    announced = iter(said['/temoto/speech/announcements'])
-    assert all(any(a == e for a in announced) for e in expected), said['/temoto/speech/announcements']  # in order
+    announced = iter(said[announcements])
+    assert all(any(a == e for a in announced) for e in expected), said[announcements]  # in order
     wavs = [f for f in os.listdir(out / 'speech') if f.endswith('.wav')]
-    assert 0 < len(wavs) <= len(said['/temoto/speech/announcements'])     # a backlog beyond 5 drops the oldest
+    assert 0 < len(wavs) <= len(said[announcements])     # a backlog beyond 5 drops the oldest

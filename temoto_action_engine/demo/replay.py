@@ -3,7 +3,8 @@
 The replay never touches a live system: it starts a master of its own on a free loopback port,
 an RViz host on it (headless under Xvfb unless ``--live``), and plays only the bag's recorded
 streams, ``/tf`` and ``/tf_static`` (with ``--clock``, on simulated time, so RViz transforms the
-recorded data at its recorded time). A display is added for every recorded stream before the play
+recorded data at its recorded time), and the action engine's events and feedback, mapped back from
+their inert names to their own on that private master (a console pointed at it follows the run). A display is added for every recorded stream before the play
 starts. When a stream's first message arrives, the views before it are taken off the screen, as
 the failover did during the run, and a screenshot of the new view is saved.
 """
@@ -124,8 +125,11 @@ class Replay:
         changed = threading.Condition()
         subs = [rospy.Subscriber(t, rospy.AnyMsg, lambda _m, t=t: self._first(changed, arrived, t), queue_size=1)
                 for t in names]
+        news = [T.action_events(), T.action_feedback()]      # under their live names: this master is private
         play = launcher.command(['rosbag', 'play', '-q', '--clock', '-d', str(PLAY_DELAY_S), '-r', str(self.rate),
-                                 self.bag, '--topics', '/tf', '/tf_static'] + list(names), 'rosbag_play')
+                                 self.bag, '--topics', '/tf', '/tf_static'] + list(names) +
+                                [T.inert_name(t) for t in news] + ['%s:=%s' % (T.inert_name(t), t) for t in news],
+                                'rosbag_play')
         shown = 0
         removed = set()
         deadline = time.monotonic() + timeout

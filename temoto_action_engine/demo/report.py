@@ -95,9 +95,9 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
     plugged: Dict[str, bool] = {}
     with AnyReader([Path(bag_path)]) as reader:
         run.start, run.end = reader.start_time * 1e-9, reader.end_time * 1e-9
-        for c in reader.connections:
-            kind, n = run.topics.get(T.live_name(c.topic), (c.msgtype, 0))
-            run.topics[T.live_name(c.topic)] = (kind, n + c.msgcount)
+        for c in reader.connections:       # as the bag holds them (inert names included): what a reader plays
+            kind, n = run.topics.get(c.topic, (c.msgtype, 0))
+            run.topics[c.topic] = (kind, n + c.msgcount)
         for conn, bag_ns, raw in reader.messages():
             topic, bag_t = T.live_name(conn.topic), bag_ns * 1e-9
             if topic.startswith(T.STREAMS_PREFIX + '/'):
@@ -608,7 +608,9 @@ def write_report(bag_path: str, out_dir: Optional[str] = None, namespace: str = 
                 k.node, k.kill_t - an.t0, _fmt(k.recovered_s), k.shown_topic or '-', _fmt(k.longest_gap),
                 _fmt(k.frame_period), _fmt(k.own_gap), k.displays_removed, verdict))
         L.append('')
-    L += ['## Recorded topics', '', '| topic | type | messages |', '| --- | --- | --- |']
+    L += ['## Recorded topics', '', 'As the bag holds them. Topics under `%s` had the rest of their name on the '
+          'live system; they are kept apart so that a plain `rosbag play` acts on nothing and announces '
+          'nothing (docs/bags.md).' % T.INERT_PREFIX, '', '| topic | type | messages |', '| --- | --- | --- |']
     L += ['| `%s` | %s | %d |' % (t, k, n) for t, (k, n) in sorted(run.topics.items())]
     L.append('')
     path = os.path.join(out_dir, 'report.md')

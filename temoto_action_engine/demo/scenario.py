@@ -40,6 +40,10 @@ PRIORITY_PARAM = '/temoto_action_engine/actions/show_environment/sensor_priority
 STANDBY_PARAM = '/temoto_action_engine/actions/show_environment/standby'
 INSTRUCTION = 'show the environment'
 STARTUP_TIMEOUT = 60.0
+# seconds each view stays on screen at least before the next failure (or the end): the bag, its report and
+# its replay then show every view, the last one too (it lasted 0.15 s, 4 scans, when the demo stopped at once).
+# 2 s of a stream in the bag, and the half second a 10 Hz cloud's last message and the recorder may lag by
+MIN_VIEW_S = 2.5
 # --kill-managers: node -> the registrars it runs (each must answer, recovered, before the next kill)
 KILLABLE = OrderedDict([('/temoto_er_manager', ['temoto_er_manager']),
                         ('/temoto_sensor_manager', ['temoto_sensor_manager']),
@@ -422,8 +426,10 @@ class Demo:
         timeout = self.opts.stage_timeout
         labels = [e['label'] for e in self._priority_override_labels()]
         since = time.monotonic()
+        on_screen = since
         for k, name in enumerate(self.opts.priority):
             if k > 0:
+                self._hold_view(on_screen)
                 prev = self.opts.priority[k - 1]
                 device = PRIORITY_ENTRIES[prev][1]
                 mode = self.opts.modes.get(device, 'crash')
@@ -443,6 +449,7 @@ class Demo:
             else:
                 topic = self.watcher.wait_stage(k, since, timeout, labels[k])
             self._mark('on_screen', priority_index=k, entry=name, topic=topic)
+            on_screen = time.monotonic()
             self.results['stages'].append({'entry': name, 'topic': topic, 'seconds': time.monotonic() - since})
             self.progress.line(what)
             if k == 0:
@@ -457,12 +464,21 @@ class Demo:
             if k == 0 and self.opts.unplug_all:
                 self._unplug_all(timeout)
                 break
+        self._hold_view(on_screen)
         if self.opts.replug:
             self._replug(labels[0], timeout)
         if self.hosts is not None:
             last = len(self.opts.priority) - 1
             self._partition(last, labels[last], labels[last + 1] if last + 1 < len(labels) else '')
         self._empty_view()
+
+    @staticmethod
+    def _hold_view(on_screen: float) -> None:
+        """Pacing, not a wait for anything: the view that came on screen at ``on_screen`` stays there for
+        MIN_VIEW_S in all."""
+        left = MIN_VIEW_S - (time.monotonic() - on_screen)
+        if left > 0:
+            time.sleep(left)
 
     def _unplug_all(self, timeout: float) -> None:
         """Every device of the view unplugged one right after another (its mode from the options), then the

@@ -51,9 +51,11 @@ STREAMS_PREFIX = DEMO_NS + '/streams'       # STREAMS_PREFIX + source topic: a d
 SCREENSHOTS = DEMO_NS + '/screenshots'      # sensor_msgs/CompressedImage (png); frame_id = stage name
 STAGES = DEMO_NS + '/stages'                # std_msgs/String JSON: what the orchestrator did and when
 ROBOT_DESCRIPTION = DEMO_NS + '/robot_description'   # std_msgs/String, latched: the URDF the views were drawn with
-# Inputs that act on a live system (an instruction, a cable, a status into a registrar) are kept in the
-# bag under this prefix, so that a plain `rosbag play` cannot start a graph, unplug a device or fail a
-# resource; `temoto report` and `temoto replay` read them back under their own names.
+# Topics a live node acts on or announces (an instruction, a cable, a status into a registrar, the action
+# engine's events and feedback, which the speech node announces and consoles show, the displays' events,
+# what the speech node heard and said) are kept in the bag under this prefix, so that a plain `rosbag play`
+# cannot start a graph, unplug a device, fail a resource, or make a live station speak of failures that
+# never happened; `temoto report` and `temoto replay` read them back under their own names.
 INERT_PREFIX = DEMO_NS + '/recorded'
 
 # The VaultBot's displayed streams (temoto_sensor_manager/config/vaultbot.yaml); the relay also follows
@@ -126,8 +128,10 @@ def record_regexes(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
 
 
 def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
-    """Whether a recorded topic, played back under its own name, would drive a live stack."""
-    return topic in (chatter(ns), speech_audio(ns)) or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
+    """Whether a recorded topic, played back under its own name, would drive a live stack or be taken by it
+    for its own news (announced, shown as the state of a graph or a display)."""
+    heeded = (chatter(ns), action_events(ns), action_feedback(ns), display_events(ns)) + tuple(speech_topics(ns))
+    return topic in heeded or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
 
 
 def inert_name(topic: str) -> str:
