@@ -12,14 +12,16 @@ normal model, phi of about 9 for a factor of 6. Two guards keep it honest when t
   than a normal model says; with two CPU hogs, a 25 Hz scan whose gaps had a mean of 40 ms, a spread of
   13 ms and a longest gap of 129 ms in the last minute then showed a gap of 194 ms);
 - it is never above the catalogue's limit (``stall_timeout``, or three periods), which is also the
-  limit until ``WARMUP`` gaps have been seen.
+  limit until ``WARMUP`` gaps have been seen, unless the device's rhythm was learnt in an earlier load
+  (``seed``): a stall early in a load is then caught at the learnt limit, not at the catalogue's (the
+  demo's Hokuyo was stalled within its learning time and caught after 12 periods).
 
 The cost per message is a few float operations on the subscriber's thread; the limit itself is
 computed only when the watchdog wakes.
 """
 import collections
 import math
-from typing import Deque
+from typing import Deque, Optional, Tuple
 
 WINDOW = 300            # gaps of the mean and spread: 10 s at 30 Hz
 WARMUP = 100            # gaps before the measured rhythm is trusted (3 s at 30 Hz)
@@ -43,6 +45,19 @@ class ArrivalModel:
         self._added = 0
         self._longest_now = 0.0                        # the bucket being filled
         self._longest_past: Deque[float] = collections.deque(maxlen=HISTORY_BUCKETS - 1)
+        self._prior: Optional[Tuple[float, float, float]] = None   # (mean, spread, longest) of an earlier load
+
+    def seed(self, rhythm: Optional[Tuple[float, float, float]]) -> None:
+        """The rhythm an earlier load of the same device learnt: the limit until this load has learnt its own."""
+        if rhythm and len(rhythm) == 3 and all(isinstance(x, (int, float)) and 0 <= x < 60 for x in rhythm) \
+                and rhythm[0] > 0:
+            self._prior = (float(rhythm[0]), float(rhythm[1]), float(rhythm[2]))
+
+    def rhythm(self) -> Optional[Tuple[float, float, float]]:
+        """(mean, spread, longest) once learnt, to seed the device's next load; None before."""
+        if len(self._gaps) < WARMUP:
+            return None
+        return (round(self.mean(), 6), round(self.spread(), 6), round(self.longest(), 6))
 
     def add(self, gap: float) -> None:
         gaps = self._gaps
@@ -82,13 +97,20 @@ class ArrivalModel:
         """The silence that counts as a stall now: adaptive between the floor and ``cap`` (the cap itself
         while warming up). ``nominal_period``: 1 / the catalogue's rate (0: unknown; the measured mean
         then sets the floor)."""
-        if len(self._gaps) < WARMUP:
+        if len(self._gaps) >= WARMUP:
+            mean, spread, longest = self.mean(), self.spread(), self.longest()
+        elif self._prior is not None:
+            mean, spread, prior_longest = self._prior
+            longest = max(prior_longest, self.longest())
+        else:
             return cap
-        mean = self.mean()
-        adaptive = mean + SPREAD_FACTOR * max(self.spread(), MIN_SPREAD * mean)
-        floor = max(FLOOR_PERIODS * (nominal_period or mean), MAX_GAP_MARGIN * self.longest())
+        adaptive = mean + SPREAD_FACTOR * max(spread, MIN_SPREAD * mean)
+        floor = max(FLOOR_PERIODS * (nominal_period or mean), MAX_GAP_MARGIN * longest)
         return min(cap, max(floor, adaptive))
 
     def describe(self) -> str:
+        if len(self._gaps) < WARMUP and self._prior is not None:
+            return 'mean gap %.3f s, spread %.3f s, longest %.3f s learnt in an earlier load (%d gaps in this one)' % (
+                self._prior + (len(self._gaps),))
         return 'mean gap %.3f s, spread %.3f s over the last %d gaps, longest lately %.3f s' % (
             self.mean(), self.spread(), len(self._gaps), self.longest())

@@ -49,15 +49,25 @@ SUB = Subsystem.SENSOR_MANAGER
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
 RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
 START_TIMES_KEY = 'start_times'       # owner state: {sensor name: seconds from a driver's start to its data}
+RHYTHMS_KEY = 'rhythms'               # owner state: {"sensor/topic type": [mean, spread, longest gap]}
 SENSOR_KEY = 'sensor/%d'              # owner state: the driver process of a served sensor, by internal id
 # seconds beyond its stall limit that a driver already seen stalling (and shared again) gets to show data
 # again: the new subscription's connection on a loaded machine; its start-up allowance does not apply
 STALLED_RECHECK_S = 1.0
 
 
-def probe_of(spec: TopicSpec, topic: str, on_first=None) -> TopicProbe:
-    """The watch of ``topic`` as its catalogue entry ``spec`` describes it."""
-    return TopicProbe(topic, spec.silence_limit(), on_first=on_first, rate=spec.rate, adaptive=spec.adaptive)
+def probe_of(spec: TopicSpec, topic: str, on_first=None, rhythm=None) -> TopicProbe:
+    """The watch of ``topic`` as its catalogue entry ``spec`` describes it; ``rhythm``: what an earlier load
+    of the device learnt of this topic (``arrivals.ArrivalModel.seed``)."""
+    probe = TopicProbe(topic, spec.silence_limit(), on_first=on_first, rate=spec.rate, adaptive=spec.adaptive,
+                       key=spec.key)
+    if probe.arrivals is not None:
+        probe.arrivals.seed(rhythm)
+    return probe
+
+
+def rhythm_key(entry_name: str, topic_key: str) -> str:
+    return '%s/%s' % (entry_name, topic_key)
 
 
 def _reached(connections: int) -> str:
@@ -114,6 +124,7 @@ class SensorManager:
         self.first_data_timeout = first_data_timeout      # the cap, and the limit of a topic of unknown rate
         self.first_data_allowance = first_data_allowance
         self.start_times = StartTimes(first_data_allowance)
+        self._rhythms: Dict[str, list] = {}         # rhythm_key -> [mean, spread, longest]: learnt in earlier loads
         self.er_manager = er_manager
         self.rr = rr or ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB)
         self._lock = threading.Lock()
@@ -132,6 +143,8 @@ class SensorManager:
         self._restore_reliabilities(kept.get(RELIABILITIES_KEY))
         if kept.get(START_TIMES_KEY):
             self.start_times.restore(json.loads(kept[START_TIMES_KEY]))
+        if kept.get(RHYTHMS_KEY):
+            self._rhythms = {k: v for k, v in json.loads(kept[RHYTHMS_KEY]).items() if isinstance(v, list)}
         self._records = {int(k.split('/')[1]): json.loads(v) for k, v in kept.items() if k.startswith('sensor/')}
         # one callback for every driver process held, also those a restart brings back
         self.rr.register_status_callback(self._on_process_status)
@@ -193,7 +206,8 @@ class SensorManager:
         attempt = _Attempt()
         # Subscribed before the driver starts: the connection to its publishers is made while it starts
         # (not after the ER Manager answers), so its first message is seen as soon as it is sent.
-        probes = [probe_of(entry.output_topics[key], topic, on_first=attempt.wake)
+        probes = [probe_of(entry.output_topics[key], topic, on_first=attempt.wake,
+                           rhythm=self._rhythms.get(rhythm_key(entry.name, key)))
                   for key, topic in launch.topics.items()]
         try:
             started = self.rr.call(self.er_manager, LOAD_PROCESS, request, link=False)
@@ -283,6 +297,7 @@ class SensorManager:
             return
         for probe in held.probes:
             probe.close()
+        self._keep_rhythms(held)
         rospy.loginfo('%s: released %s (its driver goes with it); %s', NAME, held.entry.name, _gaps(held.probes))
 
     # -- recovery after a restart ------------------------------------------------------------------
@@ -296,7 +311,8 @@ class SensorManager:
             raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'sensor %s: %s' % (
                 res.sensor_name, 'the journal has no record of its driver' if record is None
                 else 'it is not in the catalogue any more'))
-        probes = [probe_of(entry.output_topics[kv.key], kv.value)
+        probes = [probe_of(entry.output_topics[kv.key], kv.value,
+                           rhythm=self._rhythms.get(rhythm_key(entry.name, kv.key)))
                   for kv in res.output_topics if kv.key in entry.output_topics]
         held = _Held(rid, entry, int(record['process_id']), probes)
         with self._lock:
@@ -316,6 +332,18 @@ class SensorManager:
                 entry.reliability.restore(samples)
         rospy.loginfo('%s: reliabilities restored from the journal: %s', NAME, ', '.join(
             '%s %.3f' % (e.name, e.reliability.value) for e in self.catalogue.entries))
+
+    def _keep_rhythms(self, held: _Held) -> None:
+        """What this load learnt of each topic's rhythm, for the device's next load (and the journal)."""
+        learnt = {rhythm_key(held.entry.name, p.key): list(p.arrivals.rhythm()) for p in held.probes
+                  if p.key and p.arrivals is not None and p.arrivals.rhythm() is not None}
+        if not learnt:
+            return
+        with self._lock:
+            self._rhythms.update(learnt)
+            kept = dict(self._rhythms)
+        if self.rr.journaled:
+            self.rr.put_owner_state(RHYTHMS_KEY, json.dumps(kept))
 
     def _keep_reliabilities(self) -> None:
         """Journal what this manager has learnt of its devices: reliabilities and start times."""
@@ -373,6 +401,7 @@ class SensorManager:
             held.failed = True
         for probe in held.probes:
             probe.close()
+        self._keep_rhythms(held)
         value = held.entry.reliability.failure()
         self._keep_reliabilities()
         rospy.logerr('%s: %s (reliability now %.3f); before that, %s', NAME, message, value, _gaps(held.probes))

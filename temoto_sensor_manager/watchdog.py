@@ -36,11 +36,12 @@ class TopicProbe:
     """An ``AnyMsg`` subscription that remembers when its topic last carried a message, and its rhythm."""
 
     def __init__(self, topic: str, limit: float, on_first: Optional[Callable[[], None]] = None,
-                 rate: float = 0.0, adaptive: bool = True) -> None:
+                 rate: float = 0.0, adaptive: bool = True, key: str = '') -> None:
         """``limit``: the catalogue's silence limit (0: not watched); with ``adaptive``, the most the
         limit measured from the topic's own rhythm may be (``arrivals.py``). ``rate``: nominal Hz (0:
         unknown)."""
         self.topic = topic
+        self.key = key                       # the catalogue's topic type (camera_data, ...): whose rhythm this is
         self.limit = limit                   # seconds of silence that count as a stall at most; 0: not watched
         self.nominal_period = 1.0 / rate if rate > 0 else 0.0
         self.arrivals = ArrivalModel() if adaptive else None

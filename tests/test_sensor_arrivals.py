@@ -67,3 +67,17 @@ def test_stall_detection_is_adaptive_unless_the_catalogue_says_fixed():
         parse_entry(dict(base, stall_detection='smart', output_topics={'d': '/d'}))
     with pytest.raises(ValueError, match='output_topics.d.stall_detection must be one of'):
         parse_entry(dict(base, output_topics={'d': {'topic': '/d', 'stall_detection': 3}}))
+
+
+def test_a_rhythm_learnt_in_an_earlier_load_is_the_limit_until_this_load_learns_its_own():
+    earlier = ArrivalModel()
+    for _ in range(arrivals.WARMUP):
+        earlier.add(0.025)
+    fresh = ArrivalModel()
+    assert fresh.limit(0.3, 0.025) == 0.3                      # nothing learnt: the catalogue's limit
+    fresh.seed(earlier.rhythm())
+    assert fresh.limit(0.3, 0.025) < 0.1                       # 2.5 periods, not 12
+    fresh.add(0.2)                                             # a long gap in this load still widens it
+    assert fresh.limit(0.3, 0.025) >= 0.3 - 1e-9
+    fresh.seed((float('nan'), 0.0, 0.0))                       # a journal's garbage is ignored
+    assert ArrivalModel().rhythm() is None

@@ -234,6 +234,30 @@ def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_sta
     sm.stop_sensor(res.resource_id)
 
 
+def test_a_stall_early_in_a_load_is_caught_at_the_rhythm_an_earlier_load_learnt(smi):
+    """The rhythm is learnt from 100 gaps; a device stalled before that was caught only at the catalogue's
+    limit (the demo's Hokuyo: 12 periods). What an earlier load of the same device learnt is the limit
+    until this load has learnt its own."""
+    sm = smi()
+    res = sm.start_sensor('fake patient')
+    watch = TopicWatch(res.topic('data'))
+    try:
+        wait_for(lambda: watch.count > 2 * arrivals.WARMUP, 20, 'enough messages to learn the rhythm')
+    finally:
+        watch.close()
+    sm.stop_sensor(res.resource_id)
+    managers_idle()
+    events = []
+    sm.register_update_callback(events.append)
+    again = sm.start_sensor('fake patient')
+    sent = FakeCables().send('stall', 'patient')          # at once: far fewer than 100 gaps in this load
+    wait_for(lambda: failed_events(events), 10, 'the stall FAILED at the client')
+    delay = time.monotonic() - sent
+    assert delay < 2.5, (delay, events[0].message)        # the catalogue's limit is 5 s
+    assert 'learnt in an earlier load' in events[0].message, events[0].message
+    sm.stop_sensor(again.resource_id)
+
+
 def test_a_driver_that_fails_to_start_or_stays_silent_makes_way_for_the_next(smi):
     before = catalogue()
     sm = smi()
