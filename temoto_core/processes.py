@@ -40,11 +40,18 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
                 # the members first: a TeMoto node writes every thread's stack on SIGUSR1 (node.py), and the
                 # node a warm-respawn parent forked is a member that SIGABRT to the leader would only take
                 # down with it, silently (chaos seed 17: a wedged ER Manager left no trace of where it hung)
+                asked = []
                 for member in group_members(pgid, exclude=pgid):
                     try:
                         os.kill(member, signal.SIGUSR1)
+                        asked.append(member)
                     except ProcessLookupError:
                         pass
+                # ... and each has taken it before the leader goes: a leader killed at once had its members
+                # SIGKILLed while their SIGUSR1 was still pending on a loaded machine, and no stack was written
+                until = time.monotonic() + 2.0
+                while any(signal_pending(m, signal.SIGUSR1) for m in asked) and time.monotonic() < until:
+                    time.sleep(0.005)
                 # only the leader: with PYTHONFAULTHANDLER set (the harness sets it) a Python child
                 # writes every thread's stack to its log before dying, so a hang explains itself
                 os.kill(pgid, sig)
@@ -68,6 +75,19 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
         return proc.wait(timeout=1.0)
     except subprocess.TimeoutExpired:
         return None
+
+
+def signal_pending(pid: int, signum: int) -> bool:
+    """Whether ``signum`` waits to be delivered to process ``pid`` (``ShdPnd``/``SigPnd`` in /proc); False once
+    its handler has begun, or when the process is gone."""
+    try:
+        with open('/proc/%d/status' % pid) as f:
+            for line in f:
+                if line.startswith(('ShdPnd:', 'SigPnd:')) and int(line.split()[1], 16) >> (signum - 1) & 1:
+                    return True
+    except (OSError, ValueError, IndexError):
+        pass
+    return False
 
 
 def catches(pid: int, signum: int) -> bool:
