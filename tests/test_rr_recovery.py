@@ -53,22 +53,23 @@ def chain(rospy_client, procs, tmp_path):
     return a, b, c, (lambda: RegistrarNode(procs, 'rr_rb', journal=journal))
 
 
-def _in_journal(path: str, internal_id: int) -> bool:
-    """Whether the journal has committed the served resource ``internal_id`` with a consumer."""
+def _journal_has(path: str, query: str, arg) -> bool:
+    """Whether the committed journal has a row for ``query`` (a ``SELECT count(*) ... ?``) with ``arg``."""
     db = sqlite3.connect('file:%s?mode=ro' % path, uri=True)
     try:
-        return db.execute('SELECT count(*) FROM consumers WHERE internal_id = ?', (internal_id,)).fetchone()[0] > 0
+        return db.execute(query, (arg,)).fetchone()[0] > 0
     finally:
         db.close()
+
+
+def _in_journal(path: str, internal_id: int) -> bool:
+    """Whether the journal has committed the served resource ``internal_id`` with a consumer."""
+    return _journal_has(path, 'SELECT count(*) FROM consumers WHERE internal_id = ?', internal_id)
 
 
 def _journaled_state(path: str, state: str) -> bool:
     """Whether the journal has committed a served resource in ``state``."""
-    db = sqlite3.connect('file:%s?mode=ro' % path, uri=True)
-    try:
-        return db.execute('SELECT count(*) FROM served WHERE state = ?', (state,)).fetchone()[0] > 0
-    finally:
-        db.close()
+    return _journal_has(path, 'SELECT count(*) FROM served WHERE state = ?', state)
 
 
 def _forget_in_journal(path: str, internal_id: int) -> None:
