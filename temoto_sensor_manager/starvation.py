@@ -9,14 +9,16 @@ things about the span it covers:
 
 - how long the probe's receive thread waited for a CPU since it last read a message (its run-queue
   time from ``/proc/self/task/<tid>/schedstat``): a message sent on time may still sit unread;
-- how late the watchdog's own timer woke: the same starvation, seen from the other thread;
+- how much later than usual the watchdog's own timer woke (``watchdog.Lateness``): the same
+  starvation, seen from the other thread; a wake-up more than 20 ms later than usual also gives the
+  receive threads 50 ms to read what waited, once per silence, before the silence is judged;
 - how much more the machine's tasks waited for a CPU than they usually do (``/proc/pressure/cpu``,
-  "some", beyond its rate over the last minute): a burst that held the driver back too.
+  "some", beyond its rate over the last ten seconds): a burst that held the driver back too.
 
-The largest of the three, at most the catalogue's limit, is added to the limit for that look. A
-steady load (two CPU hogs all along) adds almost nothing, since the usual rate follows it and the
-adaptive limit has learnt the rhythm under it; a real stall during a burst is still caught, at most
-one catalogue limit later.
+The timer's lateness beyond the usual, plus the larger of the other two at most half the limit, is
+added to the limit for that look. A steady load (two CPU hogs all along) adds almost nothing, since
+each usual follows it and the adaptive limit has learnt the rhythm under it; a real stall during a
+burst is still caught, late by that much at most.
 """
 import collections
 import threading
@@ -26,7 +28,7 @@ from typing import Deque, Optional, Tuple
 PRESSURE = '/proc/pressure/cpu'
 SAMPLE_EVERY = 0.05       # seconds between two readings of the machine's pressure
 KEEP_S = 5.0              # seconds of readings kept (a silence longer than this is a stall anyway)
-USUAL_TAU_S = 60.0        # seconds: the time constant of the usual pressure rate
+USUAL_TAU_S = 10.0        # seconds: the time constant of the usual pressure rate (a burst is far shorter)
 
 
 def thread_wait(tid: int) -> Optional[float]:

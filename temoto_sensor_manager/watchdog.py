@@ -14,6 +14,7 @@ A silence is called a stall only once it is longer than the limit plus the time
 the machine held this manager's own threads back meanwhile (``starvation.py``):
 a starved machine is not a silent sensor.
 """
+import collections
 import heapq
 import itertools
 import threading
@@ -28,7 +29,7 @@ from temoto_sensor_manager.starvation import MachinePressure, thread_wait
 
 # seconds: the longest an adaptive probe goes unchecked (its limit may have shrunk since the last look)
 ADAPTIVE_RECHECK = 0.1
-LATE_WAKE = 0.02        # seconds: a wake-up later than this says this process was held back
+LATE_WAKE = 0.02        # seconds beyond the usual lateness: a wake-up this late says this process was held back
 CATCH_UP = 0.05         # seconds the receive threads get to read what waited after such a wake-up
 
 
@@ -54,8 +55,9 @@ class TopicProbe:
         self.owner = None                    # set by the watchdog user (what stalled)
         self.reader_tid = 0                  # the thread that reads this topic's messages
         self.reader_wait: Optional[float] = None   # its run-queue time at the last message (starvation.py)
-        self.silence_from = -1.0             # the silence that the lateness below belongs to
-        self.late = 0.0                      # how late the watchdog woke at most, during that silence
+        self.silence_from = -1.0             # the silence that the two below belong to
+        self.late = 0.0                      # how much later than usual the watchdog woke at most, in it
+        self.caught_up = False               # whether it was given its one catch-up after a late wake-up
         self.starved = 0.0                   # the starvation allowed for at the last look (for the message)
         self._on_first = on_first
         self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
@@ -114,6 +116,22 @@ class TopicProbe:
             sub.unregister()
 
 
+class Lateness:
+    """How late the watchdog's thread usually wakes: on a loaded machine a few tens of milliseconds is the
+    norm, and only what goes beyond it says that this process was held back."""
+
+    def __init__(self, keep: int = 200) -> None:
+        self._recent: collections.deque = collections.deque(maxlen=keep)
+
+    def beyond_usual(self, late: float) -> float:
+        """Seconds ``late`` (this wake-up's) goes beyond the 90th percentile of the last wake-ups; recorded."""
+        late = max(0.0, late)
+        recent = self._recent
+        usual = sorted(recent)[int(0.9 * (len(recent) - 1))] if len(recent) >= 20 else 0.0
+        recent.append(late)
+        return max(0.0, late - usual)
+
+
 class Watchdog:
     """One thread, a heap of deadlines; ``on_stall(probe, silence, limit)`` runs on that thread."""
 
@@ -124,6 +142,7 @@ class Watchdog:
         self._cond = threading.Condition()
         self._stopped = False
         self.pressure = MachinePressure()
+        self.lateness = Lateness()
         self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
         self._thread.start()
 
@@ -173,18 +192,22 @@ class Watchdog:
                 self.pressure.sample(now)
                 since = max(probe.last, probe.quiet_from)
                 if probe.silence_from != since:
-                    probe.silence_from, probe.late = since, 0.0
-                late = now - deadline
+                    probe.silence_from, probe.late, probe.caught_up = since, 0.0, False
+                late = self.lateness.beyond_usual(now - deadline)
                 probe.late = max(probe.late, late)
                 limit = probe.current_limit()
                 due = since + limit
-                if due <= now and late > LATE_WAKE:
+                if due <= now and late > LATE_WAKE and not probe.caught_up:
                     # this thread ran late, and so may the receive thread, with messages waiting unread:
-                    # it gets a moment to catch up before the silence is judged
+                    # it gets a moment to catch up before the silence is judged (once per silence)
+                    probe.caught_up = True
                     due = now + CATCH_UP
                 elif due <= now:
-                    # long enough, unless the machine held this manager back meanwhile (starvation.py)
-                    probe.starved = probe.late + min(probe.limit, max(probe.reader_starved(),
+                    # long enough, unless the machine held this manager back meanwhile (starvation.py): by
+                    # how late this thread woke beyond the usual, and by what the receive thread and the
+                    # machine waited beyond the usual, at most half the limit (a real stall comes late by
+                    # that much at the most)
+                    probe.starved = probe.late + min(0.5 * limit, max(probe.reader_starved(),
                                                                       self.pressure.excess(since, now)))
                     due += probe.starved
                 if due > now:
