@@ -22,7 +22,6 @@ burst is still caught, late by that much at most.
 """
 import collections
 import threading
-import time
 from typing import Deque, Optional, Tuple
 
 PRESSURE = '/proc/pressure/cpu'

@@ -15,7 +15,7 @@ import rospy
 
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar
-from temoto_core.srv import LoadTestResource
+from temoto_core.srv import LoadTestResource, UnloadResource
 from temoto_core.testing import wait_for
 from rr_helpers import RegistrarNode
 
@@ -178,7 +178,6 @@ def test_unloading_what_the_owner_let_go_already_succeeds(owner, procs, rospy_cl
     """A resource the owner released behind the holder's back (a FAILED cleaned up, or a consumer it could
     not reach, during a partition) is gone everywhere: the holder's unload answers so, not "unloading failed"
     with the owner's "no resource" (outside check)."""
-    from temoto_core.srv import UnloadResource
     holder = RegistrarNode(procs, 'rr_let_go')
     holder.call(owner.name, 'let_go_behind_its_back')
     ext = _consumers_of(owner, 'let_go_behind_its_back')[0]['resource_id']

@@ -5,6 +5,8 @@ fake drivers (temoto_sensor_manager/test_nodes/fake_sensor) started through them
 Reliabilities persist across tests in the shared manager, so a test that depends
 on the ranking reads the current ranking first.
 """
+import os
+import signal
 import time
 
 import pytest
@@ -13,6 +15,7 @@ from temoto_core.testing import made_interfaces
 import rospy
 
 from temoto_core.errors import ErrorCode, TemotoError
+from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.msg import ResourceStatus
 from temoto_core.testing import wait_for
 from temoto_sensor_manager import arrivals
@@ -203,9 +206,6 @@ def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_sta
     when it runs again, its watchdog wakes late beside a receive thread with messages waiting unread, and
     it used to fail the sensor on a silence that was its own (watchdog.py, starvation.py). A stall that
     follows is still caught by the rhythm's limit."""
-    import os
-    import signal
-    from temoto_core.master_lookup import lookup_node, node_pid
     sm = smi()
     events = []
     sm.register_update_callback(events.append)
