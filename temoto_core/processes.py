@@ -9,7 +9,7 @@ import time
 import xmlrpc.client
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
-from temoto_core.master_lookup import cleanup_dead_node
+from temoto_core.master_lookup import cleanup_dead_node, node_pid, parent_pid
 from temoto_core.process_group import exit_status, group_members
 
 T = TypeVar('T')
@@ -252,7 +252,8 @@ class ProcessGroupLauncher:
                 raise TimeoutError('%s: %s not registered after %.0f s; log:\n%s'
                                    % (proc.name, sorted(pending), timeout, proc.log()))
             for n in list(pending):
-                if master.lookupNode('/temoto_test', n)[0] == 1:
+                code, _msg, uri = master.lookupNode('/temoto_test', n)
+                if code == 1 and _started_by(node_pid(uri, 1.0), proc.pid):
                     pending.discard(n)
             if pending:
                 time.sleep(0.02)
@@ -274,6 +275,21 @@ class ProcessGroupLauncher:
             except OSError:                                  # the master is gone already: nothing to clean
                 break
         self._private_params.clear()
+
+
+def _started_by(pid: Optional[int], root: int, depth: int = 6) -> bool:
+    """Whether ``pid`` (a node's, from its XML-RPC API) is ``root`` or one of its descendants. A registration
+    the master still has from a dead node of the same name answers with no pid, or with another process's
+    (its port reused): counting it as this start let a test go on before its node was up, and the master's
+    shutdown for the old registration then reached whichever node had taken the dead one's port (a site
+    LIDAR driver shut down as '/vaultbot_sim', in a suite run)."""
+    for _ in range(depth):
+        if not pid or pid <= 1:
+            return False
+        if pid == root:
+            return True
+        pid = parent_pid(pid)
+    return False
 
 
 def leftover_processes(token: str, exclude: Sequence[int] = ()) -> List[Tuple[int, str]]:
