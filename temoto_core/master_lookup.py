@@ -144,13 +144,13 @@ def cleanup_dead_node(master_uri: str, node_name: str, timeout: float = 1.0) -> 
             scode, _smsg, service_uri = master.lookupService(CALLER_ID, service)
             if scode == 1:
                 calls.append(('unregisterService', service, service_uri))
-    if calls:
-        multi = xmlrpc.client.MultiCall(master)
-        for method, name, api in calls:
-            getattr(multi, method)(node_name, name, api)
-        # the master forgets a node only once it holds nothing at all, parameter subscriptions
-        # included: without this, a dead rospy node that ever logged stays known to lookupNode
-        for key in ROSPY_PARAM_SUBSCRIPTIONS:
-            multi.unsubscribeParam(node_name, uri, key)
-        multi()
+    multi = xmlrpc.client.MultiCall(master)
+    for method, name, api in calls:
+        getattr(multi, method)(node_name, name, api)
+    # the master forgets a node only once it holds nothing at all, parameter subscriptions included:
+    # without this, a dead rospy node that ever logged stays known to lookupNode, also one that
+    # unregistered its topics and services itself as it shut down (rospy leaves these)
+    for key in ROSPY_PARAM_SUBSCRIPTIONS:
+        multi.unsubscribeParam(node_name, uri, key)
+    multi()
     return len(calls)
