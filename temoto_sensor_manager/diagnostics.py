@@ -11,13 +11,15 @@ Which driver sent it is found from the message's connection header (the
 publishing node's name), the master (that node's URI) and the node itself (its
 pid, as ``rosnode ping`` asks), then the process tree: a node counts for a driver
 process when it is that process or one of its descendants (a launch file's
-nodes are roslaunch's children). Never by the status's name or hardware id, which
+nodes are roslaunch's children). Only a node on this manager's own host counts:
+a pid says nothing across machines. Never by the status's name or hardware id, which
 two drivers of one device (a stalled one still running and its successor) share.
 Only error statuses are looked up, so a healthy driver's reports cost a parse.
 """
 import http.client
 import threading
 import time
+import urllib.parse
 import xmlrpc.client
 from typing import Callable, Dict, List, Optional, Tuple
 
@@ -89,9 +91,16 @@ class DriverReports:
         except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
             rospy.logwarn('diagnostics: cannot find the node %s that reported an error: %s', node, err)
             return []
-        pid: Optional[int] = node_pid(uri, LOOKUP_TIMEOUT) if uri else None
+        if not uri or not _same_host(uri, rospy.get_node_uri() or ''):
+            return []
+        pid: Optional[int] = node_pid(uri, LOOKUP_TIMEOUT)
         chain = []
         while pid and pid > 1 and len(chain) <= ANCESTORS:
             chain.append(pid)
             pid = parent_pid(pid)
         return chain
+
+
+def _same_host(uri: str, own_uri: str) -> bool:
+    """Whether two XML-RPC URIs name the same host (pids are compared only there)."""
+    return urllib.parse.urlsplit(uri).hostname == urllib.parse.urlsplit(own_uri).hostname
