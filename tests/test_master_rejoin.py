@@ -190,7 +190,9 @@ def test_a_roscpp_program_the_er_manager_runs_hears_a_topic_published_after_the_
 
 def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
     _, procs = own_master
-    proc = procs.node('temoto_test_nodes', 'rr_node', name='rr_bad_period', params={'master_check_period': -1})
+    # no registration wait: it stops as soon as it has read the parameter, maybe before the wait sees it
+    proc = procs.node('temoto_test_nodes', 'rr_node', name='rr_bad_period', params={'master_check_period': -1},
+                      wait=False)
     wait_for(lambda: not proc.alive(), HANG, 'the node to stop')
     assert proc.returncode != 0
     assert 'master_check_period -1' in proc.log(40), proc.log(40)

@@ -307,6 +307,6 @@ def _check_two_robot_models(procs, rospy_client):
 
 def test_a_bad_robot_name_stops_the_host_naming_it(procs, rospy_client):
     proc = procs.node('temoto_output_manager', 'rviz_host', name='rviz_host_bad_robot', namespace=NS,
-                      params={'robots': 'om_r1,2bot', 'show_grid': 'false'})
+                      params={'robots': 'om_r1,2bot', 'show_grid': 'false'}, wait=False)
     wait_for(lambda: not proc.alive(), 20, 'the host to refuse its robots')
     assert proc.returncode != 0 and "~robots: robot name '2bot'" in proc.log(40), proc.log(40)

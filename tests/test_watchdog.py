@@ -125,7 +125,7 @@ def test_a_node_with_its_own_init_reads_its_watchdog_bound_and_refuses_a_bad_one
     stops them, naming the parameter, as it stops any other node."""
     package, script, params = OWN_INIT[which]
     proc = procs.node(package, script, name=which + '_bad_bound', namespace='temoto',
-                      params=dict(params, watchdog_bound='soon'))
+                      params=dict(params, watchdog_bound='soon'), wait=False)   # it stops at once
     wait_for(lambda: not proc.alive(), HANG, '%s to stop' % which)
     assert proc.returncode != 0
     assert "watchdog_bound 'soon'" in proc.log(60), proc.log(60)
