@@ -335,8 +335,8 @@ class SensorManager:
 
     def _keep_rhythms(self, held: _Held) -> None:
         """What this load learnt of each topic's rhythm, for the device's next load (and the journal)."""
-        learnt = {rhythm_key(held.entry.name, p.key): list(p.arrivals.rhythm()) for p in held.probes
-                  if p.key and p.arrivals is not None and p.arrivals.rhythm() is not None}
+        rhythms = [(p.key, p.arrivals.rhythm()) for p in held.probes if p.key and p.arrivals is not None]
+        learnt = {rhythm_key(held.entry.name, key): list(rhythm) for key, rhythm in rhythms if rhythm is not None}
         if not learnt:
             return
         with self._lock:
