@@ -86,7 +86,7 @@ def init_node(name: str, **kwargs) -> None:
 
     The main thread must then run ``spin()`` or a ``while ok():`` loop: either
     runs rospy's shutdown between two of its own steps, where it holds no lock.
-    Not from the relay thread, because rospy closes its topics *before*
+    Not from the relay thread, because rospy closes its topics right after
     ``is_shutdown()`` turns true, so a main loop publishing meanwhile would
     raise. A main thread that does not come round within MAIN_THREAD_GRACE
     (blocked in start-up, say) is overtaken: the relay thread shuts rospy down.
@@ -157,11 +157,17 @@ def clear_stale_registration(name: str, anonymous: bool = False) -> None:
 
 
 def ok() -> bool:
-    """The condition of a node's main loop: False once rospy is shut down or a stop signal arrived.
+    """The condition of a node's loops: False once rospy is shut down or a stop signal arrived.
 
-    Call it from the main thread: the first call after a stop signal runs
-    rospy's whole shutdown here before returning False.
+    On the main thread, the first call after a stop signal runs rospy's whole
+    shutdown there before returning False. On any other thread it only reads:
+    rospy sets its shutdown flag first and closes its topics after, so a
+    shutdown run by a side thread (a driver's diagnostics loop, say) lands
+    between the main loop's ``ok()`` and its ``publish()``, which then raises
+    "publish() to a closed topic" and the node exits 1 on a plain SIGINT (CI, once).
     """
+    if threading.current_thread() is not threading.main_thread():
+        return not (_stop_signal.is_set() or rospy.core.is_shutdown_requested())
     if _stop_signal.is_set() and not rospy.core.is_shutdown_requested():
         rospy.signal_shutdown('stop signal')
         _shut_by_main.set()

@@ -49,6 +49,31 @@ def test_the_callback_runs_in_a_thread_after_the_main_thread_lets_go_of_its_lock
     assert out.stdout.strip() == str(sorted([(int(signal.SIGINT), False), (int(signal.SIGTERM), False)]))
 
 
+OK_FROM_A_SIDE_THREAD = textwrap.dedent('''
+    import threading
+    import rospy
+    from temoto_core import node
+    node._stop_signal.set()                  # as the relay does when SIGINT arrives
+    seen = []
+    side = threading.Thread(target=lambda: seen.append((node.ok(), rospy.core.is_shutdown_requested())))
+    side.start()
+    side.join(30)
+    seen.append((node.ok(), rospy.core.is_shutdown_requested()))
+    print(seen, flush=True)
+''')
+
+
+def test_only_the_main_thread_runs_the_shutdown_that_ok_starts():
+    """A side thread's ok() that ran rospy's shutdown closed the topics between the main loop's ok() and its
+    publish(): the SICK driver, its diagnostics thread polling ok(), exited 1 on SIGINT in CI."""
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    out = subprocess.run([sys.executable, '-c', OK_FROM_A_SIDE_THREAD], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    # the side thread sees the stop and leaves rospy alone; the main thread then shuts it down
+    assert out.stdout.strip().splitlines()[-1] == str([(False, False), (False, True)])
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_node_publishing_flat_out_from_its_main_thread_always_exits_cleanly(procs, rospy_client, sig):
     from std_msgs.msg import UInt8MultiArray
