@@ -20,14 +20,13 @@ import json
 import os
 import re
 import statistics
-import subprocess
 import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from common import loopback_master  # noqa: E402
+from common import cpu_hogs, loopback_master, print_table, stop_hogs  # noqa: E402
 
 # sensor, device (cable), topic type, sensor type, executable, nominal Hz
 SENSORS = [('realsense_d435', 'd435', 'camera_data', 'depth camera', 'd435_driver', 30.0),
@@ -35,10 +34,6 @@ SENSORS = [('realsense_d435', 'd435', 'camera_data', 'depth camera', 'd435_drive
            ('hokuyo_utm30lx', 'hokuyo', 'lidar_data', 'lidar', 'hokuyo.launch', 40.0)]
 PERIODS_GOAL = 3.0
 SILENCE = re.compile(r'for ([0-9.]+) s \(')
-
-
-def hogs(n):
-    return [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(n)]
 
 
 def main(argv=None):
@@ -77,7 +72,7 @@ def main(argv=None):
                     return
                 time.sleep(0.5)
 
-        busy = hogs(opts.hogs)
+        busy = cpu_hogs(opts.hogs)
         held = {s[0]: hold(s) for s in SENSORS}
         print('bench_stall: %d sensors held beside %d CPU hogs for %.1f min ...' % (len(held), len(busy),
                                                                                   opts.minutes), flush=True)
@@ -123,9 +118,7 @@ def main(argv=None):
         for result in held.values():
             sm.stop_sensor(result.resource_id)
     finally:
-        for proc in busy:
-            proc.kill()
-            proc.wait()
+        stop_hogs(busy)
         launcher.stop_all()
         ros.stop()
 
@@ -144,9 +137,7 @@ def main(argv=None):
                          'min %.0f / median %.0f / max %.0f ms' % (lo * 1e3, med * 1e3, hi * 1e3), '-'))
     rows.append(('false FAILED in %.1f min, 3 sensors held, %d CPU hogs' % (opts.minutes, opts.hogs),
                  '%d (and %d during the stalls)' % (nominal_false, len(false_failed) - nominal_false), '0 (10 min)'))
-    print('\n| Stall detection | measured | goal |\n| --- | --- | --- |')
-    for name, value, goal in rows:
-        print('| %s | %s | %s |' % (name, value, goal))
+    print_table('Stall detection', rows)
     for message in false_failed:
         print('false FAILED: %s' % message)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)

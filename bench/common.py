@@ -1,9 +1,11 @@
 """What several benchmarks share: a master of their own, a clean environment for the commands they time,
 percentiles, and the CPU a set of processes uses over a window."""
 import os
+import subprocess
+import sys
 import tempfile
 import time
-from typing import Dict, Iterable, Sequence, Tuple
+from typing import Dict, Iterable, List, Sequence, Tuple
 
 import psutil
 
@@ -52,3 +54,21 @@ def cpu_percent_per_process(procs: Sequence[psutil.Process], seconds: float) -> 
     time.sleep(seconds)      # the measuring window itself, not a wait for something
     after, took = cpu_seconds(procs), time.monotonic() - t0
     return {pid: 100.0 * (after[pid] - before[pid]) / took for pid in before if pid in after}
+
+
+def print_table(title: str, rows: Iterable[Tuple[str, str, str]]) -> None:
+    """A markdown table of (figure, measured, goal) rows under ``title``."""
+    print('\n| %s | measured | goal |\n| --- | --- | --- |' % title)
+    for name, value, goal in rows:
+        print('| %s | %s | %s |' % (name, value, goal))
+
+
+def cpu_hogs(n: int) -> List[subprocess.Popen]:
+    """``n`` busy-looping processes: the loaded machine a benchmark runs beside."""
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(n)]
+
+
+def stop_hogs(hogs: Iterable[subprocess.Popen]) -> None:
+    for proc in hogs:
+        proc.kill()
+        proc.wait()

@@ -53,7 +53,9 @@ def _list(ns: str) -> int:
                                                       for k, v in sorted(s['output_topics'].items()))))
     for s in rows:
         for topic, limit in sorted(s.get('watched', {}).items()):
-            print('watching %s of %s: stall limit %.0f ms' % (topic, s['name'], limit * 1e3))
+            pid = s.get('driver_pids', {}).get(topic)
+            print('watching %s of %s: stall limit %.0f ms%s' % (
+                topic, s['name'], limit * 1e3, ", plus what its driver (pid %d) waits for a CPU" % pid if pid else ''))
     for problem in data.get('problems', []):
         print('catalogue problem: %s' % problem)
     return 0

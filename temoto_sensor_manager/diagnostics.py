@@ -86,19 +86,25 @@ class DriverReports:
     @staticmethod
     def _process_chain(node: str) -> List[int]:
         """The pid of ``node`` and of its ancestors, nearest first; [] if it cannot be found."""
-        try:
-            uri = lookup_node(rosgraph.get_master_uri(), node, LOOKUP_TIMEOUT) if node else None
-        except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
-            rospy.logwarn('diagnostics: cannot find the node %s that reported an error: %s', node, err)
-            return []
-        if not uri or not _same_host(uri, rospy.get_node_uri() or ''):
-            return []
-        pid: Optional[int] = node_pid(uri, LOOKUP_TIMEOUT)
+        pid = local_node_pid(node)
         chain = []
         while pid and pid > 1 and len(chain) <= ANCESTORS:
             chain.append(pid)
             pid = parent_pid(pid)
         return chain
+
+
+def local_node_pid(node: str) -> Optional[int]:
+    """The pid of node ``node`` if it runs on this manager's host, else None (a pid says nothing across
+    machines; a node that cannot be found is logged)."""
+    try:
+        uri = lookup_node(rosgraph.get_master_uri(), node, LOOKUP_TIMEOUT) if node else None
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:
+        rospy.logwarn('diagnostics: cannot find the node %s: %s', node, err)
+        return None
+    if not uri or not _same_host(uri, rospy.get_node_uri() or ''):
+        return None
+    return node_pid(uri, LOOKUP_TIMEOUT)
 
 
 def _same_host(uri: str, own_uri: str) -> bool:

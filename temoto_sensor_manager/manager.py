@@ -38,7 +38,7 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_sensor_manager.catalogue import Catalogue, SensorEntry, TopicSpec
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SENSOR, START_SENSOR_TYPE
-from temoto_sensor_manager.diagnostics import DriverReports
+from temoto_sensor_manager.diagnostics import DriverReports, local_node_pid
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
 from temoto_sensor_manager.start_times import StartTimes
 from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
@@ -181,6 +181,12 @@ class SensorManager:
             self._keep_reliabilities()
         self.rr.put_owner_state(SENSOR_KEY % held.internal_id,
                                 json.dumps({'process_id': held.process_id, 'sensor': entry.name}))
+        for probe in held.probes:
+            # the driver's own CPU waiting counts as starvation, not silence (starvation.py); a node on
+            # another host, or one that cannot be asked, leaves the machine's and this manager's measures
+            pid = local_node_pid(probe.publisher) if probe.publisher else None
+            if pid:
+                probe.measure_publisher(pid)
         self.watchdog.arm(held.probes)
         res.sensor_name = entry.name
         res.package_name = entry.package
@@ -418,16 +424,20 @@ class SensorManager:
             active = {h.entry.name: h.internal_id for h in self._held.values() if not h.failed}
             # the limit each held topic is watched with now (adaptive: it follows the rhythm)
             watched: Dict[str, Dict[str, float]] = {}
+            # the driver process whose CPU waiting counts as starvation on each held topic (starvation.py)
+            drivers: Dict[str, Dict[str, int]] = {}
             for h in self._held.values():
                 if not h.failed:
                     watched.setdefault(h.entry.name, {}).update({p.topic: round(p.current_limit(), 4)
                                                                  for p in h.probes})
+                    drivers.setdefault(h.entry.name, {}).update({p.topic: p.publisher_pid for p in h.probes
+                                                                 if p.publisher_pid})
         rows = [{'name': e.name, 'type': e.type, 'package': e.package, 'executable': e.executable,
                  'reliability': round(e.reliability.value, 6), 'source': e.source, 'active': e.name in active,
                  'output_topics': {k: {'topic': t.topic, 'rate': t.rate, 'stall_limit': t.silence_limit(),
                                        'stall_detection': t.stall_detection}
                                    for k, t in e.output_topics.items()},
-                 'watched': watched.get(e.name, {})}
+                 'watched': watched.get(e.name, {}), 'driver_pids': drivers.get(e.name, {})}
                 for e in self.catalogue.entries]
         return json.dumps({'manager': NAME, 'sensors': rows,
                            'problems': [str(p) for p in self.catalogue.problems]}, sort_keys=True)

@@ -11,8 +11,8 @@ thread wakes about once per limit per topic, and a stall is reported at most a
 scheduling delay after the limit, never a poll period later.
 
 A silence is called a stall only once it is longer than the limit plus the time
-the machine held this manager's own threads back meanwhile (``starvation.py``):
-a starved machine is not a silent sensor.
+the machine held this manager's own threads, or the driver's, back meanwhile
+(``starvation.py``): a starved machine is not a silent sensor.
 """
 import collections
 import heapq
@@ -24,7 +24,7 @@ from typing import Callable, List, Optional
 import rospy
 
 from temoto_sensor_manager.arrivals import ArrivalModel
-from temoto_sensor_manager.starvation import MachinePressure, thread_wait
+from temoto_sensor_manager.starvation import WaitMeter, machine_pressure, process_meter, thread_wait
 
 
 # seconds: the longest an adaptive probe goes unchecked (its limit may have shrunk since the last look)
@@ -59,6 +59,9 @@ class TopicProbe:
         self.late = 0.0                      # how much later than usual the watchdog woke at most, in it
         self.caught_up = False               # whether it was given its one catch-up after a late wake-up
         self.starved = 0.0                   # the starvation allowed for at the last look (for the message)
+        self.publisher = ''                  # the node that sent the first message (its connection header)
+        self.publisher_pid = 0               # its process, when it runs on this host (0: not known)
+        self.publisher_wait: Optional[WaitMeter] = None   # that process's threads' CPU waiting
         self._on_first = on_first
         self._sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_msg, queue_size=1, tcp_nodelay=True)
 
@@ -77,6 +80,7 @@ class TopicProbe:
         self.last = now
         self.count += 1
         if not self.first.is_set():
+            self.publisher = (getattr(_msg, '_connection_header', None) or {}).get('callerid', '')
             self.first.set()
             if self._on_first is not None:
                 self._on_first()
@@ -89,11 +93,22 @@ class TopicProbe:
 
     def describe_limit(self, limit: float) -> str:
         """How ``limit`` was found, for a stall's message."""
-        starved = ', plus %.3f s the machine held this manager back' % self.starved if self.starved > 0.0005 else ''
+        starved = (', plus %.3f s the machine held this manager or the driver back' % self.starved
+                   if self.starved > 0.0005 else '')
         if self.arrivals is None or limit >= self.limit:
             return 'limit %.3f s%s' % (limit, starved)
         return 'adaptive limit %.3f s of at most %.3f s%s: %s' % (limit, self.limit, starved,
                                                                   self.arrivals.describe())
+
+    def measure_publisher(self, pid: int) -> None:
+        """Count the waiting of the publishing driver's process ``pid`` (on this host) as starvation."""
+        self.publisher_pid = pid
+        self.publisher_wait = process_meter(pid)
+
+    def publisher_starved(self, since: float, now: float) -> float:
+        """Seconds the publishing driver's threads waited for a CPU in [since, now] beyond their usual."""
+        meter = self.publisher_wait
+        return meter.excess(since, now) if meter is not None else 0.0
 
     def reader_starved(self) -> float:
         """Seconds the receive thread waited for a CPU since it read the last message (0 if unknown)."""
@@ -141,7 +156,7 @@ class Watchdog:
         self._seq = itertools.count()
         self._cond = threading.Condition()
         self._stopped = False
-        self.pressure = MachinePressure()
+        self.pressure = machine_pressure()
         self.lateness = Lateness()
         self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
         self._thread.start()
@@ -190,6 +205,8 @@ class Watchdog:
                 if not probe.armed:
                     continue
                 self.pressure.sample(now)
+                if probe.publisher_wait is not None:
+                    probe.publisher_wait.sample(now)
                 since = max(probe.last, probe.quiet_from)
                 if probe.silence_from != since:
                     probe.silence_from, probe.late, probe.caught_up = since, 0.0, False
@@ -203,12 +220,13 @@ class Watchdog:
                     probe.caught_up = True
                     due = now + CATCH_UP
                 elif due <= now:
-                    # long enough, unless the machine held this manager back meanwhile (starvation.py): by
-                    # how late this thread woke beyond the usual, and by what the receive thread and the
-                    # machine waited beyond the usual, at most half the limit (a real stall comes late by
-                    # that much at the most)
+                    # long enough, unless the machine held this manager or the driver back meanwhile
+                    # (starvation.py): by how late this thread woke beyond the usual, and by what the receive
+                    # thread, the machine or the driver waited beyond the usual, at most half the limit (a
+                    # real stall comes late by that much at the most)
                     probe.starved = probe.late + min(0.5 * limit, max(probe.reader_starved(),
-                                                                      self.pressure.excess(since, now)))
+                                                                      self.pressure.excess(since, now),
+                                                                      probe.publisher_starved(since, now)))
                     due += probe.starved
                 if due > now:
                     heapq.heappush(self._heap, (self._next_look(probe, due, now), next(self._seq), probe))

@@ -61,6 +61,8 @@ def test_start_returns_with_data_flowing_and_stop_releases_the_driver(smi):
     assert len(reg['server_queries']) == 1 and reg['server_queries'][0]['links'] == \
         reg['client_queries'][0]['local_ids']
     pid = procs[0]['pid']
+    # the driver runs on the manager's host: its CPU waiting is measured against a false stall
+    assert catalogue()[res.sensor_name]['driver_pids'] == {topic: pid}
     sm.stop_sensor(res.resource_id)
     wait_for(lambda: pid_gone(pid), 10, 'the driver to stop with the sensor')
 
@@ -192,6 +194,7 @@ def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_
     assert main([]) == 0
     [line] = [x for x in capsys.readouterr().out.splitlines() if x.startswith('watching /fake/patient/data')]
     assert 'stalled' not in line, line      # a healthy sensor: the line shows its limit, not a stall
+    assert 'what its driver (pid %d) waits for a CPU' % er_processes()[0]['pid'] in line, line
     assert float(line.split('stall limit ')[1].split(' ms')[0]) < cap * 1e3, line    # the rhythm's, shown
     sent = FakeCables().send('stall', 'patient')
     wait_for(lambda: failed_events(events), 10, 'the stall FAILED at the client')

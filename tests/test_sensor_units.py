@@ -91,7 +91,8 @@ def fixed_probe(topic, limit, last):
     """What the watchdog reads of a probe, with a fixed limit."""
     return types.SimpleNamespace(topic=topic, limit=limit, last=last, armed=False, quiet_from=0.0,
                                  current_limit=lambda: limit, arrivals=None, silence_from=-1.0, late=0.0,
-                                 caught_up=False, starved=0.0, reader_starved=lambda: 0.0)
+                                 caught_up=False, starved=0.0, reader_starved=lambda: 0.0,
+                                 publisher_wait=None, publisher_starved=lambda since, now: 0.0)
 
 
 def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
@@ -203,3 +204,64 @@ def test_usual_lateness_is_not_counted_only_what_goes_beyond_it():
     seen = Lateness()
     assert [seen.beyond_usual(0.03) for _ in range(30)][-1] == 0.0      # a loaded machine's norm
     assert abs(seen.beyond_usual(0.53) - 0.5) < 1e-9                     # held back for half a second
+
+
+def test_watchdog_allows_for_the_time_the_publishing_driver_waited_for_a_cpu():
+    """Beside two CPU hogs the machine's pressure saturates and says nothing of a burst; the driver's own
+    run-queue time still does: a silence it spent waiting for a CPU comes that much later, and still comes."""
+    fired = threading.Event()
+    stalls = []
+    dog = Watchdog(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
+    try:
+        probe = fixed_probe('driver_starved', 0.1, last=time.monotonic())
+        spans = []
+        probe.publisher_starved = lambda since, now: spans.append((since, now)) or 0.04
+        dog.arm([probe])
+        assert fired.wait(5.0)
+        assert stalls[0] >= 0.14, stalls      # the limit (0.1 s) and the 0.04 s the driver was held back
+        assert spans and all(since == probe.last for since, _ in spans)    # the silence's span, from its start
+    finally:
+        dog.stop()
+
+
+def test_a_wait_meter_counts_only_what_goes_beyond_the_usual_rate():
+    from temoto_sensor_manager.starvation import WaitMeter
+    total = [0.0]
+    meter = WaitMeter(lambda: total[0])
+    t = 100.0
+    for _ in range(300):                 # 30 s waiting 0.2 s per s: the usual
+        t += 0.1
+        total[0] += 0.02
+        meter.sample(t)
+    since = t
+    for _ in range(5):                   # then 0.5 s of a burst, waiting all the time
+        t += 0.1
+        total[0] += 0.1
+        meter.sample(t)
+    assert meter.excess(since, t) == pytest.approx(0.5 - 0.5 * 0.2, abs=0.06)
+    assert meter.excess(t - 20.0, t - 1.0) >= 0.0         # older than what is kept: from the oldest kept
+    assert not WaitMeter(lambda: None).available and WaitMeter(lambda: None).excess(0.0, 1.0) == 0.0
+
+
+def test_a_process_made_to_wait_for_its_cpu_shows_it_in_its_run_queue_time():
+    """process_wait reads a real process's threads: one busy loop sharing its only CPU with another waits
+    about half the time."""
+    import os
+    import subprocess
+    import sys
+    from temoto_sensor_manager.starvation import process_wait
+    cpu = sorted(os.sched_getaffinity(0))[0]
+    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(2)]
+    try:
+        for proc in loops:
+            os.sched_setaffinity(proc.pid, {cpu})
+        before = process_wait(loops[0].pid)
+        deadline = time.monotonic() + 30.0        # generous: the two share the CPU from the start
+        while time.monotonic() < deadline and process_wait(loops[0].pid) - before < 0.2:
+            time.sleep(0.05)
+        assert process_wait(loops[0].pid) - before >= 0.2
+    finally:
+        for proc in loops:
+            proc.kill()
+            proc.wait()
+    assert process_wait(loops[0].pid) is None     # gone

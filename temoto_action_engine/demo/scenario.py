@@ -54,6 +54,22 @@ SENSOR_MANAGER = '/temoto_sensor_manager'
 LAUNCH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch')
 
 
+def write_station_catalogue(robot: str, workdir: str) -> str:
+    """The station's catalogue (temoto_sensor_manager config/station.yaml), its scanner joined to ``robot``,
+    written into ``workdir``: the file names the robot whose simulated lab the scanner stands in."""
+    import yaml
+    import temoto_sensor_manager
+    src = os.path.join(os.path.dirname(temoto_sensor_manager.__file__), 'config', 'station.yaml')
+    with open(src) as f:
+        catalogue = yaml.safe_load(f)
+    for entry in catalogue['sensors']:
+        entry['args'] = 'sim_ns:=/%s/vaultbot_sim joint_states:=/%s/joint_states' % (robot, robot)
+    path = os.path.join(workdir, 'station.yaml')
+    with open(path, 'w') as f:
+        yaml.safe_dump(catalogue, f)
+    return path
+
+
 def _declared_args(launch: str, args: List[str]) -> List[str]:
     """The ``name:=value`` of ``args`` that ``launch`` declares (roslaunch refuses the others)."""
     declared = {arg.get('name') for arg in ElementTree.parse(launch).getroot().findall('arg')}
@@ -282,20 +298,7 @@ class Demo:
                         wrap=lambda argv: self.hosts.argv(operator, argv))]
 
     def _station_catalogue(self, workdir: str) -> str:
-        """The station's catalogue (temoto_sensor_manager config/station.yaml), its scanner joined to this run's
-        robot: the file names the robot whose simulated lab the scanner stands in."""
-        import yaml
-        import temoto_sensor_manager
-        src = os.path.join(os.path.dirname(temoto_sensor_manager.__file__), 'config', 'station.yaml')
-        with open(src) as f:
-            catalogue = yaml.safe_load(f)
-        robot = self.opts.robot
-        for entry in catalogue['sensors']:
-            entry['args'] = 'sim_ns:=/%s/vaultbot_sim joint_states:=/%s/joint_states' % (robot, robot)
-        path = os.path.join(workdir, 'station.yaml')
-        with open(path, 'w') as f:
-            yaml.safe_dump(catalogue, f)
-        return path
+        return write_station_catalogue(self.opts.robot, workdir)
 
     def _init_rospy(self, env: Dict[str, str]) -> None:
         for key in ('ROS_MASTER_URI', 'ROS_HOSTNAME', 'ROS_IP', 'ROS_LOG_DIR', 'ROS_HOME'):
