@@ -10,7 +10,7 @@ holds the driver process from the ER Manager: client -> start_sensor -> load_pro
    from a launch file, so the ER Manager's launch runner sits in between; the same chain with a
    plain node driver (a fake sensor told to exit) shows what the managers themselves add.
 2. Stall: the cable is pulled in stall mode (the driver stays alive, silent); measured the same
-   way. The stall comes right after the load, while the watchdog still learns the topic's rhythm, so it
+   way. The stall comes right after the load, while the stall detector still learns the topic's rhythm, so it
    waits the catalogue's silence limit (config/vaultbot.yaml), and the figure of interest is the latency
    beyond that limit (the learnt limit is bench_stall.py's).
 3. Load until first data: start_sensor until its response, which arrives only once the first
@@ -33,7 +33,7 @@ from common import loopback_master, pct  # noqa: E402
 from temoto_core.testing import FirstFailure  # noqa: E402
 
 CRASH_GOAL_MS = 100.0         # exit seen by the ER Manager (pidfd) and forwarded one registrar up
-STALL_EXTRA_GOAL_MS = 100.0   # beyond the silence limit: one watchdog wake-up plus the status hop
+STALL_EXTRA_GOAL_MS = 100.0   # beyond the silence limit: one stall detector wake-up plus the status hop
 LOAD_GOAL_S = 5.0             # D435 (pybullet scene load + first rendered cloud) on a 2-core machine
 
 

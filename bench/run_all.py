@@ -15,7 +15,7 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ORDER = ['rr', 'journal', 'recovery', 'hosts', 'master_check', 'er', 'node_stop', 'sim', 'sensor', 'stall', 'output', 'action_start',
+ORDER = ['rr', 'journal', 'recovery', 'hosts', 'master_check', 'er', 'node_stop', 'sim', 'sensor', 'stall', 'stall_hosts', 'output', 'action_start',
          'demo', 'all_failed', 'standby', 'chaos']
 
 

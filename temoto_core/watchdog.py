@@ -15,7 +15,7 @@ process spawner does).
 A wedged node writes why, and every thread's stack, to stderr (its log; not through rospy, which may be
 the part that hangs). Then it SIGKILLs itself:
 
-- a journaled manager is forked again at once by its warm-respawn parent (``standby.py``) and takes its
+- a journaled manager is forked again at once by its warm-respawn parent (``warm_respawn.py``) and takes its
   registry back from the journal;
 - its consumers see what any crash of it shows them.
 

@@ -17,7 +17,7 @@ normal model, phi of about 9 for a factor of 6. Two guards keep it honest when t
   demo's Hokuyo was stalled within its learning time and caught after 12 periods).
 
 The cost per message is a few float operations on the subscriber's thread; the limit itself is
-computed only when the watchdog wakes.
+computed only when the stall detector wakes.
 """
 import collections
 import math

@@ -1,4 +1,4 @@
-"""The Sensor Manager's logic: the ``start_sensor`` server over a catalogue, the ER Manager and a watchdog.
+"""The Sensor Manager's logic: the ``start_sensor`` server over a catalogue, the ER Manager and a stall detector.
 
 Load: rank the matching catalogue entries, and for each in turn start its
 driver through ``load_process``, held on the manager's own account, and wait
@@ -8,7 +8,7 @@ with it, its FAILED forwarded by the registrar); a candidate that fails to
 start, crashes, or stays silent is released and the next is tried. Reliability goes up on success
 and down on a load failure, a crash, or a stall.
 
-While a sensor is held, its topics are watched (``watchdog.Watchdog``); a
+While a sensor is held, its topics are watched (``stall_detector.StallDetector``); a
 topic silent for longer than its limit makes this manager send FAILED for the
 sensor, exactly as the registrar forwards a crash reported by the ER Manager.
 The stalled driver is stopped when the consumer unloads the failed sensor
@@ -41,7 +41,7 @@ from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SEN
 from temoto_sensor_manager.diagnostics import DriverReports, local_node_pid
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
 from temoto_sensor_manager.start_times import StartTimes
-from temoto_sensor_manager.watchdog import TopicProbe, Watchdog
+from temoto_sensor_manager.stall_detector import StallDetector, TopicProbe
 
 SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)
@@ -135,7 +135,7 @@ class SensorManager:
         # driver pid -> the stall it showed, while it runs and has sent nothing here since: a load that is
         # given that driver again (an equal request shares it) waits its stall limit, not its start-up
         self._stalled: Dict[int, str] = {}
-        self.watchdog = Watchdog(self._on_stall)
+        self.stall_detector = StallDetector(self._on_stall)
         self.reports = DriverReports(self._on_driver_error)
         for problem in catalogue.problems:
             rospy.logerr('%s: catalogue: %s', NAME, problem)
@@ -187,7 +187,7 @@ class SensorManager:
             pid = local_node_pid(probe.publisher) if probe.publisher else None
             if pid:
                 probe.measure_publisher(pid)
-        self.watchdog.arm(held.probes)
+        self.stall_detector.arm(held.probes)
         res.sensor_name = entry.name
         res.package_name = entry.package
         res.executable = entry.executable
@@ -325,7 +325,7 @@ class SensorManager:
             self._held[rid] = held
             self._by_process[held.process_id] = held
         # the new subscriptions still connect: data must arrive within the first-data allowance
-        self.watchdog.arm(probes, grace=self.first_data_allowance)
+        self.stall_detector.arm(probes, grace=self.first_data_allowance)
         rospy.loginfo('%s: took %s back after a restart (driver resource %d); watching %s', NAME, entry.name,
                       held.process_id, ', '.join(p.topic for p in probes))
 
@@ -443,7 +443,7 @@ class SensorManager:
                            'problems': [str(p) for p in self.catalogue.problems]}, sort_keys=True)
 
     def shutdown(self) -> None:
-        self.watchdog.stop()
+        self.stall_detector.stop()
         self.reports.close()
         try:
             self.rr.shutdown()

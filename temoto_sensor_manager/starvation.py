@@ -1,15 +1,15 @@
-"""Telling a silent sensor from a starved machine: how late the watchdog's own threads ran.
+"""Telling a silent sensor from a starved machine: how late the stall detector's own threads ran.
 
 A stall is silence longer than a limit learnt from the stream's rhythm (``arrivals.py``). When both
 cores are busy, a burst of work (a partition healing, every node waking at once) can hold back the
 driver, the transport and this manager's own threads for longer than the rhythm ever showed, and a
 healthy sensor was failed (0.20 s of silence against a limit of 0.19 s). The silence then says more
-about the machine than about the sensor. Before a silence is called a stall, the watchdog asks three
+about the machine than about the sensor. Before a silence is called a stall, the stall detector asks three
 things about the span it covers:
 
 - how long the probe's receive thread waited for a CPU since it last read a message (its run-queue
   time from ``/proc/self/task/<tid>/schedstat``): a message sent on time may still sit unread;
-- how much later than usual the watchdog's own timer woke (``watchdog.Lateness``): the same
+- how much later than usual the stall detector's own timer woke (``stall_detector.Lateness``): the same
   starvation, seen from the other thread; a wake-up more than 20 ms later than usual also gives the
   receive threads 50 ms to read what waited, once per silence, before the silence is judged;
 - how much more the machine's tasks waited for a CPU than they usually do (``/proc/pressure/cpu``,
@@ -78,7 +78,7 @@ def process_wait(pid: int) -> Optional[float]:
 
 class WaitMeter:
     """Readings of a total of CPU waiting (the machine's, or a process's), and how much a span had beyond
-    the usual rate. ``sample`` is called often (every look of the watchdog); it reads at most every
+    the usual rate. ``sample`` is called often (every look of the stall detector); it reads at most every
     ``SAMPLE_EVERY`` seconds."""
 
     def __init__(self, read_total: Callable[[], Optional[float]]) -> None:

@@ -100,7 +100,7 @@ def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run
         assert f.action_t is not None and f.action_t >= f.unplug_t, 'FAILED never reached the action (%s)' % f.device
         assert f.display_gap is not None and 0 < f.display_gap < MAX_GAP_S, \
             '%s: display gap %s s' % (f.device, f.display_gap)
-    # the ER Manager sees the crash, the Sensor Manager's watchdog the stall
+    # the ER Manager sees the crash, the Sensor Manager's stall detector the stall
     assert 'temoto_er_manager' in an.failures[0].failed_by
     assert 'temoto_sensor_manager' in an.failures[1].failed_by
 

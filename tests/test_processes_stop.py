@@ -1,5 +1,5 @@
 """stop_process_group: a process that does not stop on SIGINT or SIGTERM writes where it hung before it is
-killed, also when it is not the group's leader (the node a warm-respawn parent forked, temoto_core/standby.py).
+killed, also when it is not the group's leader (the node a warm-respawn parent forked, temoto_core/warm_respawn.py).
 The chaos history of seed 17 had a wedged ER Manager whose log ended with its parent's stack alone."""
 import os
 import subprocess
@@ -10,7 +10,7 @@ from temoto_core.process_group import group_members
 from temoto_core.processes import dump_stacks, stop_process_group
 from temoto_core.testing import wait_for
 
-# a leader that forks a child and waits for it, as standby.py does; both ignore SIGINT and SIGTERM, and the
+# a leader that forks a child and waits for it, as warm_respawn.py does; both ignore SIGINT and SIGTERM, and the
 # child registers its stack dump on SIGUSR1, as temoto_core.node.init_node does
 WEDGED_PAIR = textwrap.dedent('''
     import faulthandler, os, signal, sys, threading

@@ -141,7 +141,7 @@ def test_stall_is_reported_within_its_limit_and_the_stalled_driver_is_stopped(sm
     limit = catalogue()[res.sensor_name]['output_topics']['lidar_data']['stall_limit']
     pid = er_processes()[0]['pid']
     sent = FakeCables().send('stall', res.sensor_name.replace('fake_', ''))
-    wait_for(lambda: failed_events(events), 10, 'the watchdog FAILED at the client')
+    wait_for(lambda: failed_events(events), 10, 'the stall detector's FAILED at the client')
     delay = time.monotonic() - sent
     # the limit follows the stream's rhythm (temoto_sensor_manager/arrivals.py): never under 2.5 periods
     floor = arrivals.FLOOR_PERIODS / catalogue()[res.sensor_name]['output_topics']['lidar_data']['rate']
@@ -206,8 +206,8 @@ def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_
 
 def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_stall(smi):
     """The Sensor Manager is stopped (SIGSTOP) for several of a healthy stream's learnt limits, three times:
-    when it runs again, its watchdog wakes late beside a receive thread with messages waiting unread, and
-    it used to fail the sensor on a silence that was its own (watchdog.py, starvation.py). A stall that
+    when it runs again, its stall detector wakes late beside a receive thread with messages waiting unread, and
+    it used to fail the sensor on a silence that was its own (stall_detector.py, starvation.py). A stall that
     follows is still caught by the rhythm's limit."""
     sm = smi()
     events = []
@@ -224,7 +224,7 @@ def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_sta
             finally:
                 os.kill(pid, signal.SIGCONT)
             seen = watch.count
-            # the watchdog looks at least every 0.1 s: half a second of data later it has judged the silence
+            # the stall detector looks at least every 0.1 s: half a second of data later it has judged the silence
             wait_for(lambda: watch.count >= seen + 25 and catalogue()['fake_patient']['active'], 10,
                      'half a second of data after the manager ran again')
             assert not failed_events(events), events[0].message

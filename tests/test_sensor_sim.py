@@ -86,7 +86,7 @@ def test_an_unplugged_camera_alone_gives_no_candidate_left(smi):
     assert not er_processes()
 
 
-def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stopped(smi):
+def test_stall_unplug_is_caught_by_the_stall_detector_and_the_stalled_driver_is_stopped(smi):
     sm = smi()
     events = []
     sm.register_update_callback(events.append)                 # keep the failed sensor to look at it
@@ -95,7 +95,7 @@ def test_stall_unplug_is_caught_by_the_watchdog_and_the_stalled_driver_is_stoppe
     limit = catalogue()['realsense_d435']['output_topics']['camera_info']['stall_limit']
     pid = er_processes()[0]['pid']
     sent = set_cable('d435', 'unplugged', 'stall')
-    wait_for(lambda: failed(events, res.resource_id), 10, 'the watchdog FAILED at the client')
+    wait_for(lambda: failed(events, res.resource_id), 10, 'the stall detector's FAILED at the client')
     delay = time.monotonic() - sent
     # the limit follows the stream's rhythm, never under 2.5 periods (arrivals.py); generous upper bound: the
     # bench measures it

@@ -1,4 +1,4 @@
-"""ROS-free parts of the sensor and context managers: reliability, catalogue, selection, watchdog, blob finding."""
+"""ROS-free parts of the sensor and context managers: reliability, catalogue, selection, stall detector, blob finding."""
 import threading
 import time
 import types
@@ -11,7 +11,7 @@ from temoto_context_manager.blob import find_blob, parse_rgb
 from temoto_sensor_manager.catalogue import Catalogue, load_file, parse_entry
 from temoto_core.reliability import Reliability
 from temoto_sensor_manager.selection import candidates, plan, validate
-from temoto_sensor_manager.watchdog import Watchdog
+from temoto_sensor_manager.stall_detector import StallDetector
 
 
 def test_reliability_is_a_100_sample_moving_average_from_the_prior():
@@ -88,17 +88,17 @@ def test_silence_limit_defaults_to_three_periods_and_at_least_100_ms():
 
 
 def fixed_probe(topic, limit, last):
-    """What the watchdog reads of a probe, with a fixed limit."""
+    """What the stall detector reads of a probe, with a fixed limit."""
     return types.SimpleNamespace(topic=topic, limit=limit, last=last, armed=False, quiet_from=0.0,
                                  current_limit=lambda: limit, arrivals=None, silence_from=-1.0, late=0.0,
                                  caught_up=False, starved=0.0, reader_starved=lambda: 0.0,
                                  publisher_wait=None, publisher_starved=lambda since, now: 0.0)
 
 
-def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
+def test_stall_detector_fires_once_after_the_limit_of_silence_and_not_while_messages_arrive():
     fired = []
     done = threading.Event()
-    dog = Watchdog(lambda probe, silence, limit: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
+    dog = StallDetector(lambda probe, silence, limit: (fired.append((probe.topic, silence, time.monotonic())), done.set()))
     try:
         busy = fixed_probe('busy', 0.15, last=time.monotonic())
         quiet = fixed_probe('quiet', 0.15, last=time.monotonic())
@@ -109,7 +109,7 @@ def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_a
             time.sleep(0.02)
         assert done.wait(1.0)
         assert [f[0] for f in fired] == ['quiet']
-        # after the limit (0.15 s); the upper bound only catches a watchdog that waits for the loop to end
+        # after the limit (0.15 s); the upper bound only catches a stall detector that waits for the loop to end
         assert 0.15 <= fired[0][1] < 1.0 and fired[0][2] - start < 1.0
         busy.armed = False                              # disarmed (unloaded): never fires
         time.sleep(0.3)
@@ -118,12 +118,12 @@ def test_watchdog_fires_once_after_the_limit_of_silence_and_not_while_messages_a
         dog.stop()
 
 
-def test_watchdog_grace_gives_a_probe_without_messages_time_to_connect():
+def test_stall_detector_grace_gives_a_probe_without_messages_time_to_connect():
     """A sensor taken back after a restart has a new, still connecting subscription: no stall before the
     grace, one stall after it if nothing comes."""
     fired = threading.Event()
     stalls = []
-    dog = Watchdog(lambda probe, silence, limit: (stalls.append((time.monotonic(), silence)), fired.set()))
+    dog = StallDetector(lambda probe, silence, limit: (stalls.append((time.monotonic(), silence)), fired.set()))
     try:
         probe = fixed_probe('new', 0.05, last=0.0)
         start = time.monotonic()
@@ -182,12 +182,12 @@ def test_reliability_continues_from_a_kept_window():
     assert wider.value == pytest.approx((10 * 0.8 + sum(before.samples())) / 20)
 
 
-def test_watchdog_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
+def test_stall_detector_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
     """A silence during which the probe's receive thread sat on a run queue (messages sent, unread) is the
     machine's, not the sensor's: the stall comes that much later (at most half a limit later), and still comes."""
     fired = threading.Event()
     stalls = []
-    dog = Watchdog(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
+    dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
     try:
         probe = fixed_probe('starved', 0.1, last=time.monotonic())
         probe.reader_starved = lambda: 0.04
@@ -200,18 +200,18 @@ def test_watchdog_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
 
 
 def test_usual_lateness_is_not_counted_only_what_goes_beyond_it():
-    from temoto_sensor_manager.watchdog import Lateness
+    from temoto_sensor_manager.stall_detector import Lateness
     seen = Lateness()
     assert [seen.beyond_usual(0.03) for _ in range(30)][-1] == 0.0      # a loaded machine's norm
     assert abs(seen.beyond_usual(0.53) - 0.5) < 1e-9                     # held back for half a second
 
 
-def test_watchdog_allows_for_the_time_the_publishing_driver_waited_for_a_cpu():
+def test_stall_detector_allows_for_the_time_the_publishing_driver_waited_for_a_cpu():
     """Beside two CPU hogs the machine's pressure saturates and says nothing of a burst; the driver's own
     run-queue time still does: a silence it spent waiting for a CPU comes that much later, and still comes."""
     fired = threading.Event()
     stalls = []
-    dog = Watchdog(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
+    dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
     try:
         probe = fixed_probe('driver_starved', 0.1, last=time.monotonic())
         spans = []

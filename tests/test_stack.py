@@ -9,7 +9,7 @@ from temoto_core.master import RosMaster, free_port
 from temoto_core.testing import wait_for
 
 LAUNCH = '''<launch>
-  <node pkg="temoto_test_nodes" type="standby_probe" name="stack_probe" respawn="true">
+  <node pkg="temoto_test_nodes" type="respawn_probe" name="stack_probe" respawn="true">
     <param name="greeting" value="hello"/>
     <param name="echo_to" value="%s"/>
   </node>

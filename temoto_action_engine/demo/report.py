@@ -9,7 +9,7 @@ a message without one falls back to the recorder's receive time.
 
 Definitions, per unplug of a device (from ``/vaultbot_sim/device_states``):
 - detection latency: unplug -> the first FAILED ``ResourceStatus`` on any registrar's status topic
-  (the ER Manager's for a crash, the Sensor Manager's watchdog for a stall);
+  (the ER Manager's for a crash, the Sensor Manager's stall detector for a stall);
 - propagation latency: that FAILED -> the action's ``sensor_failed`` event (FAILED received by the
   action and acted upon);
 - display gap: the last frame of the failed sensor's displayed stream (relay ticks) -> the

@@ -1,4 +1,4 @@
-"""Data watchdog: first-message detection and stall detection for held sensors.
+"""Stall detector: first-message detection and stall detection for held sensors.
 
 A driver whose cable is pulled may stay alive and publish nothing; the ER
 Manager cannot see that. Each watched topic records the arrival time of its
@@ -51,12 +51,12 @@ class TopicProbe:
         self.max_gap = 0.0                   # longest time between two messages seen (what a limit must exceed)
         self.first = threading.Event()
         self.armed = False
-        self.quiet_from = 0.0                # silence counts from max(last, quiet_from): see Watchdog.arm
-        self.owner = None                    # set by the watchdog user (what stalled)
+        self.quiet_from = 0.0                # silence counts from max(last, quiet_from): see StallDetector.arm
+        self.owner = None                    # set by the stall detector user (what stalled)
         self.reader_tid = 0                  # the thread that reads this topic's messages
         self.reader_wait: Optional[float] = None   # its run-queue time at the last message (starvation.py)
         self.silence_from = -1.0             # the silence that the two below belong to
-        self.late = 0.0                      # how much later than usual the watchdog woke at most, in it
+        self.late = 0.0                      # how much later than usual the stall detector woke at most, in it
         self.caught_up = False               # whether it was given its one catch-up after a late wake-up
         self.starved = 0.0                   # the starvation allowed for at the last look (for the message)
         self.publisher = ''                  # the node that sent the first message (its connection header)
@@ -132,7 +132,7 @@ class TopicProbe:
 
 
 class Lateness:
-    """How late the watchdog's thread usually wakes: on a loaded machine a few tens of milliseconds is the
+    """How late the stall detector's thread usually wakes: on a loaded machine a few tens of milliseconds is the
     norm, and only what goes beyond it says that this process was held back."""
 
     def __init__(self, keep: int = 200) -> None:
@@ -147,7 +147,7 @@ class Lateness:
         return max(0.0, late - usual)
 
 
-class Watchdog:
+class StallDetector:
     """One thread, a heap of deadlines; ``on_stall(probe, silence, limit)`` runs on that thread."""
 
     def __init__(self, on_stall: Callable[[TopicProbe, float, float], None]) -> None:
@@ -158,7 +158,7 @@ class Watchdog:
         self._stopped = False
         self.pressure = machine_pressure()
         self.lateness = Lateness()
-        self._thread = threading.Thread(target=self._run, name='sensor-watchdog', daemon=True)
+        self._thread = threading.Thread(target=self._run, name='stall-detector', daemon=True)
         self._thread.start()
 
     def arm(self, probes: List[TopicProbe], grace: float = 0.0) -> None:
@@ -234,8 +234,8 @@ class Watchdog:
                 probe.armed = False
             try:
                 self._on_stall(probe, now - since, limit)
-            except Exception as err:     # a reporting error must not stop the watchdog
-                rospy.logerr('sensor watchdog: stall callback for %s raised %r', probe.topic, err)
+            except Exception as err:     # a reporting error must not stop the stall detector
+                rospy.logerr('stall detector: stall callback for %s raised %r', probe.topic, err)
 
     def stop(self) -> None:
         with self._cond:

@@ -68,7 +68,7 @@ def journaled(name: str, argv: list) -> bool:
         if arg.startswith('_journal:='):
             return bool(arg.split(':=', 1)[1].strip())
     try:
-        value = rosgraph.Master('/temoto_standby').getParam(rosgraph.names.ns_join(name, 'journal'))
+        value = rosgraph.Master('/temoto_warm_respawn').getParam(rosgraph.names.ns_join(name, 'journal'))
     except Exception:                 # no master yet, or no such parameter: run the node as it is
         return False
     return bool(str(value).strip())
@@ -92,7 +92,7 @@ def run(main: Callable[[], int], default_name: str, argv: Optional[list] = None)
 def private_params(name: str) -> Optional[dict]:
     """The node's private parameters on the master now (None if it has none, or no master answers)."""
     try:
-        value = rosgraph.Master('/temoto_standby').getParam(name)
+        value = rosgraph.Master('/temoto_warm_respawn').getParam(name)
     except Exception:                 # rosgraph raises for a missing key, and OSError without a master
         return None
     return value if isinstance(value, dict) else None
@@ -103,7 +103,7 @@ def restore_params(name: str, params: Optional[dict]) -> bool:
     if not params or private_params(name) is not None:
         return False
     try:
-        rosgraph.Master('/temoto_standby').setParam(name, params)
+        rosgraph.Master('/temoto_warm_respawn').setParam(name, params)
     except Exception as e:            # no master: the node waits for one as it always does
         sys.stderr.write('%s: could not put its parameters back: %s\n' % (name, e))
         return False
