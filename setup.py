@@ -14,8 +14,11 @@ PACKAGES = [
     'temoto_output_manager',
     'temoto_context_manager',
     'temoto_action_engine',
+    'temoto_speech',
     'vaultbot_sim',
+    'temoto_demo',
     'temoto_chaos',
+    'temoto_bringup',
 ]
 
 setup(
@@ -25,5 +28,5 @@ setup(
     python_requires='>=3.11',
     packages=[],   # development install: the repository root is put on sys.path
     py_modules=[],
-    entry_points={'console_scripts': ['temoto = temoto_core.cli:main']},
+    entry_points={'console_scripts': ['temoto = temoto_bringup.cli:main']},
 )

@@ -30,7 +30,7 @@ PROGRESS_EVERY = 500          # steps between progress lines
 
 def run(opts, out: str) -> int:
     """The history, its progress shown every PROGRESS_EVERY steps; bounded by 5 s a step and 10 minutes."""
-    cmd = [sys.executable, '-m', 'temoto_core.cli', 'chaos', '--seed', str(opts.seed), '--steps', str(opts.steps),
+    cmd = [sys.executable, '-m', 'temoto_bringup.cli', 'chaos', '--seed', str(opts.seed), '--steps', str(opts.steps),
            '--hosts', str(opts.hosts), '--out', out] + (['--serial'] if opts.serial else [])
     deadline = time.monotonic() + opts.steps * 5 + 600
     with open(os.path.join(out, 'stdout.log'), 'w') as log:

@@ -36,7 +36,7 @@ def one_run(out: str, args: Sequence[str] = ()) -> dict:
     failures (and fail-backs)."""
     env = child_env()
     t = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'demo', '--out', out] + list(args), env=env,
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'demo', '--out', out] + list(args), env=env,
                           capture_output=True, text=True, timeout=300, cwd=ROOT)
     wall = time.monotonic() - t
     result = {'rc': proc.returncode, 'wall_s': wall, 'failures': [], 'failbacks': []}

@@ -32,7 +32,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from common import pct  # noqa: E402
 
-from temoto_action_engine.demo.stack import Stack  # noqa: E402
+from temoto_demo.stack import Stack  # noqa: E402
 from temoto_core import master_lookup  # noqa: E402
 from temoto_core.master import RosMaster  # noqa: E402
 from temoto_core.process_group import start_ticks  # noqa: E402
@@ -43,7 +43,7 @@ MANAGERS = {'/temoto_er_manager': ['temoto_er_manager'], '/temoto_sensor_manager
             '/temoto_output_manager': ['temoto_output_manager'],
             '/temoto_context_manager': ['temoto_context_manager', 'temoto_context_manager_trackers']}
 GOAL_P95_MS = 1000.0
-LAUNCH = os.path.join(ROOT, 'temoto_action_engine', 'launch', 'demo.launch')
+LAUNCH = os.path.join(ROOT, 'temoto_bringup', 'launch', 'demo.launch')
 
 
 def registry(rr, restarted=''):

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
 
     from temoto_core.hosts import TwoHosts, unavailable
     from temoto_core.processes import ProcessGroupLauncher
-    from temoto_action_engine.demo.scenario import write_station_catalogue
+    from temoto_demo.scenario import write_station_catalogue
     why = unavailable()
     if why:
         print('bench_stall_hosts: %s' % why)
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
         launchers = [station, robot]
         print('bench_stall_hosts: robot %s (master, simulation, managers), station %s (its managers) ...'
               % (hosts.robot.address, hosts.operator.address), flush=True)
-        robot.launch('temoto_action_engine', 'robot.launch', ['robot:=' + ROBOT], timeout=60)
+        robot.launch('temoto_bringup', 'robot.launch', ['robot:=' + ROBOT], timeout=60)
         station.launch('temoto_er_manager', 'er_manager.launch', timeout=60)
         station.launch('temoto_sensor_manager', 'sensor_manager.launch',
                        ['catalogue:=' + write_station_catalogue(ROBOT, workdir)], timeout=60)

@@ -105,7 +105,7 @@ def switch_gaps(bag: str) -> List[float]:
     """For each view switch in ``bag``: the time the screen got no new frame, from the old stream's last
     message to the new view's first frame drawn (an upper bound: the old view may have drawn its last
     message later; a seamless switch still shows up to one period of the old stream)."""
-    from temoto_action_engine.demo.report import analyse, load_run
+    from temoto_demo.report import analyse, load_run
     run = load_run(bag)
     stages = analyse(run).stages
     gaps = []
@@ -126,7 +126,7 @@ def reliability(namespace: str, sensor: str) -> float:
 def probe(kind: str, standby: str, out: str, seconds: float) -> int:
     """One stack in this process (rospy can join one master per process): the first view and its spare, then
     the cost window or the flapping; prints one RESULT line of JSON."""
-    from temoto_action_engine.demo.scenario import Demo, DemoOptions
+    from temoto_demo.scenario import Demo, DemoOptions
     demo = Demo(DemoOptions(out_dir=out, standby=standby, report=False))
     result: dict = {'kind': kind, 'standby': standby}
     try:

@@ -72,8 +72,9 @@ def main(argv):
               'Each table puts the goal beside the figure; the scripts in bench/ say how each is measured.\n\n'
               % (datetime.date.today().isoformat(), platform.platform(), os.cpu_count()))
     path = os.path.join(ROOT, 'BENCHMARKS.md')
-    if only:    # a partial run replaces its own sections and keeps the others
-        sections = merge_sections(read_sections(path), sections, [os.path.basename(p) for p in scripts()])
+    # a run replaces the sections of the scripts it ran and keeps the others: the sections written by hand
+    # (before/after comparisons, loops) are the project's record, and a full run must not erase them
+    sections = merge_sections(read_sections(path), sections, [os.path.basename(p) for p in scripts()])
     with open(path, 'w') as f:
         f.write(header + '\n'.join(sections))
     print('bench: wrote BENCHMARKS.md')

@@ -148,7 +148,7 @@ def graphs(argv: list[str]) -> int:
 
 
 COMMANDS = {'say': say, 'actions': actions, 'graphs': graphs}
-# The names temoto_core/cli.py dispatches to.
+# The names temoto_bringup/cli.py dispatches to.
 say_main, actions_main, graphs_main = say, actions, graphs
 
 

@@ -33,7 +33,7 @@ from typing import Callable, Deque, Dict, List, Optional, Tuple, Union
 import psutil
 import rospy
 
-from temoto_action_engine.demo.stack import Stack
+from temoto_demo.stack import Stack
 from temoto_core import control_socket
 from temoto_core.hosts import TwoHosts
 from temoto_core.master import RosMaster
@@ -175,7 +175,7 @@ class Chaos:
     def start(self) -> None:
         os.makedirs(os.path.join(self.opts.out_dir, 'ros'), exist_ok=True)
         os.environ['TEMOTO_TEST_SESSION'] = self.token       # every child carries it: the checker's process list
-        launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_action_engine',
+        launch = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_bringup',
                               'launch', 'robot.launch')
         logs = os.path.join(self.opts.out_dir, 'logs')
         clients_dir = os.path.join(self.opts.out_dir, 'clients')

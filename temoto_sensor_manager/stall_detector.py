@@ -221,12 +221,13 @@ class StallDetector:
                     due = now + CATCH_UP
                 elif due <= now:
                     # long enough, unless the machine held this manager or the driver back meanwhile
-                    # (starvation.py): by how late this thread woke beyond the usual, and by what the receive
-                    # thread, the machine or the driver waited beyond the usual, at most half the limit (a
+                    # (starvation.py): by how late this thread woke beyond the usual, and by what the driver
+                    # and the receive thread waited beyond the usual (one after the other on a message's way:
+                    # their waits add up), or the machine's excess if larger, at most half the limit (a
                     # real stall comes late by that much at the most)
-                    probe.starved = probe.late + min(0.5 * limit, max(probe.reader_starved(),
-                                                                      self.pressure.excess(since, now),
-                                                                      probe.publisher_starved(since, now)))
+                    probe.starved = probe.late + min(0.5 * limit, max(
+                        probe.publisher_starved(since, now) + probe.reader_starved(),
+                        self.pressure.excess(since, now)))
                     due += probe.starved
                 if due > now:
                     heapq.heappush(self._heap, (self._next_look(probe, due, now), next(self._seq), probe))

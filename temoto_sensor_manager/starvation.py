@@ -21,8 +21,9 @@ things about the span it covers:
   hogs, with the link to the station cut and healed every 10 s, was called stalled after 0.375 s
   against a limit of 0.300 s plus 0.074 s: its driver had been held back.
 
-The timer's lateness beyond the usual, plus the largest of the other three at most half the limit, is
-added to the limit for that look. A driver that hangs or stops publishing runs less, not more, so a
+The timer's lateness beyond the usual, plus the driver's and the receive thread's waits (a message
+waits for the one, then for the other: they add up) or the machine's excess if that is larger, at most
+half the limit, is added to the limit for that look. A driver that hangs or stops publishing runs less, not more, so a
 real stall is not mistaken for a starved driver. A steady load (two CPU hogs all along) adds almost nothing, since
 each usual follows it and the adaptive limit has learnt the rhythm under it; a real stall during a
 burst is still caught, late by that much at most.

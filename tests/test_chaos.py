@@ -21,7 +21,7 @@ def run_chaos(tmp_path, *args):
     token = 'test_chaos_' + os.urandom(6).hex()
     env = {k: v for k, v in os.environ.items() if k not in ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_HOME')}
     env[SESSION_ENV] = token
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'chaos', '--out', str(tmp_path)] + list(args),
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'chaos', '--out', str(tmp_path)] + list(args),
                           env=env, capture_output=True, text=True, timeout=TIMEOUT)
     left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
     with open(tmp_path / 'chaos.json') as f:
@@ -93,11 +93,11 @@ def test_across_two_hosts_a_cut_link_and_a_dead_robot_host_keep_every_invariant(
 
 
 def test_bad_arguments_are_refused_in_one_line_and_start_nothing(tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'chaos', '--seed', '1', '--steps', '0',
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'chaos', '--seed', '1', '--steps', '0',
                            '--out', str(tmp_path / 'x')], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and 'must be positive' in proc.stderr
     assert not (tmp_path / 'x').exists()
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'chaos', '--seed', '1', '--history', '9',
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'chaos', '--seed', '1', '--history', '9',
                            '--out', str(tmp_path / 'y')], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and '--history' in proc.stderr and 'invalid choice' in proc.stderr
     assert not (tmp_path / 'y').exists()

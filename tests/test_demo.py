@@ -25,7 +25,7 @@ def run_demo(tmp_path_factory, *args):
     master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')
     env = {k: v for k, v in os.environ.items() if k not in master_vars}
     env[SESSION_ENV] = token
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'demo', '--out', str(out),
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'demo', '--out', str(out),
                            '--stage-timeout', '40'] + list(args), env=env, capture_output=True, text=True,
                           timeout=DEMO_TIMEOUT)
     left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
@@ -84,7 +84,7 @@ def test_no_process_remains(demo_run):
 
 def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run):
     proc, out, _ = demo_run
-    from temoto_action_engine.demo.report import analyse, load_run
+    from temoto_demo.report import analyse, load_run
     bag = out / 'failover.bag'
     assert bag.exists(), proc.stderr[-2000:]
     run = load_run(str(bag))
@@ -107,7 +107,7 @@ def test_bag_shows_three_stages_in_order_and_failed_reaching_the_action(demo_run
 
 def test_report_files_exist_and_screenshots_show_data(demo_run):
     proc, out, _ = demo_run
-    from temoto_action_engine.demo.report import diff_fraction
+    from temoto_demo.report import diff_fraction
     report = (out / 'report.md').read_text()
     assert (out / 'timeline.png').stat().st_size > 10000
     shots = {p.name.split('_', 2)[2][:-4]: p.read_bytes() for p in out.glob('screenshot_*.png')}
@@ -129,7 +129,7 @@ def test_every_view_lasts_at_least_two_seconds_in_the_bag(demo_run):
     so neither the bag nor its replay showed the last view."""
     from pathlib import Path
     from rosbags.highlevel import AnyReader
-    from temoto_action_engine.demo import topics as T
+    from temoto_demo import topics as T
     _, out, _ = demo_run
     spans = {}
     with AnyReader([Path(str(out / 'failover.bag'))]) as reader:
@@ -157,7 +157,7 @@ def bag_topics(bag):
 
 def test_the_bag_holds_every_displayed_stream_with_tf_and_the_robot_within_its_budget(demo_run):
     _, out, _ = demo_run
-    from temoto_action_engine.demo import topics as T
+    from temoto_demo import topics as T
     bag = out / 'failover.bag'
     counts = bag_topics(bag)
     for stream in ('/d435/depth_registered/points', '/laser_stitcher/cloud', '/sick/scan'):
@@ -177,7 +177,7 @@ def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros
     from vaultbot_sim.msg import DeviceStates
     from temoto_core.msg import ResourceStatus
     from temoto_core.testing import wait_for
-    from temoto_action_engine.demo import topics as T
+    from temoto_demo import topics as T
     _, out, _ = demo_run
     bag = out / 'failover.bag'
     counts = bag_topics(bag)
@@ -206,10 +206,10 @@ def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros
 
 def test_temoto_replay_shows_the_three_views_again_on_a_master_of_its_own(demo_run, tmp_path):
     _, out, _ = demo_run
-    from temoto_action_engine.demo.report import diff_fraction
+    from temoto_demo.report import diff_fraction
     master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'DISPLAY')
     env = {k: v for k, v in os.environ.items() if k not in master_vars}   # it needs no master: it makes one
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'replay', str(out / 'failover.bag'),
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'replay', str(out / 'failover.bag'),
                            '--out', str(tmp_path)], env=env, capture_output=True, text=True, timeout=DEMO_TIMEOUT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     shots = sorted(tmp_path.glob('replay_*.png'))
@@ -226,7 +226,7 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
     view fails over as on one host, each FAILED reaches the action across the link, and nothing is left behind:
     no process, no namespace."""
     from temoto_core import hosts as hosts_mod
-    from temoto_action_engine.demo.report import analyse, load_run
+    from temoto_demo.report import analyse, load_run
     assert not hosts_mod.unavailable(), hosts_mod.unavailable()
     before = set(hosts_mod._ip('netns', 'list').stdout.split())
     proc, out, left = run_demo(tmp_path_factory, '--hosts', '2')
@@ -272,7 +272,7 @@ def test_demo_across_two_hosts_under_hot_standby_shows_the_station_scanner_while
     list. Under hot standby it streams into a hidden display before the cut, so when the robot's link fails the
     view switches to it, with the robot's master out of reach; after the heal the view fails back to the robot."""
     from temoto_core import hosts as hosts_mod
-    from temoto_action_engine.demo.report import analyse, load_run
+    from temoto_demo.report import analyse, load_run
     assert not hosts_mod.unavailable(), hosts_mod.unavailable()
     proc, out, left = run_demo(tmp_path_factory, '--hosts', '2', '--standby', 'hot')
     assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
@@ -299,7 +299,7 @@ def test_demo_on_two_hosts_without_root_says_why_in_one_line(tmp_path):
     from its bounding set) is told so in one line, and nothing is started."""
     env = {k: v for k, v in os.environ.items() if k not in ('ROS_MASTER_URI', 'DISPLAY')}
     proc = subprocess.run(['setpriv', '--bounding-set=-net_admin,-sys_admin', '--inh-caps=-net_admin,-sys_admin',
-                           sys.executable, '-m', 'temoto_core.cli', 'demo', '--hosts', '2', '--out',
+                           sys.executable, '-m', 'temoto_bringup.cli', 'demo', '--hosts', '2', '--out',
                            str(tmp_path / 'run')], env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert proc.stderr.strip().splitlines() == ['temoto demo --hosts 2: two hosts need root (network namespaces '
@@ -314,7 +314,7 @@ def test_standby_policies_fail_over_to_the_running_spare_and_hot_fails_back_with
     """``--standby warm|hot --replug``: each failover takes the spare that was already running (no driver started
     after the FAILED), and the camera plugged back is shown again after the hold; under hot, with no frame
     rendered between the old view going off and the camera's view being drawn (RViz's frame counts)."""
-    from temoto_action_engine.demo.report import analyse, load_run
+    from temoto_demo.report import analyse, load_run
     proc, out, left = run_demo(tmp_path_factory, '--standby', standby, '--replug')
     assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
     assert left == []

@@ -37,7 +37,7 @@ def write_synthetic_bag(path, with_screenshots=True):
     from temoto_core.msg import ResourceStatus
     from temoto_output_manager.msg import DisplayEvent
     from vaultbot_sim.msg import DeviceState, DeviceStates
-    from temoto_action_engine.demo import topics as T
+    from temoto_demo import topics as T
 
     def ts(t):
         return rospy.Time.from_sec(T0 + t)
@@ -115,7 +115,7 @@ def write_synthetic_bag(path, with_screenshots=True):
 
 
 def test_report_figures_from_a_synthetic_bag(tmp_path):
-    from temoto_action_engine.demo.report import write_report
+    from temoto_demo.report import write_report
     bag = write_synthetic_bag(str(tmp_path / 'failover.bag'))
     rep = write_report(bag)
     an = rep.analysis
@@ -138,7 +138,7 @@ def test_report_figures_from_a_synthetic_bag(tmp_path):
     assert '| display gap | 2.200 s |' in text
     for shot in rep.screenshots:
         assert os.path.getsize(shot) > 0
-    from temoto_action_engine.demo.report import non_background_fraction
+    from temoto_demo.report import non_background_fraction
     assert all(non_background_fraction(open(s, 'rb').read()) > 0.05 for s in rep.screenshots)
     assert non_background_fraction(_png((0, 0, 0), marks=False)) == 0.0
     from PIL import Image
@@ -153,7 +153,7 @@ def test_report_cli_on_a_bag_without_screenshots_uses_pngs_beside_it(tmp_path):
     (tmp_path / 'screenshot_1_rgbd.png').write_bytes(_png((255, 0, 0)))
     out = tmp_path / 'out'
     env = dict(os.environ)
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'report', bag, '--out', str(out)], env=env,
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'report', bag, '--out', str(out)], env=env,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert (out / 'report.md').exists() and (out / 'timeline.png').exists()
@@ -162,7 +162,7 @@ def test_report_cli_on_a_bag_without_screenshots_uses_pngs_beside_it(tmp_path):
 
 
 def test_report_cli_names_a_missing_bag(tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'temoto_core.cli', 'report', str(tmp_path / 'nope.bag')],
+    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'report', str(tmp_path / 'nope.bag')],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0
     assert 'nope.bag' in proc.stderr
@@ -171,7 +171,7 @@ def test_report_cli_names_a_missing_bag(tmp_path):
 def test_the_default_run_folder_is_hidden_from_rospack(tmp_path, monkeypatch):
     """runs/ sits in the repository, on ROS_PACKAGE_PATH: rospack must not walk every old run."""
     import rospkg
-    from temoto_action_engine.demo.cli import default_run_dir
+    from temoto_demo.cli import default_run_dir
     monkeypatch.chdir(tmp_path)
     run = tmp_path / default_run_dir()
     (run / 'ros' / 'log' / 'decoy').mkdir(parents=True)

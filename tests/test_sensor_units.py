@@ -265,3 +265,20 @@ def test_a_process_made_to_wait_for_its_cpu_shows_it_in_its_run_queue_time():
             proc.kill()
             proc.wait()
     assert process_wait(loops[0].pid) is None     # gone
+
+
+def test_the_driver_s_and_the_reader_s_waits_add_up():
+    """A message waits for the driver to run, then for the receive thread: a silence that held both back
+    by 0.03 s each comes 0.06 s later."""
+    fired = threading.Event()
+    stalls = []
+    dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
+    try:
+        probe = fixed_probe('both_starved', 0.2, last=time.monotonic())
+        probe.reader_starved = lambda: 0.03
+        probe.publisher_starved = lambda since, now: 0.03
+        dog.arm([probe])
+        assert fired.wait(5.0)
+        assert stalls[0] >= 0.26 and probe.starved >= 0.06, (stalls, probe.starved)
+    finally:
+        dog.stop()

@@ -104,7 +104,7 @@ def content(text):
 
 
 def temoto(*args):
-    return subprocess.run([sys.executable, '-m', 'temoto_core.cli'] + list(args) + ['--ns', NS],
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli'] + list(args) + ['--ns', NS],
                           capture_output=True, text=True, timeout=CLI_TIMEOUT)
 
 

@@ -1,9 +1,9 @@
-"""The demo's launcher (``temoto_action_engine/demo/stack.py``): a node it respawns after the master started
+"""The demo's launcher (``temoto_demo/stack.py``): a node it respawns after the master started
 again gets the parameters of its launch file, which a new master does not have. Real roscore, real nodes."""
 import os
 import signal
 
-from temoto_action_engine.demo.stack import Stack
+from temoto_demo.stack import Stack
 from temoto_core import master_lookup
 from temoto_core.master import RosMaster, free_port
 from temoto_core.testing import wait_for

@@ -33,7 +33,7 @@ def robots(rospy_client, module_procs):
         # two simulations render on 2 cores beside the other worker: a driver's start-up may take longer than
         # the default 4 s allowance (robot 2's camera once did, and its view began on the lidar); these tests
         # are about the robots' independence, not start-up speed (bench_sim.py measures that)
-        module_procs.launch('temoto_action_engine', 'robot.launch',
+        module_procs.launch('temoto_bringup', 'robot.launch',
                             ['robot:=' + robot, 'frame_prefix:=%s/' % robot, 'origin:=' + origin, 'world:=lab',
                              'first_data_allowance:=15.0'])
     for robot in ROBOTS:
@@ -188,7 +188,7 @@ def test_one_station_shows_both_robots_and_each_view_fails_over_on_its_own(robot
     only robot 1's view fails over, to robot 1's own next sensor; robot 2's view stays on its camera."""
     from std_msgs.msg import String
     from temoto_action_engine.srv import StopGraph
-    procs.launch('temoto_action_engine', 'operator.launch',
+    procs.launch('temoto_bringup', 'operator.launch',
                  ['robot:=vaultbot_1', 'robots:=vaultbot_1,vaultbot_2', 'fixed_frame:=world'])
     rospy_client.wait_for_service('/temoto/action_engine/list_actions', timeout=30)
     events = ActionEvents()

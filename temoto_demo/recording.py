@@ -55,7 +55,7 @@ class Recording:
     def start(self, timeout: float = 15.0) -> 'Recording':
         os.makedirs(self.log_dir, exist_ok=True)
         master = self.env['ROS_MASTER_URI']
-        self.relay = ManagedProcess([sys.executable, '-m', 'temoto_action_engine.demo.relay',
+        self.relay = ManagedProcess([sys.executable, '-m', 'temoto_demo.relay',
                                      '__name:=' + RELAY_NODE.lstrip('/'), '_temoto_namespace:=' + self.namespace,
                                      '_robot:=' + (self.robot or '/'),
                                      '_streams:=' + ','.join(self.streams)],

@@ -51,7 +51,8 @@ KILLABLE = OrderedDict([('/temoto_er_manager', ['temoto_er_manager']),
                         ('/temoto_context_manager', ['temoto_context_manager', 'temoto_context_manager_trackers'])])
 RECOVERY_TIMEOUT = 30.0
 SENSOR_MANAGER = '/temoto_sensor_manager'
-LAUNCH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'launch')
+# the system's launch files (temoto_bringup), found beside this package
+LAUNCH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_bringup', 'launch')
 
 
 def write_station_catalogue(robot: str, workdir: str) -> str:

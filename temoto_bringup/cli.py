@@ -1,8 +1,8 @@
 """``temoto``: one command, subcommands from every package.
 
 Subcommands are named here as ``module:function`` strings and imported only
-when used, so ``temoto registry`` does not pay for pybullet or RViz, and the
-core package does not import the packages built on top of it.
+when used, so ``temoto registry`` does not pay for pybullet or RViz. It lives in
+the top layer (temoto_bringup), the one package that may know every other.
 """
 import importlib
 import sys
@@ -19,10 +19,10 @@ COMMANDS = {
     'listen': ('temoto_speech.cli:listen_main', 'what the speech node hears; or send it a WAV file (--wav)'),
     'actions': ('temoto_action_engine.cli:actions_main', 'list the indexed actions'),
     'graphs': ('temoto_action_engine.cli:graphs_main', 'list or stop running action graphs'),
-    'demo': ('temoto_action_engine.demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration'),
-    'record': ('temoto_action_engine.demo.cli:record_main', 'record the failover topic set to a bag'),
-    'report': ('temoto_action_engine.demo.cli:report_main', 'make the report of a recorded run from its bag'),
-    'replay': ('temoto_action_engine.demo.replay:replay_main', 'show the views of a recorded run again in RViz'),
+    'demo': ('temoto_demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration'),
+    'record': ('temoto_demo.cli:record_main', 'record the failover topic set to a bag'),
+    'report': ('temoto_demo.cli:report_main', 'make the report of a recorded run from its bag'),
+    'replay': ('temoto_demo.replay:replay_main', 'show the views of a recorded run again in RViz'),
     'chaos': ('temoto_chaos.cli:chaos_main', 'a seeded history of operations and faults, checked after every step'),
 }
 

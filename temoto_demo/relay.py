@@ -13,7 +13,7 @@ only when the Output Manager starts it; a stream only when its driver runs): a p
 publishes makes the topic known to the master, so a recorder subscribes at once instead of at its
 next 1 s master poll and misses nothing early.
 
-Run: ``python -m temoto_action_engine.demo.relay _temoto_namespace:=temoto``.
+Run: ``python -m temoto_demo.relay _temoto_namespace:=temoto``.
 """
 from __future__ import annotations
 
