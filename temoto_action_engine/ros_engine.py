@@ -26,9 +26,9 @@ import rospy
 from std_msgs.msg import String
 from temoto_core import tcpros_accept
 from temoto_core.node import after_init_node, clear_stale_registration, on_signals
-from temoto_core.params import list_param
+from temoto_core import params
 from temoto_core.rr.journal import Journal
-from temoto_core.rr.registrar import journal_param
+from temoto_core.rr.settings import journal_param
 
 from .engine import ActionEngine
 from .indexer import ActionIndex
@@ -43,20 +43,21 @@ MAX_GRAPH_JSON = 1 << 20   # bytes of a graph
 
 class ActionEngineNode:
     def __init__(self):
-        self.namespace = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
-        paths = list_param(rospy.get_param('~action_paths', []), 'action_paths', separator=':')
-        wake = list_param(rospy.get_param('~wake_words', []), 'wake_words')
+        self.namespace = params.text('temoto_namespace', 'temoto').strip('/') or 'temoto'
+        paths = params.strings('action_paths', [], separator=':')
+        wake = params.strings('wake_words', [])
         actions_cfg = rospy.get_param('~actions', {}) or {}
         if not isinstance(actions_cfg, dict):
             raise ValueError('parameter ~actions must map action names to their settings')
-        self.stop_timeout = float(rospy.get_param('~stop_timeout_s', 15.0))
+        self.stop_timeout = params.number('stop_timeout_s', 15.0, above=0)
         base = '/%s/action_engine' % self.namespace
         self.feedback_pub = rospy.Publisher(base + '/feedback', String, queue_size=50)
         self.events_pub = rospy.Publisher(base + '/events', String, queue_size=200)
-        index = ActionIndex(paths, include_bundled=bool(rospy.get_param('~include_bundled_actions', True)))
+        index = ActionIndex(paths, include_bundled=params.flag('include_bundled_actions', True))
         workers = None
-        if bool(rospy.get_param('~isolate_graphs', True)):
-            workers = WorkerPool(self.namespace, self.stop_timeout, spares=int(rospy.get_param('~spare_workers', 1)))
+        if params.flag('isolate_graphs', True):
+            workers = WorkerPool(self.namespace, self.stop_timeout, spares=params.number('spare_workers', 1, minimum=0, maximum=8,
+                                                                                    integer=True))
         journal = journal_param()
         self.journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         self.engine = ActionEngine(index, namespace=self.namespace, wake_words=wake, action_config=actions_cfg,

@@ -21,7 +21,7 @@ from typing import Callable, Deque, Dict, Iterator, List
 
 import rospy
 
-from temoto_core import control_socket
+from temoto_core import control_socket, params
 from temoto_core.errors import TemotoError
 from temoto_core.node import init_node, spin
 from temoto_core.rr import StatusEvent
@@ -198,9 +198,9 @@ class _Handler(socketserver.StreamRequestHandler):
 
 def main() -> None:
     init_node(NODE_NAME)
-    namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
-    socket_path = str(rospy.get_param('~control_socket'))
-    client = ChaosClient(namespace, str(rospy.get_param('~station_namespace', '')))
+    namespace = params.text('temoto_namespace', 'temoto', empty=False)
+    socket_path = params.text('control_socket', '', empty=False)
+    client = ChaosClient(namespace, params.text('station_namespace', ''))
     server = control_socket.Server(socket_path, _Handler)
     server.client = client
     threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()

@@ -38,7 +38,7 @@ from temoto_core.errors import ErrorCode, Subsystem, TemotoError
 from temoto_core.fallback import first_that_works
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar, StatusEvent
-from temoto_core.rr.registrar import journal_param
+from temoto_core.rr.settings import journal_param
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_context_manager.contract import (LOAD_TRACKER, LOAD_TRACKER_TYPE, RR_NAME as NAME, TRACK_OBJECT,
                                              TRACK_OBJECT_TYPE, TRACKER_RR_NAME as TRACKER_RR)

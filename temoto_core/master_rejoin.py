@@ -40,7 +40,7 @@ import rosgraph
 import rospy
 import rospy.impl.registration
 
-from temoto_core.params import seconds_param
+from temoto_core import params
 from temoto_core.xmlrpc_util import proxy
 
 DEFAULT_PERIOD = 1.0      # s between two checks: a returned master has everything again within about this
@@ -297,7 +297,7 @@ def ensure_started() -> Optional[MasterRejoin]:
     global _started, _decided
     with _start_lock:
         if not _decided:
-            period = seconds_param(rospy.get_param('~master_check_period', DEFAULT_PERIOD), 'master_check_period')
+            period = params.seconds('master_check_period', DEFAULT_PERIOD)
             if period > 0:
                 _started = MasterRejoin(period).start()
             _decided = True

@@ -34,8 +34,7 @@ import rosgraph.names
 import rospy
 import rospy.impl.paramserver
 
-from temoto_core import master_lookup, master_rejoin, tcpros_accept, watchdog
-from temoto_core.params import seconds_param
+from temoto_core import master_lookup, master_rejoin, params, tcpros_accept, watchdog
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -115,7 +114,7 @@ def after_init_node() -> None:
     own (the RViz host's and the action engine's, which handle their signals themselves)."""
     prime_log_parameter()
     # a node whose own locks wedge kills itself with its stacks written, rather than answer nothing for good
-    watchdog.install(seconds_param(rospy.get_param('~watchdog_bound', watchdog.DEFAULT_BOUND_S), 'watchdog_bound'))
+    watchdog.install(params.seconds('watchdog_bound', watchdog.DEFAULT_BOUND_S))
     master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back
 
 

@@ -143,14 +143,12 @@ class StreamRelay:
 
 
 def main() -> None:
-    import rospy
+    from temoto_core import params
     from temoto_core.node import init_node, spin
     init_node('temoto_demo_relay')
-    ns = str(rospy.get_param('~temoto_namespace', T.DEFAULT_NS))
-    streams = rospy.get_param('~streams', T.DEFAULT_STREAMS)
-    if isinstance(streams, str):
-        streams = [s for s in streams.split(',') if s.strip()]
-    robot = str(rospy.get_param('~robot', '')).strip('/')      # where the robot's simulation runs
+    ns = params.text('temoto_namespace', T.DEFAULT_NS, empty=False)
+    streams = params.strings('streams', T.DEFAULT_STREAMS)
+    robot = params.text('robot', '').strip('/')      # where the robot's simulation runs
     StreamRelay(ns, streams, robot=robot)
     spin()
 

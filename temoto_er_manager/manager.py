@@ -35,7 +35,7 @@ from temoto_core.errors import ErrorCode, Subsystem, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_core.rr import ResourceRegistrar
-from temoto_core.rr.registrar import journal_param
+from temoto_core.rr.settings import journal_param
 
 from temoto_core import master_lookup as master, master_rejoin
 from temoto_core.process_group import start_ticks

@@ -19,7 +19,7 @@ from typing import Optional
 import rosgraph
 import rospy
 from std_msgs.msg import Header
-from temoto_core import master_rejoin, tcpros_accept
+from temoto_core import master_rejoin, params, tcpros_accept
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import after_init_node
 from temoto_core.xmlrpc_util import proxy
@@ -258,20 +258,21 @@ def main(argv=None) -> int:
         # services again (a host with no registrar has no other way back); its logging must not wait for the
         # master, and a wedged host kills itself so that the Output Manager fails its displays (node.py)
         after_init_node()
-        settings = HostSettings(
-            fixed_frame=str(rospy.get_param('~fixed_frame', 'base_link')),
-            frame_rate=int(rospy.get_param('~frame_rate', 15)),
-            width=int(rospy.get_param('~width', 960)),
-            height=int(rospy.get_param('~height', 600)),
-            robot_description=str(rospy.get_param('~robot_description', 'robot_description')),
-            robot_tf_prefix=str(rospy.get_param('~robot_tf_prefix', '')),
-            robots=_robots(rospy.get_param('~robots', '')),
-            show_robot=bool(rospy.get_param('~show_robot', True)),
-            show_grid=bool(rospy.get_param('~show_grid', True)),
-            initial_view=_initial_view(rospy.get_param('~initial_view', 'operator')))
-        namespace = str(rospy.get_param('~temoto_namespace', 'temoto'))
-        if settings.frame_rate < 1 or settings.frame_rate > 60:
-            raise SystemExit('~frame_rate must be 1..60, got %d' % settings.frame_rate)
+        try:
+            settings = HostSettings(
+                fixed_frame=params.text('fixed_frame', 'base_link', empty=False),
+                frame_rate=params.number('frame_rate', 15, minimum=1, maximum=60, integer=True),
+                width=params.number('width', 960, minimum=64, maximum=8192, integer=True),
+                height=params.number('height', 600, minimum=64, maximum=8192, integer=True),
+                robot_description=params.text('robot_description', 'robot_description', empty=False),
+                robot_tf_prefix=params.text('robot_tf_prefix', ''),
+                robots=_robots(rospy.get_param('~robots', '')),
+                show_robot=params.flag('show_robot', True),
+                show_grid=params.flag('show_grid', True),
+                initial_view=_initial_view(rospy.get_param('~initial_view', 'operator')))
+            namespace = params.text('temoto_namespace', 'temoto', empty=False)
+        except params.ParamError as err:
+            raise SystemExit(str(err))
         caller = MainThreadCaller()
         node: Optional[RvizHostNode] = None
 

@@ -33,7 +33,7 @@ from std_msgs.msg import String
 
 from temoto_action_engine.srv import ListActions
 from temoto_core.node import init_node, spin
-from temoto_core.params import list_param
+from temoto_core import params
 from temoto_speech.announcer import Announcer, sentence
 from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
 from temoto_speech.msg import AudioData
@@ -47,21 +47,22 @@ INDEX_CALL_TIMEOUT_S = 5.0
 
 class SpeechNode:
     def __init__(self) -> None:
-        self.ns = str(rospy.get_param('~temoto_namespace', 'temoto')).strip('/') or 'temoto'
-        self.wake_words = list_param(rospy.get_param('~wake_words', ''), 'wake_words')
-        self.poll_s = float(rospy.get_param('~grammar_poll_s', 5.0))
+        self.ns = params.text('temoto_namespace', 'temoto').strip('/') or 'temoto'
+        self.wake_words = params.strings('wake_words', '')
+        self.poll_s = params.number('grammar_poll_s', 5.0, above=0)
+        source = params.text('source', 'topic', choices=('topic', 'microphone'))
         base = '/%s/speech' % self.ns
         self.chatter = rospy.Publisher('/%s/human_chatter' % self.ns, String, queue_size=10)
         self.heard = rospy.Publisher(base + '/heard', String, queue_size=20)
         self.grammar_pub = rospy.Publisher(base + '/grammar', String, queue_size=1, latch=True)
         announcements = rospy.Publisher(base + '/announcements', String, queue_size=20)
         self.announcer = Announcer(lambda text: announcements.publish(String(text)),
-                                   str(rospy.get_param('~voice', DEFAULT_VOICE)),
-                                   int(rospy.get_param('~speed', DEFAULT_SPEED)),
-                                   audible=bool(rospy.get_param('~speak', True)),
-                                   wav_dir=str(rospy.get_param('~wav_dir', '')),
+                                   params.text('voice', DEFAULT_VOICE, empty=False),
+                                   params.number('speed', DEFAULT_SPEED, minimum=1, integer=True),
+                                   audible=params.flag('speak', True),
+                                   wav_dir=params.text('wav_dir', ''),
                                    on_error=lambda text: rospy.logwarn('%s: %s', NODE_NAME, text))
-        self.recognizer = Recognizer([], self.wake_words, float(rospy.get_param('~min_margin', MIN_MARGIN)))
+        self.recognizer = Recognizer([], self.wake_words, params.number('min_margin', MIN_MARGIN))
         self._index_digest = ''
         self.utterances = Utterances()
         self._audio_lock = threading.Lock()
@@ -72,12 +73,9 @@ class SpeechNode:
                       rospy.Subscriber('/%s/action_engine/events' % self.ns, String, self._on_event, queue_size=100)]
         self.refresh_grammar()      # after the subscriptions: a grammar on its topic means the node listens
         threading.Thread(target=self._poll_index, name='speech-grammar', daemon=True).start()
-        source = str(rospy.get_param('~source', 'topic'))
         if source == 'microphone':
-            threading.Thread(target=self._listen_microphone, args=(str(rospy.get_param('~microphone', 'default')),),
+            threading.Thread(target=self._listen_microphone, args=(params.text('microphone', 'default'),),
                              name='speech-microphone', daemon=True).start()
-        elif source != 'topic':
-            raise ValueError('parameter ~source must be "topic" or "microphone", got %r' % source)
 
     # ------------------------------------------------------------------ grammar
     def refresh_grammar(self) -> bool:

@@ -195,7 +195,7 @@ def test_a_bad_master_check_period_stops_the_node_naming_it(own_master):
                       wait=False)
     wait_for(lambda: not proc.alive(), HANG, 'the node to stop')
     assert proc.returncode != 0
-    assert 'master_check_period -1' in proc.log(40), proc.log(40)
+    assert 'parameter ~master_check_period: -1 is not a number of seconds' in proc.log(40), proc.log(40)
 
 
 def test_a_new_master_that_learnt_one_registration_first_gets_all_the_others(own_master):

@@ -195,6 +195,6 @@ def test_a_batch_writes_the_highest_id_once_and_a_rolled_back_batch_raises_nothi
 @pytest.mark.parametrize('pause', [-0.1, 60.0, 'soon', True])
 def test_a_bad_journal_pause_is_refused_by_name_before_the_journal_opens(rospy_client, tmp_path, pause):
     path = tmp_path / 'bad_pause.sqlite3'
-    with pytest.raises(TemotoError, match=r'journal_pause .*from 0 to 5'):
+    with pytest.raises(TemotoError, match=r'parameter ~journal_pause: .* is not a number >= 0 and <= 5'):
         ResourceRegistrar('rr_bad_pause', journal=str(path), journal_pause=pause)
     assert not path.exists(), 'a refused registrar starts no incarnation'

@@ -128,4 +128,4 @@ def test_a_node_with_its_own_init_reads_its_watchdog_bound_and_refuses_a_bad_one
                       params=dict(params, watchdog_bound='soon'), wait=False)   # it stops at once
     wait_for(lambda: not proc.alive(), HANG, '%s to stop' % which)
     assert proc.returncode != 0
-    assert "watchdog_bound 'soon'" in proc.log(60), proc.log(60)
+    assert "parameter ~watchdog_bound: 'soon' is not a number of seconds" in proc.log(60), proc.log(60)

@@ -24,13 +24,14 @@ import time
 import diagnostic_updater
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
+from temoto_core import params
 from temoto_core.node import ok
 from sensor_msgs.msg import JointState
 
 from vaultbot_sim.devices import Cable, CableWatch
 from vaultbot_sim.motion import JointHistory
 from vaultbot_sim.msg import DeviceStates
-from vaultbot_sim.scene import Scene
+from vaultbot_sim.scene import RENDERERS, Scene
 
 EXIT_DEVICE_LOST = 1
 DIAGNOSTICS_CONNECT_S = 1.0   # at most, for a subscriber of /diagnostics to connect before a start-up error
@@ -49,11 +50,13 @@ class DriverBase:
 
     def __init__(self):
         # relative by default: a driver started in a robot's namespace finds that robot's simulation
-        self.sim_ns = rospy.resolve_name(rospy.get_param('~sim_ns', 'vaultbot_sim')).rstrip('/')
-        self.rate = float(rospy.get_param('~rate', self.default_rate))
-        if not 0 < self.rate <= 1000:
-            self.fail(f'~rate {self.rate} out of range (0, 1000]')
-        self.startup_timeout = float(rospy.get_param('~startup_timeout', 10.0))
+        try:
+            self.sim_ns = rospy.resolve_name(params.text('sim_ns', 'vaultbot_sim', empty=False)).rstrip('/')
+            self.rate = params.number('rate', self.default_rate, above=0, maximum=1000)
+            self.startup_timeout = params.number('startup_timeout', 10.0, above=0)
+            self.renderer = params.text('renderer', 'tiny', choices=RENDERERS)
+        except params.ParamError as err:
+            self.fail('%s: %s' % (self.device, err))
         self.cable = CableWatch(self.device)
         self.lock = threading.Lock()
         self.robot_hist = JointHistory()
@@ -78,7 +81,6 @@ class DriverBase:
         self.robot_urdf = self._param(self.sim_ns + '/robot_urdf')
         self.world_urdf = self._param(self.sim_ns + '/world_urdf')
         self.frame_prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))    # its robot's TF frames
-        self.renderer = rospy.get_param('~renderer', 'tiny')
         self.scene = self.make_scene()
         self.cfg: tuple[dict, dict] = ({}, {})
         rospy.Subscriber('joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import rospy
+from temoto_core import params
 from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
@@ -23,7 +24,7 @@ class LaserDriver(DriverBase):
         self.default_rate = self.spec.rate_hz
         self.pub = rospy.Publisher(self.topic, LaserScan, queue_size=5, tcp_nodelay=True)   # first: see DriverBase
         super().__init__()
-        self.threads = int(rospy.get_param('~ray_threads', 1))
+        self.threads = params.number('ray_threads', 1, minimum=1, maximum=16, integer=True)
         self.angles = self.spec.angle_min + np.arange(self.spec.beams) * self.spec.angle_increment
 
     def sensor_pose(self) -> np.ndarray:

@@ -38,6 +38,9 @@ class Intrinsics:
         return [self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0]
 
 
+RENDERERS = ('tiny', 'egl')     # pybullet's software renderer; its EGL plugin (a GPU)
+
+
 class Scene:
     """Robot + world loaded into a private pybullet DIRECT client."""
 
@@ -62,8 +65,8 @@ class Scene:
             egl = pkgutil.get_loader('eglRenderer')
             p.loadPlugin(egl.get_filename(), '_eglRendererPlugin', physicsClientId=self.cid)
             self.renderer = p.ER_BULLET_HARDWARE_OPENGL
-        elif renderer != 'tiny':
-            raise ValueError(f'unknown renderer {renderer!r}: use tiny or egl')
+        elif renderer not in RENDERERS:
+            raise ValueError(f'unknown renderer {renderer!r}: use one of {", ".join(RENDERERS)}')
 
     def close(self) -> None:
         self.p.disconnect(self.cid)

@@ -21,6 +21,7 @@ import threading
 import rosgraph
 import rospy
 from temoto_core.node import ok
+from temoto_core import params
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
@@ -59,22 +60,22 @@ def origin_matrix(value: object) -> np.ndarray:
 
 class SimNode:
     def __init__(self):
-        world = rospy.get_param('~world', 'lab')
+        world = params.text('world', 'lab', empty=False)
         self.world_urdf = resolve_world(world)
-        self.robot_urdf = rospy.get_param('~robot_urdf', ROBOT_URDF)
-        self.rate = float(rospy.get_param('~rate', 50.0))
-        sweep = WristSweep(HOLD_POSE[SWEEP_JOINT], amplitude=float(rospy.get_param('~sweep_amplitude', math.pi / 2)),
-                           speed=float(rospy.get_param('~sweep_speed', math.pi / 2)),
-                           enabled=bool(rospy.get_param('~sweep', True)))
-        hand = HandWave(amplitude=float(rospy.get_param('~hand_amplitude', 0.3)),
-                        period=float(rospy.get_param('~hand_period', 8.0)),
-                        enabled=bool(rospy.get_param('~hand_motion', True)))
+        self.robot_urdf = params.text('robot_urdf', ROBOT_URDF, empty=False)
+        self.rate = params.number('rate', 50.0, above=0, maximum=1000)
+        sweep = WristSweep(HOLD_POSE[SWEEP_JOINT], amplitude=params.number('sweep_amplitude', math.pi / 2, minimum=0),
+                           speed=params.number('sweep_speed', math.pi / 2, above=0),
+                           enabled=params.flag('sweep', True))
+        hand = HandWave(amplitude=params.number('hand_amplitude', 0.3, minimum=0),
+                        period=params.number('hand_period', 8.0, above=0),
+                        enabled=params.flag('hand_motion', True))
         self.state = SimState(sweep, hand)
         self.robot = TreeModel(self.robot_urdf)
         self.world = TreeModel(self.world_urdf)
         self.devices = DeviceTable()
         self.lock = threading.Lock()
-        self.frame_prefix = frame_prefix(rospy.get_param('~frame_prefix', ''))
+        self.frame_prefix = frame_prefix(params.text('frame_prefix', ''))
         self.origin = origin_matrix(rospy.get_param('~origin', [0.0, 0.0, 0.0]))
 
         # the drivers stamp their data with the prefix; set before the URDFs, which they wait for

@@ -14,6 +14,7 @@ import math
 import threading
 
 import rospy
+from temoto_core import params
 from sensor_msgs.msg import JointState, LaserScan, PointCloud2
 from std_msgs.msg import Header
 
@@ -35,30 +36,23 @@ class StitcherNode:
         # to connect to a new publisher on a busy machine) connect meanwhile and get the first cloud.
         self.pub = rospy.Publisher('laser_stitcher/cloud', PointCloud2, queue_size=2, tcp_nodelay=True)
         self.published = False
-        sim_ns = rospy.resolve_name(rospy.get_param('~sim_ns', 'vaultbot_sim')).rstrip('/')
+        sim_ns = rospy.resolve_name(params.text('sim_ns', 'vaultbot_sim', empty=False)).rstrip('/')
         urdf = rospy.get_param('~robot_urdf', rospy.get_param(sim_ns + '/robot_urdf', ROBOT_URDF))
         # the cloud is computed in the robot's own (unprefixed) model, and stamped with its robot's frame
-        self.base_frame = rospy.get_param('~base_frame', 'base_link')
+        self.base_frame = params.text('base_frame', 'base_link', empty=False)
         self.frame_prefix = str(rospy.get_param(sim_ns + '/frame_prefix', ''))
-        self.mode = rospy.get_param('~mode', 'rolling')
-        if self.mode not in MODES:
-            raise ValueError('~mode %r: use one of %s' % (self.mode, ', '.join(MODES)))
-        rate = float(rospy.get_param('~publish_rate', 10.0))
-        if not 0 < rate <= 100:
-            raise ValueError('~publish_rate %r out of range (0, 100] Hz' % rate)
-        self.period = 1.0 / rate
-        self.min_scans = int(rospy.get_param('~min_scans', 3))
-        if self.min_scans < 1:
-            raise ValueError('~min_scans %r must be >= 1' % self.min_scans)
-        common = dict(sensor_frame=rospy.get_param('~sensor_frame', 'hokuyo_link'), base_frame=self.base_frame,
-                      sweep_angle=float(rospy.get_param('~sweep_angle', math.pi)))
-        model, joint = TreeModel(urdf), rospy.get_param('~sweep_joint', SWEEP_JOINT)
+        self.mode = params.text('mode', 'rolling', choices=MODES)
+        self.period = 1.0 / params.number('publish_rate', 10.0, above=0, maximum=100)
+        self.min_scans = params.number('min_scans', 3, minimum=1, integer=True)
+        common = dict(sensor_frame=params.text('sensor_frame', 'hokuyo_link', empty=False),
+                      base_frame=self.base_frame, sweep_angle=params.number('sweep_angle', math.pi, above=0))
+        model, joint = TreeModel(urdf), params.text('sweep_joint', SWEEP_JOINT, empty=False)
         if self.mode == 'rolling':
             # max_window: a back-and-forth wrist last saw the far end of its travel a whole period ago
-            self.stitcher = RollingStitcher(model, joint, max_window=float(rospy.get_param('~max_window', 4.5)),
-                                            angle_bin=float(rospy.get_param('~angle_bin', math.pi / 80)), **common)
+            self.stitcher = RollingStitcher(model, joint, max_window=params.number('max_window', 4.5, above=0),
+                                            angle_bin=params.number('angle_bin', math.pi / 80, above=0), **common)
         else:
-            self.stitcher = SweepStitcher(model, joint, max_window=float(rospy.get_param('~max_window', 3.0)),
+            self.stitcher = SweepStitcher(model, joint, max_window=params.number('max_window', 3.0, above=0),
                                           **common)
         self.last_published: float | None = None    # stamp of the last cloud (rolling mode)
         self.hist = JointHistory()

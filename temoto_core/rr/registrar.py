@@ -25,22 +25,20 @@ Manager's ``receiver`` maps it to its own id, forwards it through the link
 (``links``) to the sensor's consumers (``server_side.propagate``), and so on up to
 the action's callback.
 """
-import os
 from typing import Callable, Dict, Optional
 
-import rospkg
 import rospy
 
 from temoto_core import master_rejoin, watchdog
 from temoto_core.master_reach import MasterReach
 from temoto_core.errors import ErrorCode, ErrorFrame, Subsystem, TemotoError
 from temoto_core.node import prime_log_parameter
+from temoto_core.params import ParamError
 from temoto_core.msg import RMPRequest, ResourceStatus
-from temoto_core.rr import backup, owners
+from temoto_core.rr import backup
 from temoto_core.rr.channels import StatusChannels
 from temoto_core.rr.client_side import ClientSide, StatusCallback
-from temoto_core.rr.core import DEFAULT_NAMESPACE, RegistrarCore
-from temoto_core.rr.deadlines import DEFAULT_DEADLINE
+from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.keys import key_function, register_key
 from temoto_core.rr.links import Links
 from temoto_core.rr.journal import Journal, JournalContents
@@ -50,26 +48,14 @@ from temoto_core.rr.owner_state import OwnerState
 from temoto_core.rr.owners import OwnerWatch
 from temoto_core.rr.query import ACTIVE, Server, target_name
 from temoto_core.rr.receiver import StatusReceiver
-from temoto_core.rr.recorder import COMMIT_PAUSE, MAX_COMMIT_PAUSE, Recorder
+from temoto_core.rr.recorder import Recorder
 from temoto_core.rr.recovery import RecoverCallback, Recovery, service_of
 from temoto_core.rr.registry import ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message, readable
 from temoto_core.rr.server_side import ServerSide
+from temoto_core.rr.settings import RegistrarSettings
 from temoto_core.srv import GetRegistry, GetRegistryResponse, Reclaim, UnloadResource, UnloadResourceResponse
 
 RESERVED_LEAVES = ('unload', 'status', 'registry', 'reclaim')
-DEFAULT_RECOVERY_GRACE = 10.0
-
-
-def default_journal_path() -> str:
-    """Where ``~journal: auto`` keeps a node's journal: under the ROS home, one file per node name."""
-    return os.path.join(rospkg.get_ros_home(), 'temoto', 'journal', rospy.get_name().strip('/').replace('/', '.')
-                        + '.sqlite')
-
-
-def journal_param() -> str:
-    """The journal path the node's ``~journal`` parameter asks for ('' for none, ``auto`` for the default)."""
-    journal = str(rospy.get_param('~journal', ''))
-    return default_journal_path() if journal == 'auto' else journal
 
 
 class ResourceRegistrar:
@@ -87,40 +73,28 @@ class ResourceRegistrar:
         ``~call_deadline``, 1 s).
         ``journal_pause``: how long the journal's writer waits between two commits under a burst (default:
         ``~journal_pause``, ``recorder.COMMIT_PAUSE``); a longer pause costs less CPU and lags further."""
-        ns = namespace if namespace is not None else rospy.get_param('~temoto_namespace', DEFAULT_NAMESPACE)
+        prefix = '%s/%s' % (rospy.get_name(), name)
+        try:
+            # every setting read and checked before anything is built: opening the journal starts a new
+            # incarnation, and a bad value must not cost one
+            settings = self.settings = RegistrarSettings.read(namespace, journal, recovery_grace, call_deadline,
+                                                              journal_pause, consumer_check_period)
+        except ParamError as err:
+            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, str(err), prefix=prefix)
         # a registrar warns when its owners' host is cut off, and then the master is often out of reach too:
         # its log calls must not ask the master (whatever started rospy in this process: node.py)
         prime_log_parameter()
-        if journal is None:
-            journal = journal_param()
-        self.journal_path = journal
-        if recovery_grace is None:
-            recovery_grace = float(rospy.get_param('~recovery_grace', DEFAULT_RECOVERY_GRACE))
-        # bad settings are refused before the journal is opened: opening it starts a new incarnation
-        prefix = '%s/%s' % (rospy.get_name(), name)
-        if call_deadline is None:
-            call_deadline = float(rospy.get_param('~call_deadline', DEFAULT_DEADLINE))
-        if not call_deadline > 0:
-            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'call_deadline %r: it must be a positive number '
-                              'of seconds' % (call_deadline,), prefix=prefix)
-        if journal_pause is None:
-            journal_pause = rospy.get_param('~journal_pause', COMMIT_PAUSE)
-        if (not isinstance(journal_pause, (int, float)) or isinstance(journal_pause, bool)
-                or not 0 <= journal_pause <= MAX_COMMIT_PAUSE):
-            raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, 'journal_pause %r: it must be a number of seconds '
-                              'from 0 to %g' % (journal_pause, MAX_COMMIT_PAUSE), prefix=prefix)
+        journal = self.journal_path = settings.journal
         try:
             master_rejoin.ensure_started()
         except ValueError as err:
             raise TemotoError(ErrorCode.BAD_REQUEST, subsystem, str(err), prefix=prefix)
         self._journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         core = self._core = RegistrarCore(
-            name, ns, subsystem, incarnation=self._journal.incarnation if self._journal else 0,
+            name, settings.namespace, subsystem, incarnation=self._journal.incarnation if self._journal else 0,
             id_floor=self._journal.id_floor if self._journal else 0)
         self.name, self.namespace, self.subsystem, self.prefix = core.name, core.namespace, core.subsystem, core.prefix
         self.status_topic = core.topic('status')
-        if consumer_check_period is None:
-            consumer_check_period = float(rospy.get_param('~consumer_check_period', 2.0))
         self.incarnation = core.incarnation
         self._links = Links()
         self._channels = StatusChannels(core.namespace, core.name, core.prefix, status_connect_timeout,
@@ -128,19 +102,18 @@ class ResourceRegistrar:
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)
-        recorder = self._recorder = Recorder(self._journal, float(journal_pause))
-        self._client = ClientSide(core, self._links, header, recorder, call_deadline)
+        recorder = self._recorder = Recorder(self._journal, settings.journal_pause)
+        self._client = ClientSide(core, self._links, header, recorder, settings.call_deadline)
         self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
         self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
         self._client.failed_at_owner = self._receiver.lost
-        self._watch = ConsumerWatch(core, self._server, self._channels, consumer_check_period, recovery_grace)
+        self._watch = ConsumerWatch(core, self._server, self._channels, settings.consumer_check_period,
+                                    settings.recovery_grace)
         try:
             self._owners = OwnerWatch(core, self._client.holds_from, self._client.held_from, self._receiver.lost,
                                       self._client.resend_unload, self._client.reconcile_with,
-                                      float(rospy.get_param('~owner_check_period', owners.DEFAULT_PERIOD)),
-                                      float(rospy.get_param('~owner_liveness_bound', owners.DEFAULT_BOUND)),
-                                      recovery_grace,
-                                      float(rospy.get_param('~owner_busy_bound', owners.DEFAULT_BUSY_BOUND)),
+                                      settings.owner_check_period, settings.owner_liveness_bound,
+                                      settings.recovery_grace, settings.owner_busy_bound,
                                       hears_from=self._hears_from, hear_again=self._hear_again)
         except ValueError as err:
             raise core.error(ErrorCode.BAD_REQUEST, str(err))
