@@ -24,7 +24,7 @@ import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core import tcpros_accept
+from temoto_core import rospy_internals
 from temoto_core.node import after_init_node, clear_stale_registration, on_signals
 from temoto_core import params
 from temoto_core.rr.journal import Journal
@@ -157,7 +157,7 @@ class ActionEngineNode:
 def run_node(name: str = 'temoto_action_engine') -> None:
     """Entry of the node script: signals stop the graphs first, then rospy."""
     clear_stale_registration(name)
-    tcpros_accept.install()
+    rospy_internals.install_bounded_handshake()
     rospy.init_node(name, disable_signals=True)
     # the station's engine outlives a master on a robot that lost power: it registers again (node.py)
     after_init_node()

@@ -25,7 +25,7 @@ import traceback
 from typing import IO
 
 import rospy
-from temoto_core import tcpros_accept
+from temoto_core import rospy_internals
 from temoto_core.node import on_signals, prime_log_parameter
 
 from . import worker_protocol as wp
@@ -247,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     out = wp.LineWriter(_protocol_stdout())
     worker = GraphWorker(out, args.temoto_namespace, args.stop_timeout)
     on_signals(lambda signum: _abort(worker, signum), (signal.SIGTERM, signal.SIGINT))
-    tcpros_accept.install()
+    rospy_internals.install_bounded_handshake()
     rospy.init_node(args.node_name, disable_signals=True)
     prime_log_parameter()      # its logging must not wait for the master (node.py)
     out.send(kind=wp.READY, pid=os.getpid(), node=rospy.get_name())

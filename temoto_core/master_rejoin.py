@@ -38,9 +38,8 @@ from typing import Dict, Iterable, List, Optional, Tuple
 import psutil
 import rosgraph
 import rospy
-import rospy.impl.registration
 
-from temoto_core import params
+from temoto_core import params, rospy_internals
 from temoto_core.xmlrpc_util import proxy
 
 DEFAULT_PERIOD = 1.0      # s between two checks: a returned master has everything again within about this
@@ -180,7 +179,7 @@ class MasterRejoin:
         """Register again if the master does not know this node (or an adopted one), or is a new run; True
         when it did. Raises an XML-RPC or socket error when the master stops answering half-way."""
         own_uri = rospy.get_node_uri()
-        if not own_uri or not rospy.core.is_initialized():
+        if not own_uri or not rospy_internals.is_initialized():
             return False                      # rospy is still registering for the first time
         with self._adopted_lock:
             adopted = list(self._adopted.values())
@@ -237,9 +236,8 @@ class MasterRejoin:
 
     @staticmethod
     def _own_registrations() -> Registrations:
-        topics = rospy.impl.registration.get_topic_manager()
-        services = rospy.impl.registration.get_service_manager()
-        return list(topics.get_publications()), list(topics.get_subscriptions()), list(services.get_services())
+        publications, subscriptions, services = rospy_internals.registrations()
+        return list(publications), list(subscriptions), list(services)
 
     def _node_registrations(self, node: ProcessNode) -> Optional[Registrations]:
         """An adopted node's topics, from its own API now (RViz subscribes and unsubscribes as displays come

@@ -32,9 +32,8 @@ from typing import Callable, Iterable
 import rosgraph
 import rosgraph.names
 import rospy
-import rospy.impl.paramserver
 
-from temoto_core import master_lookup, master_rejoin, params, tcpros_accept, watchdog
+from temoto_core import master_lookup, master_rejoin, params, rospy_internals, watchdog
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -103,7 +102,7 @@ def init_node(name: str, **kwargs) -> None:
     faulthandler.register(signal.SIGUSR1, all_threads=True)
     kwargs['disable_signals'] = True
     clear_stale_registration(name, kwargs.get('anonymous', False))
-    tcpros_accept.install()             # one silent peer must not hold up every connection to this node
+    rospy_internals.install_bounded_handshake()   # one silent peer must not hold up every connection to this node
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
     after_init_node()
@@ -132,7 +131,7 @@ def prime_log_parameter() -> None:
     current if someone sets it later.
     """
     key = '/rosout_disable_topics_generation'
-    rospy.impl.paramserver.get_param_server_cache().set(key, rospy.get_param_cached(key, False))
+    rospy_internals.cache_param(key, rospy.get_param_cached(key, False))
 
 
 def clear_stale_registration(name: str, anonymous: bool = False) -> None:
@@ -166,8 +165,8 @@ def ok() -> bool:
     "publish() to a closed topic" and the node exits 1 on a plain SIGINT (CI, once).
     """
     if threading.current_thread() is not threading.main_thread():
-        return not (_stop_signal.is_set() or rospy.core.is_shutdown_requested())
-    if _stop_signal.is_set() and not rospy.core.is_shutdown_requested():
+        return not (_stop_signal.is_set() or rospy_internals.is_shutdown_requested())
+    if _stop_signal.is_set() and not rospy_internals.is_shutdown_requested():
         rospy.signal_shutdown('stop signal')
         _shut_by_main.set()
     return not rospy.is_shutdown()

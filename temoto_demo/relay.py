@@ -23,6 +23,8 @@ from typing import Dict, Iterable, Optional
 
 import numpy as np
 
+from temoto_core import rospy_internals
+
 from . import topics as T
 
 NOT_ANNOUNCED = ('/tf', '/tf_static', T.TICKS, T.ROBOT_DESCRIPTION)   # published by others, or by us for real
@@ -101,7 +103,7 @@ class StreamRelay:
         tick = Header(frame_id=topic)
         tick.stamp = self._rospy.Time.from_sec(now)
         self._ticks.publish(tick)
-        type_name = (getattr(msg, '_connection_header', None) or {}).get('type', '')
+        type_name = rospy_internals.connection_header(msg).get('type', '')
         big_cloud = type_name == 'sensor_msgs/PointCloud2' and len(msg._buff) > T.BIG_CLOUD_BYTES
         if big_cloud:
             rate = T.BIG_CLOUD_HZ

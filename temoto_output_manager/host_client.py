@@ -13,7 +13,7 @@ from typing import Callable, List, Optional
 import rosgraph.network
 import rospy
 
-from temoto_core import service_uris
+from temoto_core import rospy_internals, service_uris
 from temoto_core.service_uris import ServiceProxy
 from temoto_output_manager.srv import (AddDisplay, ConfigureDisplay, ListDisplays, RemoveDisplay, Screenshot,
                                        SetView)
@@ -140,7 +140,7 @@ def _service_answers(service: str, timeout: float) -> bool:
     that runs was taken for one that never came up, and every display shown meanwhile failed so)."""
     try:
         uri = service_uris.lookup(service, time.monotonic() + timeout)
-        host, port = rospy.core.parse_rosrpc_uri(uri)
+        host, port = rospy_internals.parse_rosrpc_uri(uri)
     except Exception:           # not registered yet, master busy, or a malformed URI: not ready
         return False
     try:

@@ -19,7 +19,7 @@ from typing import Optional
 import rosgraph
 import rospy
 from std_msgs.msg import Header
-from temoto_core import master_rejoin, params, tcpros_accept
+from temoto_core import master_rejoin, params, rospy_internals
 from temoto_core.master_reach import MasterReach
 from temoto_core.node import after_init_node
 from temoto_core.xmlrpc_util import proxy
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
     try:
         from python_qt_binding import QtCore, QtWidgets
         app = QtWidgets.QApplication([sys.argv[0]])
-        tcpros_accept.install()
+        rospy_internals.install_bounded_handshake()
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
         # the station's screen outlives a master on the robot that lost power: the new master learns its
         # services again (a host with no registrar has no other way back); its logging must not wait for the

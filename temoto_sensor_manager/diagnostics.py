@@ -28,6 +28,7 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from temoto_core.master_lookup import lookup_node, node_pid, parent_pid
+from temoto_core.rospy_internals import sender_of
 
 TOPIC = '/diagnostics'      # absolute, as diagnostic_updater publishes it
 ANCESTORS = 4               # levels of the process tree searched above a reporting node
@@ -69,7 +70,7 @@ class DriverReports:
         errors = [s for s in msg.status if s.level >= DiagnosticStatus.ERROR]
         if not errors:
             return
-        node = (getattr(msg, '_connection_header', None) or {}).get('callerid', '')
+        node = sender_of(msg)
         chain = self._process_chain(node)
         if not chain:
             return

@@ -23,6 +23,7 @@ from typing import Callable, List, Optional
 
 import rospy
 
+from temoto_core.rospy_internals import sender_of
 from temoto_sensor_manager.arrivals import ArrivalModel
 from temoto_sensor_manager.starvation import WaitMeter, machine_pressure, process_meter, thread_wait
 
@@ -80,7 +81,7 @@ class TopicProbe:
         self.last = now
         self.count += 1
         if not self.first.is_set():
-            self.publisher = (getattr(_msg, '_connection_header', None) or {}).get('callerid', '')
+            self.publisher = sender_of(_msg)
             self.first.set()
             if self._on_first is not None:
                 self._on_first()

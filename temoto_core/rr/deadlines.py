@@ -37,7 +37,7 @@ from typing import Dict, Iterator, List, Optional, Set, Tuple
 import rosgraph
 import rospy
 from rosgraph.network import read_ros_handshake_header
-from rospy.impl.tcpros_service import TCPROSTransport
+from temoto_core.rospy_internals import TCPROSTransport, parse_rosrpc_uri
 
 from temoto_core import service_uris
 
@@ -161,7 +161,7 @@ def connect(service: str, srv_class, deadline: float) -> Optional[rospy.ServiceP
     uri = service_uris.lookup(service, deadline)     # the master, or the URI known when it is out of reach
     if not uri:
         return None
-    host, port = rospy.core.parse_rosrpc_uri(uri)
+    host, port = parse_rosrpc_uri(uri)
     proxy = rospy.ServiceProxy(service, srv_class, persistent=True)
     transport = _BoundedHandshake(proxy.protocol, proxy.resolved_name)
     transport.buff_size = proxy.buff_size

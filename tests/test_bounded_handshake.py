@@ -1,5 +1,5 @@
 """A peer that connects to a node's TCPROS port and never sends its handshake is closed after ``HANDSHAKE_S``,
-and the connections behind it are served then (temoto_core/tcpros_accept.py). Against a real node process;
+and the connections behind it are served then (temoto_core/rospy_internals.py). Against a real node process;
 rospy alone served every later connection to the node behind that peer, for as long as it stayed silent."""
 import json
 import socket
@@ -7,7 +7,7 @@ import socket
 import rosgraph
 import rospy
 
-from temoto_core import tcpros_accept
+from temoto_core import rospy_internals
 from temoto_core.rr.deadlines import call_once
 from temoto_test_nodes.srv import Control
 from rr_helpers import RegistrarNode
@@ -16,7 +16,7 @@ HANG = 10.0          # generous: catches a connection that waits behind the sile
 
 
 def _tcpros_address(service: str):
-    uri = rosgraph.Master('/test_tcpros_accept').lookupService(service)
+    uri = rosgraph.Master('/test_bounded_handshake').lookupService(service)
     return rospy.core.parse_rosrpc_uri(uri)
 
 
@@ -33,7 +33,7 @@ def test_a_peer_silent_in_its_handshake_is_closed_and_the_connections_behind_it_
     silent = socket.create_connection(_tcpros_address(service), timeout=HANG)
     try:
         # the node gives up on the silent peer: the connection is closed from its end
-        silent.settimeout(tcpros_accept.HANDSHAKE_S + HANG)
+        silent.settimeout(rospy_internals.HANDSHAKE_S + HANG)
         assert silent.recv(1) == b''
         for _ in range(3):                       # new connections, after the silent one, each bounded
             assert 'unloads' in _counts(service)

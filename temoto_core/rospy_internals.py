@@ -1,0 +1,151 @@
+"""The one door to rospy's internals: everything TeMoto takes from rospy beyond its public API.
+
+Written against rospy 1.15.15 (Debian 12's ``python3-rospy``; ``tests/test_rospy_internals.py`` pins it).
+At import, every internal symbol used here is looked up, and a rospy that lacks one stops the process at
+once with an ImportError naming it: an upgrade that moved one fails loudly instead of breaking a guarantee
+silently. Nothing else in TeMoto imports ``rospy.impl`` or ``rospy.core``.
+
+What is taken, and why:
+
+- ``rospy.core.is_shutdown_requested``: a node's loop must see a shutdown that is under way, before
+  ``is_shutdown()`` turns true (``node.py``);
+- ``rospy.core.is_initialized`` and the topic and service managers of ``rospy.impl.registration``: a
+  master that restarted is given every registration of the node again (``master_rejoin.py``);
+- the parameter cache of ``rospy.impl.paramserver``: a log call must not ask the master (``node.py``);
+- ``rospy.core.parse_rosrpc_uri`` and ``TCPROSTransport`` of ``rospy.impl.tcpros_service``: a service call
+  with a bounded handshake (``rr/deadlines.py``, the RViz host's client);
+- ``rospy.impl.tcpros_base``: the TCPROS server's handshake read, bounded (below);
+- a received message's ``_connection_header``: who published it (the Sensor Manager's driver reports and
+  stall detector).
+
+The bounded handshake. A node's TCPROS server no longer waits for ever on one peer's handshake.
+
+rospy's TCPROS server accepts every topic and service connection to a node in one thread, and reads each
+new connection's handshake header in that same thread, with no timeout. So one peer that connects and never
+sends its header holds up every later connection to the node (every subscriber, every service call) for as
+long as it stays silent:
+
+- a process SIGSTOPped between its ``connect`` and its header (a stopped manager, in the chaos history);
+- a host cut off or powered off mid-handshake: nothing ever closes the connection at this end;
+- in a clean clone's suite, the simulation's accept thread was found in ``read_ros_handshake_header`` on one
+  connection while a test's service call waited behind it, until pytest-timeout ended the test (the peer
+  was not found).
+
+Here the header must arrive within ``HANDSHAKE_S``; a peer that is late gets its connection closed, with
+rospy's own warning, and the connections behind it wait that long at most. The header read is the only
+thing bounded: once the handshake is done, the socket is as rospy left it.
+
+The handshakes stay in rospy's one accept thread, in the order they came. A thread per handshake was tried
+and broke rospy: a subscriber that connects twice to one publisher (rospy's subscriber side races so) keeps
+the later connection, and so does the publisher, which closes the other; handled in parallel, the two ends
+could keep different ones and close each other's, leaving none. An action's status channel was lost so,
+and its FAILED with it, twice in one day's clean-clone suites.
+
+``install_bounded_handshake()`` patches rospy's ``TCPROSServer`` once per process, before its server starts; every TeMoto
+node gets it from ``temoto_core.node.init_node``.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable, Dict, Tuple
+
+import rospy
+import rospy.core
+import rospy.impl.paramserver
+import rospy.impl.registration
+import rospy.impl.tcpros_base as tcpros_base
+import rospy.impl.tcpros_service
+
+WRITTEN_FOR = '1.15.15'     # the rospy these internals were read in
+
+# every internal symbol TeMoto uses: (module, name)
+USED = [(rospy.core, 'is_shutdown_requested'), (rospy.core, 'is_initialized'), (rospy.core, 'parse_rosrpc_uri'),
+        (rospy.impl.paramserver, 'get_param_server_cache'), (rospy.impl.registration, 'get_topic_manager'),
+        (rospy.impl.registration, 'get_service_manager'), (rospy.impl.tcpros_service, 'TCPROSTransport'),
+        (tcpros_base, 'TCPROSServer'), (tcpros_base, 'read_ros_handshake_header')]
+
+
+def missing(used=USED) -> list:
+    """The internal symbols of ``used`` that rospy lacks, as 'module.name'."""
+    return ['%s.%s' % (module.__name__, name) for module, name in used if not hasattr(module, name)]
+
+
+_missing = missing()
+if _missing or not hasattr(tcpros_base.TCPROSServer, '_tcp_server_callback'):
+    raise ImportError('temoto_core.rospy_internals: this rospy lacks %s; TeMoto was written against rospy %s'
+                      % (', '.join(_missing) or 'TCPROSServer._tcp_server_callback', WRITTEN_FOR))
+
+is_shutdown_requested: Callable[[], bool] = rospy.core.is_shutdown_requested
+is_initialized: Callable[[], bool] = rospy.core.is_initialized
+TCPROSTransport = rospy.impl.tcpros_service.TCPROSTransport
+
+
+def parse_rosrpc_uri(uri: str) -> Tuple[str, int]:
+    """(host, port) of a ``rosrpc://`` service URI."""
+    return rospy.core.parse_rosrpc_uri(uri)
+
+
+def cache_param(key: str, value) -> None:
+    """Put ``value`` in rospy's parameter cache under ``key``."""
+    rospy.impl.paramserver.get_param_server_cache().set(key, value)
+
+
+def registrations() -> Tuple[list, list, list]:
+    """This node's (publications, subscriptions, services), as rospy's registration managers list them:
+    [[name, type], ...] for the topics, [[name, uri], ...] for the services."""
+    topics = rospy.impl.registration.get_topic_manager()
+    services = rospy.impl.registration.get_service_manager()
+    return topics.get_publications(), topics.get_subscriptions(), services.get_services()
+
+
+def connection_header(msg) -> Dict[str, str]:
+    """The TCPROS header of the connection ``msg`` came on (rospy puts it on every message it hands to a
+    callback: ``callerid``, ``type``, ``topic``, ...); {} if unknown."""
+    return getattr(msg, '_connection_header', None) or {}
+
+
+def sender_of(msg) -> str:
+    """The name of the node that published ``msg``; '' if unknown."""
+    return connection_header(msg).get('callerid', '')
+
+
+# generous beside a handshake (a header is a few hundred bytes, sent right after the connect), short beside
+# the deadlines of the calls waiting behind it
+HANDSHAKE_S = 5.0
+
+_lock = threading.Lock()
+_handshaking = threading.local()
+_original_callback = tcpros_base.TCPROSServer._tcp_server_callback
+_original_read = tcpros_base.read_ros_handshake_header
+
+
+def _read_header(sock, buff, buff_size: int) -> dict:
+    """rospy's header read; in the accept thread's handshake, within ``HANDSHAKE_S``."""
+    if not getattr(_handshaking, 'active', False):
+        return _original_read(sock, buff, buff_size)
+    previous = sock.gettimeout()
+    sock.settimeout(HANDSHAKE_S)
+    try:
+        return _original_read(sock, buff, buff_size)
+    finally:
+        sock.settimeout(previous)
+
+
+def _accepted(server, sock, client_addr) -> None:
+    """The accept thread's handler: rospy's, with the header read bounded."""
+    _handshaking.active = True
+    try:
+        _original_callback(server, sock, client_addr)     # it catches, logs and closes whatever fails
+    finally:
+        _handshaking.active = False
+
+
+def install_bounded_handshake() -> None:
+    """Bound the handshakes of every TCPROS server this process starts from now on."""
+    with _lock:
+        tcpros_base.read_ros_handshake_header = _read_header
+        tcpros_base.TCPROSServer._tcp_server_callback = _accepted
+
+
+def bounded_handshake_installed() -> bool:
+    return tcpros_base.TCPROSServer._tcp_server_callback is _accepted

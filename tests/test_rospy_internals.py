@@ -1,0 +1,62 @@
+"""temoto_core.rospy_internals is the one door to rospy's internals: it names the rospy it was written
+against, checks its symbols at import, and no other runtime module reaches into rospy."""
+import ast
+import os
+import xml.etree.ElementTree as ElementTree
+
+import rospkg
+import rospy
+
+from temoto_core import rospy_internals
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOOR = os.path.join('temoto_core', 'rospy_internals.py')
+
+
+def test_the_rospy_here_is_the_one_the_internals_were_read_in():
+    """An upgrade of rospy must be read again before it is trusted: this fails until WRITTEN_FOR is moved."""
+    xml = os.path.join(rospkg.RosPack().get_path('rospy'), 'package.xml')
+    assert ElementTree.parse(xml).getroot().findtext('version') == rospy_internals.WRITTEN_FOR
+
+
+def test_every_internal_symbol_is_there_and_a_missing_one_is_named():
+    assert rospy_internals.missing() == []
+    gone = rospy_internals.missing([(rospy.core, 'is_shutdown_requested'), (rospy.core, 'no_such_thing')])
+    assert gone == ['rospy.core.no_such_thing']
+
+
+def _reaches_in(path):
+    with open(path, 'rb') as f:
+        source = f.read()
+    if not (path.endswith('.py') or source.startswith(b'#!')):
+        return []
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [a.name for a in node.names if a.name.startswith(('rospy.impl', 'rospy.core'))]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith(('rospy.impl', 'rospy.core')):
+            found.append(node.module)
+        elif isinstance(node, ast.Attribute) and node.attr in ('impl', 'core') and \
+                isinstance(node.value, ast.Name) and node.value.id == 'rospy':
+            found.append('rospy.' + node.attr)
+        elif (isinstance(node, ast.Attribute) and node.attr == '_connection_header') or \
+                (isinstance(node, ast.Constant) and node.value == '_connection_header'):
+            found.append('_connection_header')
+    return found
+
+
+def test_no_other_runtime_module_reaches_into_rospy():
+    offenders = {}
+    for package in sorted(os.listdir(ROOT)):
+        if not os.path.exists(os.path.join(ROOT, package, 'package.xml')) or package == 'tests':
+            continue
+        for folder, dirs, files in os.walk(os.path.join(ROOT, package)):
+            dirs[:] = [d for d in dirs if d not in ('msg', 'srv', '__pycache__', 'test_nodes')]
+            for name in files:
+                path = os.path.join(folder, name)
+                rel = os.path.relpath(path, ROOT)
+                if rel != DOOR and (name.endswith('.py') or os.path.basename(folder) == 'nodes'):
+                    reached = _reaches_in(path)
+                    if reached:
+                        offenders[rel] = reached
+    assert offenders == {}
