@@ -15,6 +15,7 @@ PACKAGES = [
     'temoto_context_manager',
     'temoto_action_engine',
     'temoto_speech',
+    'temoto_testing',
     'vaultbot_sim',
     'temoto_demo',
     'temoto_chaos',
@@ -28,5 +29,7 @@ setup(
     python_requires='>=3.11',
     packages=[],   # development install: the repository root is put on sys.path
     py_modules=[],
-    entry_points={'console_scripts': ['temoto = temoto_bringup.cli:main']},
+    entry_points={'console_scripts': ['temoto = temoto_bringup.cli:main'],
+                  # the fixtures, for every pytest run in an environment where TeMoto is installed
+                  'pytest11': ['temoto = temoto_testing.pytest_plugin']},
 )

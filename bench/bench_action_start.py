@@ -27,8 +27,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from common import pct  # noqa: E402
 
-from temoto_action_engine.testing import write_plugin  # noqa: E402
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_testing.action_engine import write_plugin  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 
 MODES = {'thread': False, 'worker': True}       # mode -> ~isolate_graphs

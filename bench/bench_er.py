@@ -42,7 +42,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from common import pct  # noqa: E402
 
-from temoto_core.testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_testing import FirstFailure, ProcessGroupLauncher, RosMaster  # noqa: E402
 from temoto_core import master_lookup as er_master  # noqa: E402
 
 POLL = 0.02

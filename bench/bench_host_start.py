@@ -20,7 +20,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster  # noqa: E402
 
 
 def mesa_version() -> str:

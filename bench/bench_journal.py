@@ -24,7 +24,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, 'tests'))
 
 from temoto_core.rr.journal import Journal, JournaledConsumer  # noqa: E402
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster  # noqa: E402
 
 
 def ms(values, q=0.5):

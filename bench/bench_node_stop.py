@@ -27,7 +27,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from temoto_core.process_group import exit_status  # noqa: E402
-from temoto_core.testing import ProcessGroupLauncher, RosMaster  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster  # noqa: E402
 
 MODES = ('rospy', 'temoto')
 HANG = 10.0     # s: a stop slower than this counts as hung (and is ended by stop())

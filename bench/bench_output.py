@@ -24,7 +24,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
 from temoto_core import master_lookup as er_master  # noqa: E402
 
 NS = 'temoto'

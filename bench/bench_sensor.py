@@ -30,7 +30,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from common import loopback_master, pct  # noqa: E402
 
-from temoto_core.testing import FirstFailure  # noqa: E402
+from temoto_testing import FirstFailure  # noqa: E402
 
 CRASH_GOAL_MS = 100.0         # exit seen by the ER Manager (pidfd) and forwarded one registrar up
 STALL_EXTRA_GOAL_MS = 100.0   # beyond the silence limit: one stall detector wake-up plus the status hop
@@ -54,7 +54,7 @@ def main(argv=None):
         from diagnostic_msgs.msg import KeyValue
         from temoto_core.rr import ResourceRegistrar
         from temoto_sensor_manager.srv import LoadSensor
-        from temoto_sensor_manager import testing as t
+        from temoto_testing import sensor_manager as t
         rospy.init_node('bench_sensor', disable_signals=True)
         print('starting the simulation and the managers ...', flush=True)
         t.start_robot(launcher, launcher.workdir)

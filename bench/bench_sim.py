@@ -22,7 +22,7 @@ sys.path.insert(0, ROOT)
 
 import psutil  # noqa: E402
 
-from temoto_core.testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
+from temoto_testing import ProcessGroupLauncher, RosMaster, wait_for  # noqa: E402
 
 DRIVERS = {  # driver: (topic, message type, real device rate)
     'd435_driver': ('/d435/depth_registered/points', 'sensor_msgs/PointCloud2', 30.0),

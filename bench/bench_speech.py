@@ -37,7 +37,7 @@ sys.path.insert(0, ROOT)
 from common import loopback_master, pct  # noqa: E402
 from temoto_action_engine.grounding import Grounder  # noqa: E402
 from temoto_action_engine.indexer import ActionIndex  # noqa: E402
-from temoto_action_engine.testing import write_plugin  # noqa: E402
+from temoto_testing.action_engine import write_plugin  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_speech import grammar as grammar_mod  # noqa: E402
 from temoto_speech.msg import AudioData  # noqa: E402

@@ -48,7 +48,7 @@ def main(argv=None):
     try:
         import rospy
         from temoto_core.msg import ResourceStatus
-        from temoto_sensor_manager import testing as t
+        from temoto_testing import sensor_manager as t
         from temoto_sensor_manager.interface import SensorManagerInterface
         rospy.init_node('bench_stall', disable_signals=True)
         print('bench_stall: starting the simulation and the managers ...', flush=True)

@@ -9,7 +9,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from temoto_test_nodes.srv import Control  # noqa: E402
 
 from temoto_core import control_socket  # noqa: E402
-from temoto_core.testing import wait_for  # noqa: E402
+from temoto_testing import wait_for  # noqa: E402
 
 COMMAND_TIMEOUT = 30.0    # generous: a command that hangs fails the test rather than the session
 

@@ -7,7 +7,7 @@ import pytest
 import rospy
 
 from temoto_action_engine import cli
-from temoto_action_engine.testing import write_plugin
+from temoto_testing.action_engine import write_plugin
 from temoto_core.master import connected
 from temoto_core.wait import wait_for
 

@@ -9,7 +9,7 @@ import pytest
 
 from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
-from temoto_action_engine.testing import FakeRegistrarFactory, write_plugin
+from temoto_testing.action_engine import FakeRegistrarFactory, write_plugin
 from temoto_action_engine.umrf import UmrfError
 from temoto_core.wait import wait_for
 

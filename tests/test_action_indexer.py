@@ -7,7 +7,7 @@ import pytest
 from temoto_action_engine import indexer
 from temoto_action_engine.action_base import ActionBase
 from temoto_action_engine.indexer import ActionIndex
-from temoto_action_engine.testing import write_plugin
+from temoto_testing.action_engine import write_plugin
 from temoto_action_engine.umrf import UmrfError, parse_descriptor
 
 GOOD = '''

@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from temoto_action_engine.testing import write_plugin
+from temoto_testing.action_engine import write_plugin
 from temoto_core.wait import wait_for
 
 NS = 'aeres'

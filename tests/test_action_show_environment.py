@@ -17,7 +17,7 @@ from temoto_action_engine.action_base import ActionError
 from temoto_action_engine.actions.show_environment.show_environment import DEFAULT_PRIORITY, parse_priority
 from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
-from temoto_action_engine.testing import FakeRegistrarFactory
+from temoto_testing.action_engine import FakeRegistrarFactory
 from temoto_core.rr.status import Status, StatusEvent
 from temoto_core.wait import wait_for
 

@@ -6,7 +6,7 @@ import time
 
 from rr_helpers import RegistrarNode
 from temoto_chaos.checker import RegistryReader
-from temoto_core.testing import signals, wait_for
+from temoto_testing import signals, wait_for
 
 HANG = 5.0           # generous: catches a read that hangs, not a slow machine
 

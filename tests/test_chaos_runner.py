@@ -10,7 +10,7 @@ from temoto_chaos.cli import chaos_options
 from temoto_chaos.runner import Chaos, ChaosOptions, ClientHandle, replay_command
 from temoto_core.master import RosMaster, free_port
 from temoto_core.processes import ProcessGroupLauncher, leftover_processes
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 
 def test_a_client_whose_master_is_out_of_reach_is_started_again_once_it_can_be(tmp_path):

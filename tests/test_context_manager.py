@@ -9,15 +9,15 @@ import time
 
 import pytest
 
-from temoto_core.testing import made_interfaces
+from temoto_testing import made_interfaces
 import rospy
 from geometry_msgs.msg import PoseStamped
 
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_context_manager.interface import ContextManagerInterface
-from temoto_sensor_manager.testing import (ROOT, catalogue, er_processes, managers_idle, set_cable,
+from temoto_testing.sensor_manager import (ROOT, catalogue, er_processes, managers_idle, set_cable,
                                            start_context_manager, start_er_manager, start_sensor_manager, start_sim,
                                            tracker_info)
 

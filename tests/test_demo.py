@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from temoto_core.testing import SESSION_ENV, leftover_processes
+from temoto_testing import SESSION_ENV, leftover_processes
 
 DEMO_TIMEOUT = 150          # hang catcher; the goal (< 90 s) is the benchmark's business
 MAX_GAP_S = 5.0
@@ -176,7 +176,7 @@ def test_playing_the_bag_on_a_live_master_cannot_act(demo_run, rospy_client, ros
     from std_msgs.msg import Header, String
     from vaultbot_sim.msg import DeviceStates
     from temoto_core.msg import ResourceStatus
-    from temoto_core.testing import wait_for
+    from temoto_testing import wait_for
     from temoto_demo import topics as T
     _, out, _ = demo_run
     bag = out / 'failover.bag'

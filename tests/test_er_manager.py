@@ -13,7 +13,7 @@ import pytest
 
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import ProcessGroupLauncher, wait_for
+from temoto_testing import ProcessGroupLauncher, wait_for
 from temoto_core import master_lookup as er_master
 
 SRV = 'load_process'

@@ -16,7 +16,7 @@ import pytest
 
 from temoto_core.msg import ResourceStatus
 from temoto_core.process_group import start_ticks
-from temoto_core.testing import ProcessGroupLauncher, wait_for
+from temoto_testing import ProcessGroupLauncher, wait_for
 from temoto_er_manager.leash import OWNER_ENV, address_for
 
 MGR = 'temoto_er_manager'

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from temoto_core.errors import ErrorCode
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_er_manager.policy import ERConfig, RequestRefused, validate_request
 from temoto_er_manager.resolve import Resolver
 from temoto_er_manager import supervisor as supervisor_module

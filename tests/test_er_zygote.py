@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from temoto_core.testing import ProcessGroupLauncher, wait_for
+from temoto_testing import ProcessGroupLauncher, wait_for
 from temoto_er_manager.supervisor import ProcessExitedEarly, ProcessSpec, ProcessSupervisor
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

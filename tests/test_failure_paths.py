@@ -16,10 +16,10 @@ import rospy
 from PIL import Image
 from std_msgs.msg import String
 
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_core import master_lookup as er_master
 from temoto_output_manager.host_client import RvizHostClient, host_node_name
-from temoto_sensor_manager.testing import (NS, managers_idle, set_cable, start_context_manager, start_er_manager,
+from temoto_testing.sensor_manager import (NS, managers_idle, set_cable, start_context_manager, start_er_manager,
                                            start_sensor_manager, start_sim)
 
 ALL_RRS = ('temoto_context_manager', 'temoto_context_manager_trackers', 'temoto_sensor_manager',

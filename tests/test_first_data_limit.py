@@ -9,7 +9,7 @@ import time
 import pytest
 
 from temoto_core.errors import TemotoError
-from temoto_core.testing import made_interfaces
+from temoto_testing import made_interfaces
 from temoto_sensor_manager.interface import SensorManagerInterface
 
 NS = 'first_data'

@@ -6,9 +6,9 @@ import sys
 import textwrap
 import uuid
 
-from temoto_core.testing import leftover_processes, wait_for
+from temoto_testing import leftover_processes, wait_for
 from temoto_core.master import connected
-from temoto_core.testing.pytest_plugin import FORCED_TOKEN_ENV
+from temoto_testing.pytest_plugin import FORCED_TOKEN_ENV
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -95,7 +95,7 @@ def test_teardown_leaves_no_process_behind_even_when_a_test_fails(tmp_path, ros_
     """
     inner = tmp_path / 'inner'
     inner.mkdir()
-    (inner / 'conftest.py').write_text("pytest_plugins = ['temoto_core.testing.pytest_plugin']\n")
+    # no conftest: the fixtures come from the installed plugin (temoto_testing's pytest11 entry point)
     (inner / 'test_fails.py').write_text(textwrap.dedent('''
         def test_starts_processes_then_fails(procs):
             procs.node('temoto_test_nodes', 'talker', name='doomed')
@@ -166,7 +166,7 @@ def test_env_sh_names_the_logging_config_rospy_would_find_so_it_skips_its_crawl(
 def test_the_launcher_removes_the_private_parameters_it_set(ros_master, rospy_client, tmp_path):
     """Private parameters outlive a node on the master: a later test's node of the same name inherited a
     ``~journal`` and ran with a journal it was never given. The launcher removes what it set."""
-    from temoto_core.testing import ProcessGroupLauncher
+    from temoto_testing import ProcessGroupLauncher
     launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
     launcher.node('temoto_test_nodes', 'talker', name='param_probe', params={'journal': '/nowhere.sqlite'})
     assert rospy_client.get_param('/param_probe/journal') == '/nowhere.sqlite'

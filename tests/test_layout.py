@@ -17,6 +17,7 @@ LAYERS = [
     ['temoto_context_manager'],
     ['temoto_action_engine'],
     ['temoto_speech'],
+    ['temoto_testing'],                          # fixtures for stacks of the layers below; runtime never imports it
     ['temoto_demo'],                             # leaf packages from here on
     ['temoto_chaos'],                            # starts the demo's stacks
     ['temoto_bringup'],                          # the `temoto` command, which names every subcommand
@@ -28,10 +29,10 @@ RUNTIME = [package for layer in LAYERS for package in layer]
 def runtime_modules(packages=RUNTIME):
     for package in packages:
         for folder, dirs, files in os.walk(os.path.join(ROOT, package)):
-            dirs[:] = [d for d in dirs if d not in ('testing', 'msg', 'srv', '__pycache__')]
+            dirs[:] = [d for d in dirs if d not in ('msg', 'srv', '__pycache__')]
             for name in files:
                 path = os.path.join(folder, name)
-                if name.endswith('.py') and name != 'testing.py':
+                if name.endswith('.py'):
                     yield path
                 elif os.path.basename(folder) == 'nodes':
                     yield path
@@ -53,8 +54,9 @@ def imported_modules(path):
 
 
 def test_runtime_code_never_imports_test_fixtures():
-    offenders = {os.path.relpath(p, ROOT): m for p in runtime_modules() for m in imported_modules(p)
-                 if m.startswith('temoto_core.testing') or m.endswith('.testing')}
+    runtime = [package for package in RUNTIME if package != 'temoto_testing']
+    offenders = {os.path.relpath(p, ROOT): m for p in runtime_modules(runtime) for m in imported_modules(p)
+                 if m.startswith('temoto_testing') or m.endswith('.testing')}
     assert offenders == {}
 
 

@@ -16,9 +16,9 @@ import rospy
 
 from temoto_core.msg import ResourceStatus
 from temoto_core.process_group import start_ticks
-from temoto_core.testing import ProcessGroupLauncher, made_interfaces, wait_for
+from temoto_testing import ProcessGroupLauncher, made_interfaces, wait_for
 from temoto_sensor_manager.interface import SensorManagerInterface
-from temoto_sensor_manager.testing import (ER_PARAMS, FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue,
+from temoto_testing.sensor_manager import (ER_PARAMS, FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue,
                                            er_processes, registry)
 
 SM, ER, OM = 'temoto_sensor_manager', 'temoto_er_manager', 'temoto_output_manager'
@@ -258,7 +258,7 @@ def test_a_display_gone_while_the_output_manager_is_down_is_reported_failed_afte
 @pytest.fixture
 def vaultbot(ros_master, rospy_client, tmp_path):
     """The simulated VaultBot with ER, Sensor and Context Managers, each with a journal."""
-    from temoto_sensor_manager.testing import start_sim
+    from temoto_testing.sensor_manager import start_sim
     m = Managers(ros_master.env, tmp_path)
     m.params[SM] = {'first_data_timeout': 20.0, 'journal': str(tmp_path / 'sm.sqlite')}
     m.params[CM] = {'journal': str(tmp_path / 'cm.sqlite')}
@@ -266,7 +266,7 @@ def vaultbot(ros_master, rospy_client, tmp_path):
     for name in (ER, SM, CM):
         m.start(name)
     yield m
-    from temoto_sensor_manager.testing import set_cable
+    from temoto_testing.sensor_manager import set_cable
     set_cable('d435', 'plugged')
     m.launcher.stop_all()
 
@@ -274,7 +274,7 @@ def vaultbot(ros_master, rospy_client, tmp_path):
 def test_killed_context_manager_keeps_the_tracker_pipe_and_a_later_camera_crash_still_reaches_the_client(vaultbot):
     from geometry_msgs.msg import PoseStamped
     from temoto_context_manager.interface import ContextManagerInterface
-    from temoto_sensor_manager.testing import set_cable
+    from temoto_testing.sensor_manager import set_cable
     with made_interfaces(ContextManagerInterface) as make:
         cm = make()
         cm.events = []

@@ -14,7 +14,7 @@ from temoto_core import control_socket
 
 from temoto_core.master import RosMaster, free_port
 from temoto_core.processes import ProcessGroupLauncher
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_core.xmlrpc_util import proxy
 from rr_helpers import RegistrarNode
 

@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -14,7 +14,7 @@ import psutil
 import pytest
 from PIL import Image as PILImage
 
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient, RvizHostError
 from temoto_output_manager.msg import DisplayEvent

@@ -12,7 +12,7 @@ from PIL import Image as PILImage
 
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import signals, wait_for
+from temoto_testing import signals, wait_for
 from temoto_core import master_lookup as er_master
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from temoto_core.params import (ParamError, flag_param, list_param, number_param, seconds_param, text_param)
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 HANG = 60.0     # generous: a node that refuses its parameters stops in about a second
 

@@ -16,7 +16,7 @@ import sys
 import threading
 
 from temoto_core.process_group import popen_dying_with_this_thread
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 HANG = 20.0
 

@@ -8,7 +8,7 @@ import textwrap
 
 from temoto_core.process_group import group_members
 from temoto_core.processes import dump_stacks, stop_process_group
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 # a leader that forks a child and waits for it, as warm_respawn.py does; both ignore SIGINT and SIGTERM, and the
 # child registers its stack dump on SIGUSR1, as temoto_core.node.init_node does

@@ -2,7 +2,7 @@
 import pytest
 
 from temoto_core.errors import ErrorCode
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 

@@ -8,7 +8,7 @@ import pytest
 from temoto_core.rr import channels as channels_module
 from temoto_core.rr.channels import MasterAway, StatusChannels
 from temoto_core.rr.query import Consumer
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 HANG = 10.0
 

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 

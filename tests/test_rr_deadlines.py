@@ -24,7 +24,7 @@ from temoto_core.rr import ResourceRegistrar, owners
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry, LoadTestResource
-from temoto_core.testing import signals, wait_for
+from temoto_testing import signals, wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 BOUND = 0.7          # owners.DEFAULT_BOUND: a stopped owner is lost after this much silence

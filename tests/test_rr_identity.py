@@ -16,7 +16,7 @@ import rospy
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar
 from temoto_core.srv import LoadTestResource, UnloadResource
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from rr_helpers import RegistrarNode
 
 Req = LoadTestResource._request_class

@@ -14,7 +14,7 @@ from temoto_core.rr import RegistrySnapshot, ResourceRegistrar
 from temoto_core.rr.keys import request_key
 from temoto_core.rr.messages import clone
 from temoto_core.srv import LoadTestResource, UnloadResource
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from diagnostic_msgs.msg import KeyValue
 from rr_helpers import RegistrarNode, registry_empty
 

@@ -14,7 +14,7 @@ from temoto_core.errors import TemotoError
 from temoto_core.rr import ResourceRegistrar
 from temoto_core.rr.journal import Journal, JournalError, JournaledConsumer
 from temoto_core.rr.recorder import JournalWriter
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 WRITER = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'journal_writer.py')
 

@@ -17,7 +17,7 @@ import rospy
 from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
 from temoto_core.srv import Reclaim
-from temoto_core.testing import signals, wait_for
+from temoto_testing import signals, wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 # A clean clone's suite (fifth session, 1 run in 4) saw the first load of a chain, A -> B (journaled) -> C,

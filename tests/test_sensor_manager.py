@@ -11,17 +11,17 @@ import time
 
 import pytest
 
-from temoto_core.testing import made_interfaces
+from temoto_testing import made_interfaces
 import rospy
 
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_sensor_manager import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.srv import LoadSensor
-from temoto_sensor_manager.testing import (FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue, catalogue_problems,
+from temoto_testing.sensor_manager import (FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue, catalogue_problems,
                                            er_processes, managers_idle, pid_gone, registry, start_er_manager,
                                            start_sensor_manager)
 
@@ -141,7 +141,7 @@ def test_stall_is_reported_within_its_limit_and_the_stalled_driver_is_stopped(sm
     limit = catalogue()[res.sensor_name]['output_topics']['lidar_data']['stall_limit']
     pid = er_processes()[0]['pid']
     sent = FakeCables().send('stall', res.sensor_name.replace('fake_', ''))
-    wait_for(lambda: failed_events(events), 10, 'the stall detector's FAILED at the client')
+    wait_for(lambda: failed_events(events), 10, 'the stall detector FAILED at the client')
     delay = time.monotonic() - sent
     # the limit follows the stream's rhythm (temoto_sensor_manager/arrivals.py): never under 2.5 periods
     floor = arrivals.FLOOR_PERIODS / catalogue()[res.sensor_name]['output_topics']['lidar_data']['rate']

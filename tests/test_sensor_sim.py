@@ -9,14 +9,14 @@ import time
 
 import pytest
 
-from temoto_core.testing import made_interfaces
+from temoto_testing import made_interfaces
 
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from temoto_sensor_manager import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
-from temoto_sensor_manager.testing import (TopicWatch, catalogue, er_processes, managers_idle, pid_gone, set_cable,
+from temoto_testing.sensor_manager import (TopicWatch, catalogue, er_processes, managers_idle, pid_gone, set_cable,
                                            start_er_manager, start_sensor_manager, start_sim)
 
 HOGGED_RUN_S = 15.0        # a bounded run in the suite; bench_stall.py runs 10 minutes
@@ -95,7 +95,7 @@ def test_stall_unplug_is_caught_by_the_stall_detector_and_the_stalled_driver_is_
     limit = catalogue()['realsense_d435']['output_topics']['camera_info']['stall_limit']
     pid = er_processes()[0]['pid']
     sent = set_cable('d435', 'unplugged', 'stall')
-    wait_for(lambda: failed(events, res.resource_id), 10, 'the stall detector's FAILED at the client')
+    wait_for(lambda: failed(events, res.resource_id), 10, 'the stall detector FAILED at the client')
     delay = time.monotonic() - sent
     # the limit follows the stream's rhythm, never under 2.5 periods (arrivals.py); generous upper bound: the
     # bench measures it

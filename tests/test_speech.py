@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from std_msgs.msg import String
 
-from temoto_action_engine.testing import write_plugin
+from temoto_testing.action_engine import write_plugin
 from temoto_core.master import connected
 from temoto_core.wait import wait_for
 from temoto_speech import grammar

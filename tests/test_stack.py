@@ -6,7 +6,7 @@ import signal
 from temoto_demo.stack import Stack
 from temoto_core import master_lookup
 from temoto_core.master import RosMaster, free_port
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 LAUNCH = '''<launch>
   <node pkg="temoto_test_nodes" type="respawn_probe" name="stack_probe" respawn="true">

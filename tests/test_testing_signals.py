@@ -1,10 +1,10 @@
-"""temoto_core/testing/signals.py: a stopped process is stopped in every thread when ``stop`` returns."""
+"""temoto_testing/signals.py: a stopped process is stopped in every thread when ``stop`` returns."""
 import os
 import signal
 import subprocess
 import sys
 
-from temoto_core.testing import signals, wait_for
+from temoto_testing import signals, wait_for
 
 # a process whose threads all burn CPU: each must be stopped, not only the one that took the signal
 SPINNERS = '''

@@ -15,7 +15,7 @@ import pytest
 from temoto_core import hosts as hosts_mod
 from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 HANG = 5.0           # generous: catches a call or a detection that hangs, not a slow machine

@@ -12,7 +12,7 @@ from sensor_msgs.msg import LaserScan
 from tf2_msgs.msg import TFMessage
 
 from temoto_core.msg import ResourceStatus
-from temoto_core.testing import made_interfaces, wait_for
+from temoto_testing import made_interfaces, wait_for
 from temoto_sensor_manager.interface import SensorManagerInterface
 from vaultbot_sim.srv import SetDeviceState
 

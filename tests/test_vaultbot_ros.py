@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rosgraph
 
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from vaultbot_sim import spec
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
 from vaultbot_sim.urdf_gen import SICK_XYZ, TEST_WALL_X

@@ -8,7 +8,7 @@ from temoto_core import master_lookup
 from temoto_core.master import RosMaster, free_port, master_proxy
 from temoto_core.process_group import start_ticks
 from temoto_core.processes import ProcessGroupLauncher
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 PROBE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'temoto_test_nodes', 'nodes', 'respawn_probe')
 

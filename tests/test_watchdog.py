@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from temoto_core import watchdog
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 from rr_helpers import RegistrarNode
 
 HANG = 20.0

@@ -8,7 +8,7 @@ from std_msgs.msg import String
 
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
-from temoto_core.testing import wait_for
+from temoto_testing import wait_for
 
 NS = 'temoto'
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -14,7 +14,7 @@ import uuid
 
 import pytest
 
-from temoto_core.testing.bag import BagRecorder
+from temoto_testing.bag import BagRecorder
 from temoto_core.master import RosMaster
 from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
 
