@@ -2,10 +2,16 @@
 
 Every top-level package is both a ROS package (package.xml, found through
 ROS_PACKAGE_PATH) and a Python package. Message modules are generated into the
-packages by tools/gen_msgs.py. Versions of third-party packages are pinned in
-requirements.txt only.
+packages by tools/gen_msgs.py (``make setup``), before an install copies them.
+Versions of third-party packages are pinned in requirements.txt only.
+
+``make setup`` installs the checkout in development mode (env.sh puts the
+repository on PYTHONPATH and ROS_PACKAGE_PATH). ``pip install .`` copies every
+package, with what ROS needs of it (package.xml, launch files, configurations,
+node scripts, message definitions, the robot's URDFs), into site-packages;
+``temoto`` then finds them there (docs/commands.md, "Installed").
 """
-from setuptools import setup
+from setuptools import find_packages, setup
 
 PACKAGES = [
     'temoto_core',
@@ -22,13 +28,17 @@ PACKAGES = [
     'temoto_bringup',
 ]
 
+# what ROS (rospack, roslaunch, rosrun) and the nodes read beside the Python code, per package
+ROS_FILES = ['package.xml', 'launch/*.launch', 'config/*.yaml', 'nodes/*', 'msg/*.msg', 'srv/*.srv']
+EXTRA_FILES = {'vaultbot_sim': ['urdf/*.urdf'], 'temoto_action_engine': ['actions/*/*.py', 'actions/*/*.json']}
+
 setup(
     name='temoto',
     version='0.1.0',
     description='TeMoto: supervisory teleoperation with a Resource Registrar, for ROS 1 in Python',
     python_requires='>=3.11',
-    packages=[],   # development install: the repository root is put on sys.path
-    py_modules=[],
+    packages=find_packages(include=[p + suffix for p in PACKAGES for suffix in ('', '.*')]),
+    package_data={p: ROS_FILES + EXTRA_FILES.get(p, []) for p in PACKAGES},
     entry_points={'console_scripts': ['temoto = temoto_bringup.cli:main'],
                   # the fixtures, for every pytest run in an environment where TeMoto is installed
                   'pytest11': ['temoto = temoto_testing.pytest_plugin']},

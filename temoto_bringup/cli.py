@@ -5,8 +5,13 @@ when used, so ``temoto registry`` does not pay for pybullet or RViz. It lives in
 the top layer (temoto_bringup), the one package that may know every other.
 """
 import importlib
+import os
+import shlex
 import sys
 from typing import List, Optional
+
+# the folder that holds the TeMoto packages: the checkout, or site-packages after `pip install .`
+PACKAGES_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 COMMANDS = {
     'registry': ('temoto_core.registry_cli:main', 'show a registrar\'s registry (all registrars without an argument)'),
@@ -23,6 +28,7 @@ COMMANDS = {
     'record': ('temoto_demo.cli:record_main', 'record the failover topic set to a bag'),
     'report': ('temoto_demo.cli:report_main', 'make the report of a recorded run from its bag'),
     'replay': ('temoto_demo.replay:replay_main', 'show the views of a recorded run again in RViz'),
+    'env': ('temoto_bringup.cli:env_main', 'print the exports that let roslaunch and rosrun find the TeMoto packages'),
     'chaos': ('temoto_chaos.cli:chaos_main', 'a seeded history of operations and faults, checked after every step'),
 }
 
@@ -34,8 +40,27 @@ def usage() -> str:
     return '\n'.join(lines)
 
 
+def find_packages_through_ros() -> None:
+    """Put the TeMoto packages on ROS_PACKAGE_PATH (for this process and what it starts) if they are not there:
+    an installed copy lives in site-packages, where rospack does not look by itself."""
+    paths = [p for p in os.environ.get('ROS_PACKAGE_PATH', '').split(os.pathsep) if p]
+    if not any(os.path.realpath(p) == os.path.realpath(PACKAGES_ROOT) for p in paths):
+        os.environ['ROS_PACKAGE_PATH'] = os.pathsep.join([PACKAGES_ROOT] + paths)
+
+
+def env_main(argv: List[str]) -> int:
+    """``eval "$(temoto env)"``: this shell's roslaunch and rosrun find the TeMoto packages."""
+    if argv:
+        print('usage: temoto env', file=sys.stderr)
+        return 2
+    find_packages_through_ros()
+    print('export ROS_PACKAGE_PATH=%s' % shlex.quote(os.environ['ROS_PACKAGE_PATH']))
+    return 0
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    find_packages_through_ros()
     if not argv or argv[0] in ('-h', '--help', 'help'):
         print(usage())
         return 0

@@ -277,7 +277,7 @@ def test_cli_screenshot_and_displays(host, tmp_path, capsys):
 def test_several_robots_are_drawn_each_with_its_own_model_and_frame_prefix(procs, rospy_client):
     """One station, two robots sharing the TF tree: one robot model per robot, from its own description,
     under its own frame prefix (robot.launch robot:=NAME frame_prefix:=NAME/)."""
-    with open(os.path.join(os.environ['TEMOTO_ROOT'], 'urdf', 'vaultbot.urdf')) as f:
+    with open(os.path.join(os.environ['TEMOTO_ROOT'], 'vaultbot_sim', 'urdf', 'vaultbot.urdf')) as f:
         urdf = f.read()
     for robot in ('om_r1', 'om_r2'):
         rospy_client.set_param('/%s/robot_description' % robot, urdf)

@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
-URDF_DIR = os.path.join(os.path.dirname(PACKAGE_DIR), 'urdf')
+URDF_DIR = os.path.join(PACKAGE_DIR, 'urdf')     # inside the package: it installs with it
 ROBOT_URDF = os.path.join(URDF_DIR, 'vaultbot.urdf')
 WORLDS = {'lab': os.path.join(URDF_DIR, 'lab_world.urdf'),
           'test_wall': os.path.join(URDF_DIR, 'test_world.urdf')}

@@ -1,4 +1,4 @@
-"""Generate urdf/vaultbot.urdf and the worlds from the datasheet figures.
+"""Generate vaultbot_sim/urdf/vaultbot.urdf and the worlds from the datasheet figures.
 
 Why a generator: the UR5 chain is fully determined by its DH table, and writing
 the 60-odd links, inertials and joints of two arms, a base and two rooms by hand
@@ -351,6 +351,6 @@ def write_all(urdf_dir: str) -> list[str]:
 
 
 if __name__ == '__main__':
-    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    here = os.path.dirname(os.path.abspath(__file__))
     for p in write_all(os.path.join(here, 'urdf')):
         print('wrote', p)
