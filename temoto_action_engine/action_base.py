@@ -73,8 +73,8 @@ class ActionContext:
 
 def default_rr_factory(namespace: str) -> Callable[[str], Any]:
     def make(name: str):
-        from temoto_core.errors import Subsystem
-        from temoto_core.rr import ResourceRegistrar     # lazily: tests without ROS pass their own
+        from temoto_core.errors import Subsystem          # lazy: tests without ROS pass their own factory
+        from temoto_core.rr import ResourceRegistrar
         return ResourceRegistrar(name, namespace=namespace, subsystem=Subsystem.ACTION_ENGINE)
     return make
 

@@ -12,6 +12,10 @@ import os
 import sys
 import time
 
+import rospy
+
+from .srv import ListActions, ListGraphs, StartGraph, StopGraph
+
 DEFAULT_NS = os.environ.get('TEMOTO_NAMESPACE', 'temoto')
 SERVICE_WAIT_S = 5.0
 SAY_WAIT_S = 30.0       # `temoto say` right after `roslaunch ... &` finds the engine still starting
@@ -20,7 +24,6 @@ SAY_WAIT_S = 30.0       # `temoto say` right after `roslaunch ... &` finds the e
 def _wait_for_service(full: str, timeout: float) -> None:
     """rospy's wait, through a master that is not up yet (its wait raises at once then), with one line of
     progress when the wait is longer than a second."""
-    import rospy
     deadline = time.monotonic() + timeout
     told = False
     while True:
@@ -38,7 +41,6 @@ def _wait_for_service(full: str, timeout: float) -> None:
 
 def _service(ns: str, name: str, srv_type, timeout: float = SERVICE_WAIT_S):
     """A caller of the engine's service ``name``: it waits for it, and turns every failure into one line."""
-    import rospy
     full = '/%s/action_engine/%s' % (ns.strip('/'), name)
     try:
         _wait_for_service(full, timeout)
@@ -73,7 +75,6 @@ def say(argv: list[str]) -> int:
     args = p.parse_args(argv)
     if args.wait <= 0:
         p.error('--wait must be a positive number of seconds')
-    from .srv import StartGraph
     resp = _service(args.ns, 'start_graph', StartGraph, args.wait)(graph_json='', text=' '.join(args.text))
     print(resp.message)
     if resp.code == 0:
@@ -87,7 +88,6 @@ def actions(argv: list[str]) -> int:
     p.add_argument('--reindex', action='store_true', help='scan the action folders again first')
     p.add_argument('--json', action='store_true', help='print the raw JSON')
     args = p.parse_args(argv)
-    from .srv import ListActions
     data = json.loads(_service(args.ns, 'list_actions', ListActions)(reindex=args.reindex).json)
     if args.json:
         print(json.dumps(data, indent=2))
@@ -115,7 +115,6 @@ def graphs(argv: list[str]) -> int:
     if args.command == 'stop':
         if not args.target:
             p.error('stop needs a graph name')
-        from .srv import StopGraph
         print('stopping %s ...' % args.target, flush=True)
         resp = _service(args.ns, 'stop_graph', StopGraph)(graph_name=args.target)
         print(resp.message)
@@ -128,11 +127,9 @@ def graphs(argv: list[str]) -> int:
                 text = f.read()
         except OSError as e:
             raise SystemExit('error: %s' % e) from None
-        from .srv import StartGraph
         resp = _service(args.ns, 'start_graph', StartGraph)(graph_json=text, text='')
         print(resp.message)
         return resp.code
-    from .srv import ListGraphs
     data = json.loads(_service(args.ns, 'list_graphs', ListGraphs)().json)
     if args.json:
         print(json.dumps(data, indent=2))

@@ -24,9 +24,8 @@ import time
 
 import rospy
 from std_msgs.msg import String
-from temoto_core import rospy_internals
+from temoto_core import params, rospy_internals
 from temoto_core.node import after_init_node, clear_stale_registration, on_signals
-from temoto_core import params
 from temoto_core.rr.journal import Journal
 from temoto_core.rr.settings import journal_param
 
@@ -34,6 +33,8 @@ from .engine import ActionEngine
 from .indexer import ActionIndex
 from .isolation import TERM_GRACE_S, WorkerPool
 from .lost_graphs import GraphRecords
+from .srv import (ListActions, ListActionsResponse, ListGraphs, ListGraphsResponse, StartGraph, StartGraphResponse,
+                  StopGraph, StopGraphResponse)
 from .umrf import UmrfError
 
 MAX_TEXT = 2000            # characters of an instruction
@@ -66,7 +67,6 @@ class ActionEngineNode:
         if self.engine.lost:
             threading.Thread(target=self._report_lost, name='report-lost-graphs', daemon=True).start()
         self.engine.reindex()
-        from .srv import ListActions, ListGraphs, StartGraph, StopGraph
         self._services = [
             rospy.Service(base + '/start_graph', StartGraph, self._start_graph),
             rospy.Service(base + '/stop_graph', StopGraph, self._stop_graph),
@@ -106,7 +106,6 @@ class ActionEngineNode:
         self.engine.say(text)
 
     def _start_graph(self, req):
-        from .srv import StartGraphResponse
         has_json, has_text = bool(req.graph_json.strip()), bool(req.text.strip())
         if has_json == has_text:
             return StartGraphResponse(code=1, message='give exactly one of graph_json and text')
@@ -128,18 +127,15 @@ class ActionEngineNode:
                                   graph_json=json.dumps(run.spec.to_json(self.engine.index)))
 
     def _stop_graph(self, req):
-        from .srv import StopGraphResponse
         if not req.graph_name.strip():
             return StopGraphResponse(code=1, message='graph_name is empty')
         ok, message = self.engine.stop_graph(req.graph_name.strip(), self.stop_timeout)
         return StopGraphResponse(code=0 if ok else 1, message=message)
 
     def _list_graphs(self, req):
-        from .srv import ListGraphsResponse
         return ListGraphsResponse(json=json.dumps(self.engine.list_graphs(), default=str))
 
     def _list_actions(self, req):
-        from .srv import ListActionsResponse
         data = self.engine.reindex() if req.reindex else self.engine.index.to_json()
         return ListActionsResponse(json=json.dumps(data, default=str))
 

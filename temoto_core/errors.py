@@ -6,9 +6,12 @@ client side raises it again with one more frame, so the action at the top of a
 dependency chain sees where the failure started and every hop it took.
 """
 import enum
+import time
 from typing import Iterable, List, Optional, Sequence
 
 import rospy
+
+from temoto_core.msg import Error
 
 
 class ErrorCode(enum.IntEnum):
@@ -60,7 +63,6 @@ class ErrorFrame:
         self.stamp = stamp if stamp is not None else _now()
 
     def to_msg(self):
-        from temoto_core.msg import Error
         return Error(code=self.code, subsystem=self.subsystem, urgency=self.urgency, prefix=self.prefix,
                      message=self.message, stamp=rospy.Time.from_sec(self.stamp))
 
@@ -127,5 +129,4 @@ def _name(enum_cls, value: int) -> str:
 
 
 def _now() -> float:
-    import time
     return time.time()

@@ -15,6 +15,7 @@ failure policy that goes with it:
   is never only a log line.
 """
 import itertools
+import os
 import threading
 from typing import Callable, Dict, Optional
 
@@ -162,5 +163,4 @@ class ManagerInterface:
 
 
 def _pid() -> int:
-    import os
     return os.getpid()

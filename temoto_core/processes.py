@@ -183,7 +183,7 @@ class ProcessGroupLauncher:
 
     # -- lookup -------------------------------------------------------------------------------
     def find_executable(self, package: str, executable: str) -> str:
-        import rospkg
+        import rospkg               # lazy: ROS's package crawler, only for a launcher that starts something
         import roslib.packages
         if self._rospack is None:
             self._rospack = rospkg.RosPack(rospkg.get_ros_paths(self.env))
@@ -228,7 +228,7 @@ class ProcessGroupLauncher:
     def launch(self, package: str, launch_file: str, args: Sequence[str] = (), wait: bool = True,
                timeout: float = REGISTER_TIMEOUT) -> ManagedProcess:
         import rospkg
-        import roslaunch.config
+        import roslaunch.config     # lazy: roslaunch's loader takes ~0.2 s to import
         path = os.path.join(rospkg.RosPack(rospkg.get_ros_paths(self.env)).get_path(package), 'launch', launch_file)
         proc = self.command(['roslaunch', '--wait', path] + list(args), os.path.splitext(launch_file)[0])
         if wait:

@@ -4,14 +4,18 @@ import json
 import sys
 from typing import List
 
+import rosgraph
+import rospy
+import rosservice
+
 from temoto_core.rr.registry import RegistrySnapshot
+from temoto_core.srv import GetRegistry
 
 SUFFIX = '/registry'
 
 
 def find_registrars(namespace: str) -> List[str]:
     """Registrar names in ``namespace``, from the registry services the master knows."""
-    import rosservice
     prefix = '/%s/' % namespace.strip('/')
     names = []
     for service in rosservice.get_service_list():
@@ -21,8 +25,6 @@ def find_registrars(namespace: str) -> List[str]:
 
 
 def fetch(namespace: str, rr_name: str, timeout: float = 3.0) -> RegistrySnapshot:
-    import rospy
-    from temoto_core.srv import GetRegistry
     service = '/%s/%s%s' % (namespace.strip('/'), rr_name, SUFFIX)
     rospy.wait_for_service(service, timeout=timeout)
     return RegistrySnapshot.from_json(rospy.ServiceProxy(service, GetRegistry)().json)
@@ -59,11 +61,9 @@ def main(argv: List[str]) -> int:
     parser.add_argument('--namespace', '--ns', dest='namespace', default='temoto')
     parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
     args = parser.parse_args(argv)
-    import rosgraph
     if not rosgraph.is_master_online():
         print('temoto registry: no ROS master at %s' % rosgraph.get_master_uri(), file=sys.stderr)
         return 1
-    import rospy
     rospy.init_node('temoto_registry_cli', anonymous=True, disable_signals=True)
     names = [args.rr] if args.rr else find_registrars(args.namespace)
     if not names:

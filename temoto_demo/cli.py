@@ -11,8 +11,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 import time
 from typing import List, Optional
+
+from temoto_core.hosts import unavailable
+from temoto_core.node import on_signals
+from temoto_core.rr.messages import legal_name
 
 from . import topics as T
 
@@ -36,7 +41,7 @@ def report_main(argv: Optional[List[str]] = None) -> int:
     if not os.path.isfile(args.bag):
         print('temoto report: no bag file at %s' % args.bag, file=sys.stderr)
         return 1
-    from .report import write_report
+    from .report import write_report        # lazy: each subcommand loads only its own stack (matplotlib here)
     try:
         rep = write_report(args.bag, args.out or None, args.ns)
     except Exception as e:          # a corrupt or foreign bag: say which and why
@@ -72,9 +77,7 @@ def record_main(argv: Optional[List[str]] = None) -> int:
     if os.path.isdir(out):
         out = os.path.join(out, 'failover.bag')
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-    import threading
-    from temoto_core.node import on_signals
-    from .recording import Recording
+    from .recording import Recording        # lazy: each subcommand loads only its own stack
     env = dict(os.environ)
     stop = threading.Event()
     on_signals(lambda signum: stop.set())     # from a thread: Event.set in a handler can deadlock
@@ -99,7 +102,7 @@ def record_main(argv: Optional[List[str]] = None) -> int:
 
 
 def demo_main(argv: Optional[List[str]] = None) -> int:
-    from .scenario import DemoOptions, PRIORITY_ENTRIES, run_demo
+    from .scenario import DemoOptions, PRIORITY_ENTRIES, run_demo     # lazy: rospy, RViz clients, the recorder
     p = argparse.ArgumentParser(prog='temoto demo', description='The paper\'s section 4: sensor failover, recorded.')
     p.add_argument('--live', action='store_true', help='show RViz on $DISPLAY (default: headless under Xvfb)')
     p.add_argument('--stage-timeout', type=float, default=30.0, help='seconds each stage may take (default 30)')
@@ -134,8 +137,6 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     if args.voice and args.hosts == 2:
         p.error('--voice runs on one host; --hosts 2 does not take it yet')
     if args.hosts == 2:
-        from temoto_core.hosts import unavailable
-        from temoto_core.rr.messages import legal_name
         why = unavailable()
         if why:
             print('temoto demo --hosts 2: %s' % why, file=sys.stderr)

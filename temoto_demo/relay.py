@@ -22,8 +22,13 @@ import time
 from typing import Dict, Iterable, Optional
 
 import numpy as np
+import rospy
+from roslib.message import get_message_class
+from std_msgs.msg import Header, String
 
-from temoto_core import rospy_internals
+from temoto_core import params, rospy_internals
+from temoto_core.node import init_node, spin
+from temoto_output_manager.msg import DisplayEvent
 
 from . import topics as T
 
@@ -49,10 +54,6 @@ def decimate_cloud(cloud, step: int) -> None:
 class StreamRelay:
     def __init__(self, namespace: str = T.DEFAULT_NS, streams: Iterable[str] = T.DEFAULT_STREAMS,
                  follow_displays: bool = True, announce: bool = True, robot: str = '') -> None:
-        import rospy
-        from roslib.message import get_message_class
-        from std_msgs.msg import Header
-        self._rospy = rospy
         self._lock = threading.Lock()
         self._subs: Dict[str, object] = {}
         self._recorded: Dict[str, object] = {}
@@ -73,7 +74,6 @@ class StreamRelay:
         for s in streams:
             self.watch(s)
         if follow_displays:
-            from temoto_output_manager.msg import DisplayEvent
             self._events = rospy.Subscriber(T.display_events(namespace), DisplayEvent, self._on_display_event,
                                             queue_size=100)
 
@@ -83,7 +83,7 @@ class StreamRelay:
         with self._lock:
             if topic in self._subs or topic.startswith(T.DEMO_NS + '/'):
                 return
-            self._subs[topic] = self._rospy.Subscriber(topic, self._rospy.AnyMsg, self._on_message, callback_args=topic,
+            self._subs[topic] = rospy.Subscriber(topic, rospy.AnyMsg, self._on_message, callback_args=topic,
                                                        queue_size=5, tcp_nodelay=True, buff_size=1 << 22)
 
     def _on_display_event(self, ev) -> None:
@@ -94,14 +94,13 @@ class StreamRelay:
         with self._lock:
             pub = self._recorded.get(topic)
             if pub is None and cls is not None:
-                pub = self._recorded[topic] = self._rospy.Publisher(T.STREAMS_PREFIX + topic, cls, queue_size=50)
+                pub = self._recorded[topic] = rospy.Publisher(T.STREAMS_PREFIX + topic, cls, queue_size=50)
             return pub
 
     def _on_message(self, msg, topic: str) -> None:
         now = time.time()
-        from std_msgs.msg import Header
         tick = Header(frame_id=topic)
-        tick.stamp = self._rospy.Time.from_sec(now)
+        tick.stamp = rospy.Time.from_sec(now)
         self._ticks.publish(tick)
         type_name = rospy_internals.connection_header(msg).get('type', '')
         big_cloud = type_name == 'sensor_msgs/PointCloud2' and len(msg._buff) > T.BIG_CLOUD_BYTES
@@ -124,11 +123,10 @@ class StreamRelay:
         self._recorder_for(topic, cls).publish(full)
 
     def _publish_robot_description(self) -> None:
-        from std_msgs.msg import String
-        pub = self._rospy.Publisher(T.ROBOT_DESCRIPTION, String, queue_size=1, latch=True)
+        pub = rospy.Publisher(T.ROBOT_DESCRIPTION, String, queue_size=1, latch=True)
         deadline = time.monotonic() + ROBOT_DESCRIPTION_WAIT_S
-        while not self._rospy.is_shutdown() and time.monotonic() < deadline:
-            urdf = self._rospy.get_param(self._robot_description, '')
+        while not rospy.is_shutdown() and time.monotonic() < deadline:
+            urdf = rospy.get_param(self._robot_description, '')
             if urdf:
                 pub.publish(String(data=urdf))
                 return
@@ -136,7 +134,6 @@ class StreamRelay:
 
     def _message_class(self, type_name: str) -> Optional[object]:
         if type_name not in self._classes:
-            from roslib.message import get_message_class
             try:
                 self._classes[type_name] = get_message_class(type_name) if type_name else None
             except Exception:
@@ -145,8 +142,6 @@ class StreamRelay:
 
 
 def main() -> None:
-    from temoto_core import params
-    from temoto_core.node import init_node, spin
     init_node('temoto_demo_relay')
     ns = params.text('temoto_namespace', T.DEFAULT_NS, empty=False)
     streams = params.strings('streams', T.DEFAULT_STREAMS)

@@ -10,6 +10,7 @@ the failover did during the run, and a screenshot of the new view is saved.
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import tempfile
@@ -20,9 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
+import rospy
+from rosbags.highlevel import AnyReader
+
 from temoto_core.master import RosMaster
 from temoto_core.processes import ManagedProcess, ProcessGroupLauncher
 from temoto_core.wait import wait_for
+from temoto_output_manager.host_client import RvizHostClient
 
 from . import topics as T
 
@@ -43,7 +48,6 @@ class Stream:
 
 def read_bag(bag: str) -> tuple:
     """(streams in order of first appearance, robot description or '')."""
-    from rosbags.highlevel import AnyReader
     firsts: Dict[str, Stream] = {}
     urdf = ''
     with AnyReader([Path(bag)]) as reader:
@@ -97,8 +101,6 @@ class Replay:
         return env
 
     def _show(self, launcher: ProcessGroupLauncher, master: RosMaster, streams: List[Stream], timeout: float):
-        import rospy
-        from temoto_output_manager.host_client import RvizHostClient
         saved_env = master.point_this_process()      # this process's clients talk to the private master
         try:
             self._show_on(rospy, RvizHostClient, launcher, streams, timeout)
@@ -171,7 +173,6 @@ class Replay:
 
 
 def replay_main(argv: Optional[List[str]] = None) -> int:
-    import argparse
     p = argparse.ArgumentParser(prog='temoto replay', description='Show the views of a recorded run again in RViz, '
                                 'on a master of its own (a live stack is never touched).')
     p.add_argument('bag', help='a bag recorded by temoto demo or temoto record')

@@ -18,6 +18,7 @@ Definitions, per unplug of a device (from ``/vaultbot_sim/device_states``):
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -25,6 +26,14 @@ import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
+
+import matplotlib
+import numpy as np
+from matplotlib.lines import Line2D
+from PIL import Image
+from rosbags.highlevel import AnyReader
+
+matplotlib.use('Agg')       # the report is drawn headless, before anything imports pyplot
 
 from . import topics as T
 
@@ -89,7 +98,6 @@ def _stamp(msg, bag_t: float) -> float:
 
 def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
     """Everything the report needs, read from the bag with ``rosbags``."""
-    from rosbags.highlevel import AnyReader
     run = Run(bag=os.path.abspath(bag_path))
     status_re = re.compile('^%s$' % T.status_regex(namespace))
     plugged: Dict[str, bool] = {}
@@ -384,9 +392,7 @@ def analyse_kills(run: Run, stages: List[Stage], failures: List[Failure]) -> Lis
 # ============================================================================ the pictures
 def plot_timeline(run: Run, an: Analysis, path: str) -> str:
     """Which sensor's data reached the display, over time, with unplug / FAILED / switch marked."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt     # here: after the Agg backend is chosen at the top (no display)
 
     rows = [s.topic for s in an.stages]
     rows = list(dict.fromkeys(rows + [t for t in run.ticks if t not in rows]))
@@ -434,7 +440,6 @@ def plot_timeline(run: Run, an: Analysis, path: str) -> str:
         if s.first_frame_t:
             ax.annotate('on screen: %s' % s.label, (s.first_frame_t - an.t0, top), rotation=90, fontsize=7,
                         color='tab:green', va='top', ha='left', xytext=(2, 0), textcoords='offset points')
-    from matplotlib.lines import Line2D
     ax.legend([Line2D([], [], color=c, linestyle=st) for c, st in
                (('tab:red', '--'), ('tab:orange', ':'), ('tab:purple', ':'), ('tab:green', '-'))],
               ['unplug', 'first FAILED status', 'action received FAILED', 'first frame on screen'],
@@ -450,10 +455,6 @@ def plot_timeline(run: Run, an: Analysis, path: str) -> str:
 
 def non_background_fraction(png: bytes) -> float:
     """Share of pixels that differ from the image's most common colour (an empty view is ~0)."""
-    import io
-
-    import numpy as np
-    from PIL import Image
     img = np.asarray(Image.open(io.BytesIO(png)).convert('RGB')).reshape(-1, 3).astype(np.int16)
     colours, counts = np.unique(img, axis=0, return_counts=True)
     bg = colours[counts.argmax()]
@@ -462,10 +463,6 @@ def non_background_fraction(png: bytes) -> float:
 
 def diff_fraction(png_a: bytes, png_b: bytes, threshold: int = 48) -> float:
     """Share of pixels whose colour differs (sum of |dRGB| > threshold) between two same-size images."""
-    import io
-
-    import numpy as np
-    from PIL import Image
     a = np.asarray(Image.open(io.BytesIO(png_a)).convert('RGB')).astype(np.int16)
     b = np.asarray(Image.open(io.BytesIO(png_b)).convert('RGB')).astype(np.int16)
     if a.shape != b.shape:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import sys
 import threading
@@ -30,7 +31,33 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
+import rosgraph
+import rospy
+import yaml
+from sensor_msgs.msg import CompressedImage, PointCloud2
+from std_msgs.msg import String
+
+import temoto_sensor_manager
+from temoto_action_engine.srv import StopGraph
+from temoto_core import master_lookup
+from temoto_core.hosts import TwoHosts
+from temoto_core.master import RosMaster, connected
+from temoto_core.node import prime_log_parameter
+from temoto_core.processes import kill_leftovers, leftover_processes
+from temoto_core.srv import GetRegistry
+from temoto_core.wait import wait_for
+from temoto_output_manager.first_frame import received_count
+from temoto_output_manager.host_client import RvizHostClient, host_node_name
+from temoto_output_manager.interface import OutputManagerInterface
+from temoto_output_manager.msg import DisplayEvent
+from temoto_speech.msg import AudioData
+from temoto_speech.voice import synthesize_pcm
+from vaultbot_sim.srv import SetDeviceState
+
 from . import topics as T
+from .recording import RECORDER_NODE, Recording
+from .report import write_report
+from .stack import Stack, load_launch
 
 # --priority names -> (index in action_engine.yaml's sensor_priority, device to unplug, screenshot name)
 PRIORITY_ENTRIES = OrderedDict([('rgbd', (0, 'd435')), ('arm_cloud', (1, 'hokuyo')), ('base_scan', (2, 'sick'))])
@@ -58,8 +85,6 @@ LAUNCH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
 def write_station_catalogue(robot: str, workdir: str) -> str:
     """The station's catalogue (temoto_sensor_manager config/station.yaml), its scanner joined to ``robot``,
     written into ``workdir``: the file names the robot whose simulated lab the scanner stands in."""
-    import yaml
-    import temoto_sensor_manager
     src = os.path.join(os.path.dirname(temoto_sensor_manager.__file__), 'config', 'station.yaml')
     with open(src) as f:
         catalogue = yaml.safe_load(f)
@@ -124,9 +149,6 @@ class EventWatcher:
     """The action engine's events and the RViz host's display events, as they arrive."""
 
     def __init__(self, ns: str) -> None:
-        import rospy
-        from std_msgs.msg import String
-        from temoto_output_manager.msg import DisplayEvent
         self._cond = threading.Condition()
         self.actions: List[dict] = []
         self.display: List[tuple] = []      # (arrival, event, topic)
@@ -233,9 +255,6 @@ class Demo:
         return {PRIORITY_PARAM: self._priority_override(params[PRIORITY_PARAM]), STANDBY_PARAM: self.opts.standby}
 
     def start(self) -> None:
-        from temoto_core.master import RosMaster
-        from .recording import Recording
-        from .stack import load_launch
         os.makedirs(self.opts.out_dir, exist_ok=True)
         os.environ['TEMOTO_TEST_SESSION'] = self.token     # RosMaster's env (and so every child) carries it
         workdir = os.path.join(self.opts.out_dir, 'ros')
@@ -270,14 +289,11 @@ class Demo:
 
     def _stack(self, launch: str, env: Dict[str, str], logs: str, launch_args: List[str],
                overrides: Optional[dict] = None, wrap=None):
-        from .stack import Stack
         return Stack(launch, env, os.path.join(self.opts.out_dir, logs), launch_args, overrides, wrap)
 
     def _start_two_hosts(self, workdir: str, launch_args: List[str]) -> None:
         """The robot host (master, simulation, the robot's ER and Sensor Managers) and the operator host
         (action engine, Output Manager with RViz, its own ER Manager); this process joins the operator's."""
-        from temoto_core.hosts import TwoHosts
-        from .stack import load_launch
         self.hosts = TwoHosts('d' + self.token[-6:].replace('_', 'x'))
         self.hosts.up()
         robot, operator = self.hosts.robot, self.hosts.operator
@@ -307,10 +323,6 @@ class Demo:
                 os.environ[key] = env[key]
             else:                          # two hosts: ROS_IP, and no ROS_HOSTNAME (it would win)
                 os.environ.pop(key, None)
-        import rospy
-        from sensor_msgs.msg import CompressedImage
-        from std_msgs.msg import String
-        from temoto_core.node import prime_log_parameter
         rospy.init_node('temoto_demo', disable_signals=True)
         prime_log_parameter()      # its logging must not wait for the master (node.py)
         self.rospy_up = True
@@ -320,7 +332,6 @@ class Demo:
         self.shot_pub = rospy.Publisher(T.SCREENSHOTS, CompressedImage, queue_size=5)
         self.stage_pub = rospy.Publisher(T.STAGES, String, queue_size=20)
         if self.opts.voice:
-            from temoto_speech.msg import AudioData
             self.audio_pub = rospy.Publisher(T.speech_audio(ns), AudioData, queue_size=1000)
             self.heard: List[dict] = []
             self.speech_actions: List[str] = []
@@ -330,8 +341,6 @@ class Demo:
                              lambda m: self.speech_actions.extend(json.loads(m.data)['actions']))
 
     def _wait_services(self, env: Dict[str, str]) -> None:
-        import rosgraph
-        from temoto_core.wait import wait_for
         master = rosgraph.Master('/temoto_demo')
         wanted = T.manager_services(self.opts.namespace, self._robot_ns)
 
@@ -347,9 +356,6 @@ class Demo:
 
     def _wait_connected(self, env: Dict[str, str]) -> None:
         """The engine and the recorder hear the chatter; the recorder hears the screenshots and stages."""
-        from temoto_core.master import connected
-        from temoto_core.wait import wait_for
-        from .recording import RECORDER_NODE
         uri = env['ROS_MASTER_URI']
         pairs = [('/temoto_action_engine', T.chatter(self.opts.namespace)), (RECORDER_NODE, T.chatter(self.opts.namespace)),
                  (RECORDER_NODE, T.SCREENSHOTS), (RECORDER_NODE, T.STAGES)]
@@ -365,8 +371,6 @@ class Demo:
 
     # ------------------------------------------------------------------ stages
     def _mark(self, stage: str, **fields) -> None:
-        from std_msgs.msg import String
-        import rospy
         self.stage_pub.publish(String(data=json.dumps(dict(fields, stage=stage, stamp=rospy.get_time()))))
 
     # The operator's view for the report: from behind and above the robot, looking ahead, where the
@@ -374,9 +378,6 @@ class Demo:
     OPERATOR_VIEW = 'Distance: 7.5\nYaw: 3.14159\nPitch: 0.6\nFocal Point: [2.2, 0.0, 0.4]\n'
 
     def _screenshot(self, name: str) -> str:
-        import rospy
-        from sensor_msgs.msg import CompressedImage
-        from temoto_output_manager.host_client import RvizHostClient, host_node_name
         resp = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0).screenshot('view')
         # Numbered in the order taken, as the report numbers them when it extracts them from the bag.
         path = os.path.join(self.opts.out_dir, 'screenshot_%d_%s.png' % (len(self.screenshots) + 1, name))
@@ -391,8 +392,6 @@ class Demo:
 
     def set_device(self, device: str, plugged: bool, mode: str = '') -> None:
         """Plug ``device``'s cable in or pull it (``mode``: crash or stall) in the simulation."""
-        import rospy
-        from vaultbot_sim.srv import SetDeviceState
         state = 'plugged' if plugged else 'unplugged'
         resp = rospy.ServiceProxy(T.set_device_state(self._robot_ns), SetDeviceState)(
             device=device, state=state, mode='' if plugged else mode)
@@ -401,7 +400,6 @@ class Demo:
 
     def show_first_view(self) -> str:
         """Say the instruction and wait for the first priority entry on screen; its topic."""
-        from std_msgs.msg import String
         labels = [e['label'] for e in self._priority_override_labels()]
         since = time.monotonic()
         self._mark('say', text=INSTRUCTION, voice=self.opts.voice)
@@ -413,9 +411,6 @@ class Demo:
 
     def _speak(self, text: str) -> None:
         """``text`` spoken by espeak-ng to the speech node; returns once it understood it, else raises."""
-        from temoto_core.wait import wait_for
-        from temoto_speech.msg import AudioData
-        from temoto_speech.voice import synthesize_pcm
         pcm = synthesize_pcm(text)
         for i in range(0, len(pcm), 3200):                  # 0.1 s of audio a message, as a microphone sends
             self.audio_pub.publish(AudioData(data=pcm[i:i + 3200]))
@@ -538,7 +533,6 @@ class Demo:
 
     # ------------------------------------------------------------------ --kill-managers
     def _kill_managers(self) -> None:
-        import random
         rng = random.Random(self.opts.seed)
         order = [name for name in KILLABLE if any(spec.name == name for spec, _ in self.stacks[0].running)]
         rng.shuffle(order)
@@ -580,15 +574,11 @@ class Demo:
 
     def _node_pid(self, name: str) -> Optional[int]:
         """The pid of the process registered as ``name`` (None while nobody answers there)."""
-        from temoto_core import master_lookup
         uri = master_lookup.lookup_node(self.master.uri, name)
         return master_lookup.node_pid(uri) if uri else None
 
     def _wait_recovered(self, name: str, old_pid: int) -> None:
         """The node was respawned, and every registrar of it answers with its registry recovered."""
-        import rospy
-        from temoto_core.srv import GetRegistry
-        from temoto_core.wait import wait_for
 
         def back() -> bool:
             if self._node_pid(name) in (None, old_pid):
@@ -606,7 +596,6 @@ class Demo:
 
     def _set_operator_view(self) -> None:
         """Turn the view, then wait (bounded) until RViz has drawn two frames with it."""
-        from temoto_output_manager.host_client import RvizHostClient, host_node_name
         try:
             host = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0)
             host.set_view(self.OPERATOR_VIEW)
@@ -620,9 +609,6 @@ class Demo:
     def _wait_full_sweep(self, topic: str, limit: float = 4.0) -> None:
         """The rolling stitched cloud is on screen from its first few scans; the screenshot shows
         it once it holds a whole sweep, i.e. once its point count stops growing (bounded)."""
-        import threading
-        import rospy
-        from sensor_msgs.msg import PointCloud2
         sizes, grown = [], threading.Event()
 
         def on_cloud(msg):
@@ -659,9 +645,6 @@ class Demo:
                                          e.get('priority_index') == index, 0.0, timeout,
                                          'the %s standby of entry %d' % (self.opts.standby, index))
         if self.opts.standby == 'hot':
-            from temoto_output_manager.first_frame import received_count
-            from temoto_output_manager.host_client import RvizHostClient, host_node_name
-            from temoto_core.wait import wait_for
             host = RvizHostClient(host_node_name(self.opts.namespace))
 
             def holds_data() -> bool:
@@ -677,7 +660,6 @@ class Demo:
         publishes draws nothing and keeps it. Requested only once the action's first view is on
         screen, so the host's cold start still counts in the first stage.
         """
-        from temoto_output_manager.interface import OutputManagerInterface
         try:
             self.omi = OutputManagerInterface(namespace=self.opts.namespace)
             self.omi.show_in_rviz('marker', T.DEMO_NS + '/no_markers', name='demo baseline (draws nothing)')
@@ -690,8 +672,6 @@ class Demo:
 
         That picture is the baseline a screenshot with sensor data must differ from.
         """
-        import rospy
-        from temoto_action_engine.srv import StopGraph
         graphs = [e.get('graph') for e in self.watcher.actions if e.get('event') == 'sensor_active']
         if not graphs:
             return
@@ -712,12 +692,10 @@ class Demo:
         self.progress.line('action stopped, view empty')
 
     def _priority_override_labels(self) -> list:
-        import rospy
         return rospy.get_param(PRIORITY_PARAM)
 
     # ------------------------------------------------------------------ teardown
     def stop(self) -> List[tuple]:
-        from temoto_core.processes import kill_leftovers, leftover_processes
         if self.hosts is not None:
             self.hosts.link(True)     # a stage that failed during a cut: the nodes stop over a working link
         if self.recording is not None:
@@ -733,7 +711,6 @@ class Demo:
                 self.results['errors'].append('releasing the baseline display: %s' % e)
             self.omi = None
         if self.rospy_up:
-            import rospy
             rospy.signal_shutdown('demo over')
         stops = []
         for stack in reversed(self.stacks):     # the operator's first: its actions release what they hold
@@ -789,7 +766,6 @@ def run_demo(opts: DemoOptions) -> int:
             rc = rc or 1
         signal.signal(signal.SIGTERM, previous)
     if opts.report and os.path.exists(demo.bag_path):
-        from .report import write_report
         try:
             rep = write_report(demo.bag_path, opts.out_dir, opts.namespace)
             demo.results['failures'] = [f.as_dict() for f in rep.analysis.failures]

@@ -13,12 +13,14 @@ import json
 import sys
 from typing import Optional
 
+import rospy
+
+from temoto_core.srv import GetRegistry
+
 MANAGER = 'temoto_er_manager'
 
 
 def _fetch(service: str, timeout: float) -> dict:
-    import rospy
-    from temoto_core.srv import GetRegistry
     rospy.wait_for_service(service, timeout=timeout)
     return json.loads(rospy.ServiceProxy(service, GetRegistry)().json)
 

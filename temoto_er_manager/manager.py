@@ -25,6 +25,7 @@ import json
 import os
 import threading
 import time
+from dataclasses import fields
 from typing import List, Optional
 
 import psutil
@@ -47,6 +48,7 @@ from .resolve import Plan, Resolver
 from .resource import Resource
 from .supervisor import (ExitInfo, ManagedProcess, ProcessExitedEarly, ProcessSpec, ProcessSupervisor,
                          ReadyTimeout, SpawnerStuck, StartCancelled, SupervisorError)
+from .supervisor import read_tail
 
 PROCESS_KEY = 'process/%d'            # owner state: the processes of a loaded resource, by internal id
 
@@ -54,7 +56,6 @@ PROCESS_KEY = 'process/%d'            # owner state: the processes of a loaded r
 
 def load_config(params: dict) -> ERConfig:
     """ERConfig from the node's private parameters (unrelated keys such as ``temoto_namespace`` are ignored)."""
-    from dataclasses import fields
     known = {f.name for f in fields(ERConfig)}
     return ERConfig.from_dict({k: v for k, v in params.items() if k in known})
 
@@ -488,5 +489,4 @@ def _descendants(pid: int) -> List[int]:
 
 
 def _tail(path: str, lines: int) -> str:
-    from .supervisor import read_tail
     return read_tail(path, lines)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import os
 import re
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -152,7 +153,6 @@ class Resolver:
                             % (time.strftime('%Y%m%d-%H%M%S'), os.getpid(), next(_seq), label))
 
     def _sys(self, req: LoadRequest, env: dict) -> ProcessSpec:
-        import shutil
         path = req.executable if os.path.isabs(req.executable) else shutil.which(req.executable,
                                                                                   path=env.get('PATH'))
         if not path or not os.access(path, os.X_OK) or not os.path.isfile(path):

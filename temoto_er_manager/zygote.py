@@ -48,13 +48,18 @@ Differences from a plain ``python script`` start (documented, deliberate):
 """
 from __future__ import annotations
 
+import atexit
 import ctypes
+import importlib
+import io
 import json
 import os
+import runpy
 import select
 import signal
 import socket
 import sys
+import traceback
 
 _PR_SET_NAME = 15
 _PR_SET_PDEATHSIG = 1
@@ -100,7 +105,6 @@ class _Server:
         signal.signal(signal.SIGINT, signal.SIG_IGN)     # it lives in its own session; EOF ends it
 
     def preload(self, modules: list) -> None:
-        import importlib
         failed = {}
         for name in modules:
             try:
@@ -218,7 +222,6 @@ def _child(server: _Server, req: dict, log_fd: int, zygote: int) -> None:
 
 
 def _reopen_stdio() -> None:
-    import io
     sys.stdin = io.TextIOWrapper(io.FileIO(0, 'r', closefd=False), encoding='utf-8')
     # unbuffered, as the manager asks with PYTHONUNBUFFERED: a crash's last lines must reach the log
     sys.stdout = io.TextIOWrapper(io.FileIO(1, 'w', closefd=False), encoding='utf-8', write_through=True)
@@ -231,7 +234,7 @@ def _reset_preloaded_state() -> None:
     """Undo what preloaded modules captured from the zygote's argv and environment at import."""
     names = sys.modules.get('rospy.names')
     if names is not None:
-        from rosgraph.names import get_ros_namespace
+        from rosgraph.names import get_ros_namespace   # lazy: only when a preloaded module brought rospy
         names.reload_mappings(sys.argv)
         names._caller_namespace = get_ros_namespace()
         names._caller_id = names._caller_namespace + 'unnamed'
@@ -242,8 +245,6 @@ def _reset_preloaded_state() -> None:
 
 def _run(script: str) -> int:
     """Run ``script`` as ``__main__`` and finish like the interpreter would; the exit code."""
-    import runpy
-    import traceback
     code = 0
     try:
         runpy.run_path(script, run_name='__main__')
@@ -257,11 +258,10 @@ def _run(script: str) -> int:
         code = 1
     # Py_FinalizeEx's order: wait for non-daemon threads, run atexit callbacks (rospy's shutdown), flush
     try:
-        import threading
+        import threading      # lazy: as the interpreter does it at exit, whatever the script imported
         threading._shutdown()
     except BaseException:
         traceback.print_exc()
-    import atexit
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -277,7 +277,6 @@ def _run(script: str) -> int:
 
 def _print_exception(e: BaseException, script: str) -> None:
     """The traceback a plain interpreter prints: from the script's frame on, without the zygote's."""
-    import traceback
     tb = e.__traceback__
     while tb is not None and tb.tb_frame.f_code.co_filename != script:
         tb = tb.tb_next

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import http.client
+import json
 import sys
 import time
 import xmlrpc.client
@@ -71,7 +72,6 @@ def displays_main(argv: Optional[list] = None) -> int:
     rows = [{'name': d.name, 'class': d.display_class, 'topic': d.topic, 'enabled': d.enabled, 'visible': d.visible, 'drawn': d.drawn,
              'status': d.status} for d in resp.displays]
     if args.json:
-        import json
         print(json.dumps({'fixed_frame': resp.fixed_frame, 'frame_count': resp.frame_count,
                           'frame_rate': resp.frame_rate, 'displays': rows}, indent=2))
         return 0

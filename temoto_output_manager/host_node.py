@@ -192,7 +192,7 @@ MASTER_TIMEOUT = 2.0            # s for a question to the master that answers (i
 
 def _render_first_frames(app, host: RvizHost, frames: int, timeout: float) -> bool:
     """Run the Qt event loop until RViz has rendered ``frames`` frames (True) or ``timeout`` passed (False)."""
-    from python_qt_binding import QtCore
+    from python_qt_binding import QtCore    # lazy: Qt only once the X display is up (main)
     deadline = time.monotonic() + timeout
     loop = QtCore.QEventLoop()
     check = QtCore.QTimer()
@@ -246,11 +246,11 @@ def _adopt_librviz_node() -> None:
 
 def main(argv=None) -> int:
     """Entry point of nodes/rviz_host: headless by default, RViz on the Qt main thread."""
-    from .xvfb import ensure_display
+    from .xvfb import ensure_display        # lazy: with Qt, only in the host process
     xvfb = ensure_display()              # before Qt: a private X server when there is no DISPLAY
     rc = 1
     try:
-        from python_qt_binding import QtCore, QtWidgets
+        from python_qt_binding import QtCore, QtWidgets    # lazy: Qt needs the display started above
         app = QtWidgets.QApplication([sys.argv[0]])
         rospy_internals.install_bounded_handshake()
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)

@@ -11,6 +11,11 @@ import json
 import sys
 from typing import List
 
+import rospy
+
+from temoto_core.srv import GetRegistry
+from temoto_sensor_manager.catalogue import Catalogue
+
 TIMEOUT = 3.0
 
 
@@ -25,7 +30,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _check(files: List[str]) -> int:
-    from temoto_sensor_manager.catalogue import Catalogue
     cat = Catalogue.from_files(files)
     for entry in cat.entries:
         print('ok    %s: %s (%s) %s/%s -> %s' % (entry.source, entry.name, entry.type, entry.package, entry.executable,
@@ -36,8 +40,6 @@ def _check(files: List[str]) -> int:
 
 
 def _list(ns: str) -> int:
-    import rospy
-    from temoto_core.srv import GetRegistry
     service = '/%s/temoto_sensor_manager/catalogue' % ns.strip('/')
     try:
         rospy.wait_for_service(service, timeout=TIMEOUT)

@@ -14,7 +14,12 @@ import argparse
 import socket
 import sys
 
+import rosgraph
+import rospy
+
 from vaultbot_sim.spec import DEVICES, MODES
+from vaultbot_sim.msg import DeviceStates
+from vaultbot_sim.srv import SetDeviceState, SetSweep
 
 SIM_NS = '/vaultbot_sim'
 TIMEOUT = 3.0
@@ -42,7 +47,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _check_master() -> None:
-    import rosgraph
     old = socket.getdefaulttimeout()
     socket.setdefaulttimeout(TIMEOUT)
     try:
@@ -55,7 +59,6 @@ def _check_master() -> None:
 
 
 def _wait_service(ns: str, name: str) -> str:
-    import rospy
     service = f'{ns}/{name}'
     try:
         rospy.wait_for_service(service, timeout=TIMEOUT)
@@ -66,12 +69,10 @@ def _wait_service(ns: str, name: str) -> str:
 
 
 def _proxy(ns: str, name: str, srv_type):
-    import rospy
     return rospy.ServiceProxy(_wait_service(ns, name), srv_type)
 
 
 def _set_device(ns: str, device: str, state: str, mode: str) -> int:
-    from vaultbot_sim.srv import SetDeviceState
     resp = _proxy(ns, 'set_device_state', SetDeviceState)(device=device, state=state, mode=mode)
     if not resp.success:
         print(f'error: {resp.message}', file=sys.stderr)
@@ -81,8 +82,6 @@ def _set_device(ns: str, device: str, state: str, mode: str) -> int:
 
 
 def _status(ns: str) -> int:
-    import rospy
-    from vaultbot_sim.msg import DeviceStates
     _wait_service(ns, 'set_device_state')  # fails fast, with a clear message, when the sim is down
     rospy.init_node('temoto_sim_cli', anonymous=True, disable_signals=True, log_level=rospy.ERROR)
     try:
@@ -95,7 +94,6 @@ def _status(ns: str) -> int:
 
 
 def _sweep(ns: str, on: bool, speed: float) -> int:
-    from vaultbot_sim.srv import SetSweep
     resp = _proxy(ns, 'set_sweep', SetSweep)(enabled=on, speed=speed)
     if not resp.success:
         print(f'error: {resp.message}', file=sys.stderr)

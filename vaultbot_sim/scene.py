@@ -61,7 +61,7 @@ class Scene:
             self._joints[body], self._links[body] = jmap, lmap
         self.renderer = p.ER_TINY_RENDERER
         if renderer == 'egl':
-            import pkgutil
+            import pkgutil     # lazy: only for the EGL plugin
             egl = pkgutil.get_loader('eglRenderer')
             p.loadPlugin(egl.get_filename(), '_eglRendererPlugin', physicsClientId=self.cid)
             self.renderer = p.ER_BULLET_HARDWARE_OPENGL

@@ -41,6 +41,8 @@ import time
 from dataclasses import dataclass
 from typing import Optional
 
+import yaml
+
 from temoto_action_engine.action_base import ActionBase, ActionError
 from temoto_action_engine.failover_policy import Backoff, FailoverConfig, Standby
 from temoto_core.errors import Subsystem
@@ -181,7 +183,6 @@ def parse_priority(raw) -> list[SensorChoice]:
                               % (i, key, keys))
         config = e.get('display_config', '')
         if isinstance(config, dict):
-            import yaml
             config = yaml.safe_dump(config, default_flow_style=True).strip()
         elif not isinstance(config, str):
             raise ActionError('sensor_priority[%d].display_config must be a mapping of RViz properties or YAML, '
