@@ -13,6 +13,7 @@ import threading
 
 import pytest
 
+from temoto_testing import wait_receiving
 from temoto_testing.action_engine import write_plugin
 from temoto_core.wait import wait_for
 
@@ -137,8 +138,8 @@ def world(procs, rospy_client, tmp_path):
     fb_sub = rospy_client.Subscriber('/%s/action_engine/feedback' % NS, String, on_feedback)
     chatter = rospy_client.Publisher('/%s/human_chatter' % NS, String, queue_size=10)
     fail = rospy_client.Publisher('/%s/test_server/fail' % NS, String, queue_size=10)
-    wait_for(lambda: sub.get_num_connections() and fb_sub.get_num_connections() and chatter.get_num_connections()
-             and fail.get_num_connections(), 20, 'topics connected')
+    wait_receiving([sub, fb_sub], 20, 'the engine\'s events and feedback connected')
+    wait_for(lambda: chatter.get_num_connections() and fail.get_num_connections(), 20, 'topics connected')
 
     class World:
         def say(self, text):

@@ -16,7 +16,7 @@ import rospy
 from PIL import Image
 from std_msgs.msg import String
 
-from temoto_testing import wait_for
+from temoto_testing import wait_for, wait_receiving
 from temoto_core import master_lookup as er_master
 from temoto_output_manager.host_client import RvizHostClient, host_node_name
 from temoto_testing.sensor_manager import (NS, managers_idle, set_cable, start_context_manager, start_er_manager,
@@ -91,7 +91,7 @@ def operator(rospy_client, module_procs, tmp_path_factory):
                       params={'temoto_namespace': NS})
     rospy.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=20)
     op = Operator()
-    wait_for(lambda: all(s.get_num_connections() for s in op.subs), 20, 'the engine topics')
+    wait_receiving(op.subs, 20, 'the engine topics connected')
     yield op
     op.close()
 

@@ -14,7 +14,7 @@ import psutil
 import pytest
 from PIL import Image as PILImage
 
-from temoto_testing import wait_for
+from temoto_testing import wait_for, wait_receiving
 from temoto_output_manager import sample_data as sd
 from temoto_output_manager.host_client import RvizHostClient, RvizHostError
 from temoto_output_manager.msg import DisplayEvent
@@ -41,7 +41,7 @@ def exit_reason(proc):
 def events(host, rospy_client):
     got = []
     sub = rospy_client.Subscriber('/%s/temoto_output_manager/display_events' % NS, DisplayEvent, got.append)
-    wait_for(lambda: sub.get_num_connections() > 0, 10, 'event topic connection')
+    wait_receiving(sub, 10, 'the display events connected')
     yield got
     sub.unregister()
 

@@ -16,7 +16,7 @@ import rospy
 from temoto_core.msg import ResourceStatus
 from temoto_core.rr import ResourceRegistrar
 from temoto_core.srv import LoadTestResource, UnloadResource
-from temoto_testing import wait_for
+from temoto_testing import wait_for, wait_receiving
 from rr_helpers import RegistrarNode
 
 Req = LoadTestResource._request_class
@@ -82,7 +82,7 @@ def test_a_release_the_holder_did_not_ask_for_is_announced_to_it(owner, procs, r
     # listen on the dead consumer's status topic, as a new incarnation of it would
     sub = rospy.Subscriber('/temoto/rr_announced/status', ResourceStatus, heard.append)
     try:
-        wait_for(lambda: sub.get_num_connections() > 0, 10, 'a connection to the owner')
+        wait_receiving(sub, 10, 'a connection from the owner')
         os.killpg(doomed.process.pid, signal.SIGKILL)
         wait_for(lambda: _released(owner, 'held_until_death'), 10, 'release of the dead consumer')
         msg = wait_for(lambda: next((m for m in heard if m.resource_id == ext), None), 10, 'the announcement')
