@@ -1,10 +1,12 @@
-"""pytest fixtures: ``tests/conftest.py`` loads this with ``pytest_plugins``.
+"""pytest fixtures, registered by TeMoto's install as the ``pytest11`` entry point ``temoto``.
 
 - ``ros_master`` (session): one roscore per test session, so one per xdist worker;
 - ``rospy_client`` (session): the in-process rospy node (``init_node`` works once per process);
 - ``procs`` (function) and ``module_procs`` (module): node scripts and launch files as subprocesses,
   stopped at teardown;
-- ``bag_recorder`` (function): a factory for bags recorded during a test.
+- ``bag_recorder`` (function): a factory for bags recorded during a test;
+- ``two_hosts`` (module): the robot and the operator's station as two network namespaces joined by a
+  switch (``temoto_core/hosts.py``; needs root), removed with every process in them at the end.
 
 At the end of the session every process that carries this session's token is
 a leak: it is killed and the session fails, naming it.
@@ -14,9 +16,10 @@ import uuid
 
 import pytest
 
-from temoto_testing.bag import BagRecorder
+from temoto_core import hosts
 from temoto_core.master import RosMaster
 from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
+from temoto_testing.bag import BagRecorder
 
 # A test that runs an inner pytest session passes this so it knows the inner token.
 FORCED_TOKEN_ENV = 'TEMOTO_TEST_SESSION_FORCE'
@@ -77,3 +80,15 @@ def bag_recorder(ros_master, tmp_path):
     for recorder in started:
         if recorder.process is not None:
             recorder.stop()
+
+
+@pytest.fixture(scope='module')
+def two_hosts():
+    """``.robot`` and ``.operator`` (each with ``.address``), ``.master(workdir)`` on the robot,
+    ``.launcher(host, master, workdir)``, ``.link(up)`` to pull or plug the cable between them."""
+    why = hosts.unavailable()
+    assert not why, why          # not a skip: a test that needs two hosts says why it cannot have them
+    pair = hosts.TwoHosts('t%d' % (os.getpid() % 100000)).up()
+    yield pair
+    pair.down()
+    assert pair.exist() == [], 'network namespaces left behind: %s' % pair.exist()

@@ -12,23 +12,12 @@ import time
 
 import pytest
 
-from temoto_core import hosts as hosts_mod
 from temoto_core.errors import ErrorCode
 from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
 from rr_helpers import RegistrarNode, registry_empty
 
 HANG = 5.0           # generous: catches a call or a detection that hangs, not a slow machine
-
-
-@pytest.fixture(scope='module')
-def two_hosts():
-    why = hosts_mod.unavailable()
-    assert not why, why
-    hosts = hosts_mod.TwoHosts('t%d' % (os.getpid() % 100000)).up()
-    yield hosts
-    hosts.down()
-    assert hosts.exist() == [], 'namespaces left behind'
 
 
 class Pair:
