@@ -133,10 +133,14 @@ class TwoHosts:
             _ip('netns', 'delete', host.name, check=False)
         _ip('netns', 'delete', self.switch, check=False)
 
+    def names(self) -> List[str]:
+        """The network namespaces of these hosts and of their switch."""
+        return [host.name for host in self.hosts] + [self.switch]
+
     def exist(self) -> List[str]:
         """The namespaces of these hosts and their switch that exist now (none after :meth:`down`)."""
         listed = _ip('netns', 'list', check=False).stdout.split()
-        return [name for name in [host.name for host in self.hosts] + [self.switch] if name in listed]
+        return [name for name in self.names() if name in listed]
 
     # ------------------------------------------------------------------------------------------ running
     def master(self, workdir: str, session_token: str = '') -> RosMaster:

@@ -295,6 +295,7 @@ class Demo:
         """The robot host (master, simulation, the robot's ER and Sensor Managers) and the operator host
         (action engine, Output Manager with RViz, its own ER Manager); this process joins the operator's."""
         self.hosts = TwoHosts('d' + self.token[-6:].replace('_', 'x'))
+        self.results['hosts'] = self.hosts.names()       # what must be gone at the end (the report, a test)
         self.hosts.up()
         robot, operator = self.hosts.robot, self.hosts.operator
         self.master = self.hosts.master(workdir, self.token).start()
