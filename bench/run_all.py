@@ -71,14 +71,18 @@ def main(argv):
               'some and keeps the rest, each section is dated), last on %s, %s, %d cores. '
               'Each table puts the goal beside the figure; the scripts in bench/ say how each is measured.\n\n'
               % (datetime.date.today().isoformat(), platform.platform(), os.cpu_count()))
-    path = os.path.join(ROOT, 'BENCHMARKS.md')
-    # a run replaces the sections of the scripts it ran and keeps the others: the sections written by hand
-    # (before/after comparisons, loops) are the project's record, and a full run must not erase them
-    sections = merge_sections(read_sections(path), sections, [os.path.basename(p) for p in scripts()])
-    with open(path, 'w') as f:
-        f.write(header + '\n'.join(sections))
+    write_benchmarks(os.path.join(ROOT, 'BENCHMARKS.md'), header, sections, [os.path.basename(p) for p in scripts()])
     print('bench: wrote BENCHMARKS.md')
     return 0
+
+
+def write_benchmarks(path: str, header: str, sections: list, order: list) -> None:
+    """``path`` with ``header``, the sections of the scripts that ran replacing theirs, and every other section
+    kept: the ones written by hand (before/after comparisons, loops) are the project's record, and a full run
+    erased them all before."""
+    merged = merge_sections(read_sections(path), sections, order)
+    with open(path, 'w') as f:
+        f.write(header + '\n'.join(merged))
 
 
 if __name__ == '__main__':
