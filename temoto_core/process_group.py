@@ -22,6 +22,15 @@ _signal.restype = ctypes.c_void_p
 _SIG_DFL = None               # NULL
 
 
+def die_with_parent(death_signal: int, parent: int) -> bool:
+    """In a child just forked from ``parent``: have the kernel send it ``death_signal`` when the parent's
+    forking thread exits (``PR_SET_PDEATHSIG``). False if the parent died before that took effect (the child
+    has been adopted already and will never get the signal): the caller exits at once. Safe between fork and
+    exec: the C function was resolved at import, and nothing is allocated or imported."""
+    _prctl(_PR_SET_PDEATHSIG, int(death_signal), 0, 0, 0)
+    return os.getppid() == parent
+
+
 def popen_dying_with_this_thread(argv: Sequence[str], death_signal: int, default_signals: Sequence[int] = (),
                                  **kwargs) -> subprocess.Popen:
     """``subprocess.Popen(argv, **kwargs)``, whose child gets ``death_signal`` when the calling thread exits
@@ -42,10 +51,8 @@ def popen_dying_with_this_thread(argv: Sequence[str], death_signal: int, default
     def in_child() -> None:           # between fork and exec: no allocation, no imports
         for sig in default_signals:
             _signal(int(sig), _SIG_DFL)
-        if death_signal:
-            _prctl(_PR_SET_PDEATHSIG, int(death_signal), 0, 0, 0)
-            if os.getppid() != parent:
-                os._exit(125)
+        if death_signal and not die_with_parent(death_signal, parent):
+            os._exit(125)
     _imp.acquire_lock()
     try:
         return subprocess.Popen(list(argv), preexec_fn=in_child, **kwargs)

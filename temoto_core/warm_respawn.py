@@ -29,7 +29,6 @@ Rules it keeps:
 from __future__ import annotations
 
 import atexit
-import ctypes
 import os
 import signal
 import sys
@@ -41,7 +40,8 @@ from typing import Callable, Optional
 import rosgraph
 import rosgraph.names
 
-PR_SET_PDEATHSIG = 1
+from temoto_core.process_group import die_with_parent
+
 SINGLE_THREAD_ENV = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMEXPR_NUM_THREADS')
 QUICK_DEATH_S = 2.0
 BACKOFF_S = (0.0, 0.5, 1.0, 2.0, 5.0)
@@ -116,7 +116,6 @@ class _Parent:
         self.name = name
         self.child = 0
         self.stopping = False
-        self.libc = ctypes.CDLL(None, use_errno=True)
         self.params = private_params(name)       # what the node started with
 
     def _forward(self, signum: int, _frame) -> None:
@@ -160,8 +159,7 @@ class _Parent:
         try:
             for sig in STOP_SIGNALS:
                 signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
-            self.libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-            if os.getppid() != parent:     # the parent died before prctl took effect
+            if not die_with_parent(signal.SIGKILL, parent):     # the parent died before it took effect
                 os._exit(1)
             code = self.main()
         except SystemExit as e:

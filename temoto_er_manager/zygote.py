@@ -61,8 +61,9 @@ import socket
 import sys
 import traceback
 
+from temoto_core.process_group import die_with_parent
+
 _PR_SET_NAME = 15
-_PR_SET_PDEATHSIG = 1
 MAX_MESSAGE = 1 << 20
 # set in the zygote's environment by the manager so that BLAS libraries start no thread pools
 SINGLE_THREAD_ENV = {k: '1' for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS',
@@ -180,10 +181,8 @@ def _child(server: _Server, req: dict, log_fd: int, zygote: int) -> None:
         try:
             os.setsid()
             death_signal = int(req.get('death_signal') or 0)
-            if death_signal:
-                server.libc.prctl(_PR_SET_PDEATHSIG, death_signal, 0, 0, 0)
-                if os.getppid() != zygote:          # the zygote died before prctl took effect
-                    os._exit(125)
+            if death_signal and not die_with_parent(death_signal, zygote):   # the zygote died meanwhile
+                os._exit(125)
             signal.set_wakeup_fd(-1)
             for sig in (signal.SIGCHLD, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
                         signal.SIGUSR2):
@@ -301,10 +300,8 @@ def main(argv: list) -> int:
     ``DIE_WITH``: the pid of the manager; the zygote dies with the manager's thread that started it
     (SIGKILL), and exits at once if the manager died before that took effect."""
     die_with = int(argv[3]) if len(argv) > 3 else 0
-    if die_with:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        if os.getppid() != die_with:
-            return 125
+    if die_with and not die_with_parent(signal.SIGKILL, die_with):
+        return 125
     ctrl = socket.socket(fileno=int(argv[0]))
     events = socket.socket(fileno=int(argv[1]))
     ctrl.settimeout(None)                          # blocking whatever a preloaded module sets as default

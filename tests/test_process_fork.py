@@ -70,3 +70,26 @@ def test_a_start_waits_for_the_import_lock_before_it_takes_the_logging_lock():
         holder.join(HANG)
         start.join(HANG)
     assert started == [0]
+
+
+FORKS = '''
+import os, signal, sys
+from temoto_core.process_group import die_with_parent
+parent = os.getpid()
+results = []
+for claimed in (parent, parent + 1000000):          # its real parent; one that is not (it "died" meanwhile)
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0 if die_with_parent(signal.SIGKILL, claimed) else 3)
+    results.append(os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]))
+print(results, flush=True)
+'''
+
+
+def test_one_death_signal_helper_for_every_fork_and_its_race():
+    """The ER Manager's children, the zygote's and the warm-respawn parent's all use process_group's
+    die_with_parent: it sets the death signal and tells whether the parent was already gone (that a child
+    then dies with its parent is what test_warm_respawn's and test_er_zygote's orphan tests show)."""
+    out = subprocess.run([sys.executable, '-c', FORKS], capture_output=True, text=True, timeout=HANG)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == '[0, 3]'
