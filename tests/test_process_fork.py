@@ -89,7 +89,7 @@ print(results, flush=True)
 def test_one_death_signal_helper_for_every_fork_and_its_race():
     """The ER Manager's children, the zygote's and the warm-respawn parent's all use process_group's
     die_with_parent: it sets the death signal and tells whether the parent was already gone (that a child
-    then dies with its parent is what test_warm_respawn's and test_er_zygote's orphan tests show)."""
+    then dies with its parent is what test_warm_respawn's orphan test and test_er_supervisor's show)."""
     out = subprocess.run([sys.executable, '-c', FORKS], capture_output=True, text=True, timeout=HANG)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[0, 3]'
