@@ -28,6 +28,7 @@ from typing import Callable
 
 import rospy
 from temoto_core.master_lookup import cleanup_dead_node
+from temoto_core.process_group import escalate
 
 from . import worker_protocol as wp
 from .graph import FAILED, TERMINAL, GraphRun
@@ -118,14 +119,12 @@ class WorkerProcess:
 
     def end(self, grace: float = TERM_GRACE_S) -> None:
         """SIGTERM (the worker releases what it can), then SIGKILL; returns once it has exited."""
-        for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, grace)):
-            if self.exited.is_set():
-                return
+        def send(sig: int) -> None:
             try:
                 os.killpg(self.pid, sig)
             except ProcessLookupError:
                 pass
-            self.exited.wait(wait)
+        escalate(((signal.SIGTERM, grace), (signal.SIGKILL, grace)), send, self.exited.wait)
 
     def close(self) -> None:
         """An unused spare: its end of file makes it exit; end it if it does not."""

@@ -10,8 +10,9 @@ still holds the number). The helpers here make that rule easy to follow.
 import _imp
 import ctypes
 import os
+import signal
 import subprocess
-from typing import List, Optional, Sequence
+from typing import Callable, List, Optional, Sequence, Tuple
 
 _PR_SET_PDEATHSIG = 1
 _libc = ctypes.CDLL(None, use_errno=True)
@@ -20,6 +21,30 @@ _signal = _libc.signal        # likewise: the C library's own signal(), callable
 _signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
 _signal.restype = ctypes.c_void_p
 _SIG_DFL = None               # NULL
+
+
+KILL_GRACE_S = 5.0       # s a SIGKILLed process has to be seen gone (it cannot refuse; only the reap lags)
+
+
+def stop_stages(sigint_grace: float, sigterm_grace: float) -> Tuple[Tuple[int, float], ...]:
+    """The stop every TeMoto process gets: SIGINT (a node shuts down cleanly), SIGTERM, then SIGKILL, each
+    with the time it has before the next."""
+    return ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGKILL, KILL_GRACE_S))
+
+
+def escalate(stages: Sequence[Tuple[int, float]], send: Callable[[int], None],
+             ended: Callable[[float], bool]) -> bool:
+    """Stop a process by ``stages``: each (signal, grace) is sent with ``send(signal)`` unless the process has
+    ended, then ``ended(grace)`` waits for it at most the grace. True once it ended, False if it outlived
+    every stage. How to signal (a group, only while its leader is unreaped) and how to see the end (a reap,
+    a pidfd, an event) are the caller's; the order and the waits are the same for every process."""
+    for sig, grace in stages:
+        if ended(0.0):
+            return True
+        send(sig)
+        if ended(grace):
+            return True
+    return False
 
 
 def die_with_parent(death_signal: int, parent: int) -> bool:

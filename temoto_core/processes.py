@@ -10,7 +10,7 @@ import xmlrpc.client
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
 from temoto_core.master_lookup import cleanup_dead_node, node_pid, parent_pid
-from temoto_core.process_group import exit_status, group_members
+from temoto_core.process_group import escalate, exit_status, group_members, stop_stages
 
 T = TypeVar('T')
 
@@ -30,11 +30,11 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
     if proc.returncode is not None:
         return proc.returncode
     pgid = proc.pid
-    stages = ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGABRT, 2.0),
-              (signal.SIGKILL, 5.0))
-    for sig, grace in stages:
-        if exit_status(proc) is not None:
-            break
+    # the stop every process gets, with a SIGABRT before the SIGKILL: a hang explains itself (below)
+    stages = stop_stages(sigint_grace, sigterm_grace)
+    stages = stages[:2] + ((signal.SIGABRT, 2.0),) + stages[2:]
+
+    def send(sig: int) -> None:
         try:
             if sig == signal.SIGABRT:
                 # the members first: a TeMoto node writes every thread's stack on SIGUSR1 (node.py), and the
@@ -59,9 +59,15 @@ def stop_process_group(proc: subprocess.Popen, sigint_grace: float = 3.0, sigter
                 os.killpg(pgid, sig)
         except ProcessLookupError:
             pass
-        deadline = time.monotonic() + grace
-        while time.monotonic() < deadline and exit_status(proc) is None:
+
+    def ended(timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while exit_status(proc) is None:
+            if time.monotonic() >= deadline:
+                return False
             time.sleep(0.01)
+        return True
+    escalate(stages, send, ended)
     if exit_status(proc) is not None and proc.returncode is None:
         # the zombie leader still holds the group id: its leftover members can be killed safely
         deadline = time.monotonic() + 3.0

@@ -42,7 +42,7 @@ import threading
 import time
 from typing import Dict, List, Optional, Tuple
 
-from temoto_core.process_group import group_members, start_ticks
+from temoto_core.process_group import escalate, group_members, start_ticks, stop_stages
 
 DEFAULT_BOUND = 30.0
 MAX_MESSAGE = 1 << 16
@@ -82,7 +82,7 @@ class _Leash:
     def __init__(self, listener: socket.socket, bound: float, sigint_grace: float, sigterm_grace: float) -> None:
         self.listener = listener
         self.bound = bound
-        self.graces = ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace), (signal.SIGKILL, 5.0))
+        self.stages = stop_stages(sigint_grace, sigterm_grace)
         self.children: Dict[int, int] = {}
         self.owner: Optional[socket.socket] = None
         self.owner_pid = None
@@ -159,14 +159,18 @@ class _Leash:
     def stop_children(self, why: str) -> None:
         live = self.live_children()
         log('%s: stopping %d child(ren): %s' % (why, len(live), ' '.join(str(pid) for pid, _ in live)))
-        for sig, grace in self.graces:
-            live = [(pid, start) for pid, start in live if _signal_group(pid, start, sig)]
-            deadline = time.monotonic() + grace
-            while live and time.monotonic() < deadline:
+
+        def send(sig: int) -> None:         # every child at once: their graces run side by side
+            live[:] = [(pid, start) for pid, start in live if _signal_group(pid, start, sig)]
+
+        def ended(timeout: float) -> bool:
+            deadline = time.monotonic() + timeout
+            while True:
+                live[:] = [(pid, start) for pid, start in live if start_ticks(pid) == start or group_members(pid)]
+                if not live or time.monotonic() >= deadline:
+                    return not live
                 time.sleep(0.02)
-                live = [(pid, start) for pid, start in live if start_ticks(pid) == start or group_members(pid)]
-            if not live:
-                return
+        escalate(self.stages, send, ended)
 
 
 def _signal_group(pid: int, start: int, sig: int) -> bool:

@@ -52,7 +52,8 @@ from dataclasses import dataclass, field
 from typing import Callable, List, Optional
 
 from temoto_core import watchdog
-from temoto_core.process_group import group_members, popen_dying_with_this_thread, start_ticks
+from temoto_core.process_group import (escalate, group_members, popen_dying_with_this_thread, start_ticks,
+                                        stop_stages)
 
 from .preload import Zygote, ZygoteError
 
@@ -650,18 +651,18 @@ class ProcessSupervisor:
                 return proc.exit_info
             proc.stopping = True
             proc.cond.notify_all()            # a wait_ready in progress gives up now
-        for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace),
-                           (signal.SIGKILL, 5.0)):
+
+        def send(sig: int) -> None:
             with proc.cond:
-                if proc.exit_info is not None:
-                    break
                 # under the lock: the leader cannot be reaped meanwhile (by us, or by the zygote, which waits
                 # for our word); an orphan of a dead zygote that has exited may be reaped by init already
-                if not (proc.orphan and _pidfd_readable(proc.pidfd)):
+                if proc.exit_info is None and not (proc.orphan and _pidfd_readable(proc.pidfd)):
                     self._killpg(proc.pid, sig)
+
+        def ended(timeout: float) -> bool:
             with proc.cond:
-                if proc.cond.wait_for(lambda: proc.exit_info is not None, timeout=grace):
-                    break
+                return proc.cond.wait_for(lambda: proc.exit_info is not None, timeout=timeout)
+        escalate(stop_stages(sigint_grace, sigterm_grace), send, ended)
         with proc.cond:
             if proc.exit_info is None:        # SIGKILL + 5 s and still not reaped: never seen; be loud
                 raise SupervisorError('process %d did not exit after SIGKILL' % proc.pid)
