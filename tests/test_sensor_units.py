@@ -182,21 +182,27 @@ def test_reliability_continues_from_a_kept_window():
     assert wider.value == pytest.approx((10 * 0.8 + sum(before.samples())) / 20)
 
 
-def test_stall_detector_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
-    """A silence during which the probe's receive thread sat on a run queue (messages sent, unread) is the
-    machine's, not the sensor's: the stall comes that much later (at most half a limit later), and still comes."""
+def first_stall(probe) -> float:
+    """Arm a stall detector with ``probe`` alone; the silence it reports its stall after."""
     fired = threading.Event()
     stalls = []
     dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
     try:
-        probe = fixed_probe('starved', 0.1, last=time.monotonic())
-        probe.reader_starved = lambda: 0.04
         dog.arm([probe])
-        assert fired.wait(5.0)
-        assert stalls[0] >= 0.14, stalls      # the limit (0.1 s) and the 0.04 s the reader was held back
-        assert probe.starved >= 0.04
+        assert fired.wait(5.0), 'no stall within 5 s'
+        return stalls[0]
     finally:
         dog.stop()
+
+
+def test_stall_detector_allows_for_the_time_its_receive_thread_waited_for_a_cpu():
+    """A silence during which the probe's receive thread sat on a run queue (messages sent, unread) is the
+    machine's, not the sensor's: the stall comes that much later (at most half a limit later), and still comes."""
+    probe = fixed_probe('starved', 0.1, last=time.monotonic())
+    probe.reader_starved = lambda: 0.04
+    silence = first_stall(probe)
+    assert silence >= 0.14, silence      # the limit (0.1 s) and the 0.04 s the reader was held back
+    assert probe.starved >= 0.04
 
 
 def test_usual_lateness_is_not_counted_only_what_goes_beyond_it():
@@ -209,19 +215,12 @@ def test_usual_lateness_is_not_counted_only_what_goes_beyond_it():
 def test_stall_detector_allows_for_the_time_the_publishing_driver_waited_for_a_cpu():
     """Beside two CPU hogs the machine's pressure saturates and says nothing of a burst; the driver's own
     run-queue time still does: a silence it spent waiting for a CPU comes that much later, and still comes."""
-    fired = threading.Event()
-    stalls = []
-    dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
-    try:
-        probe = fixed_probe('driver_starved', 0.1, last=time.monotonic())
-        spans = []
-        probe.publisher_starved = lambda since, now: spans.append((since, now)) or 0.04
-        dog.arm([probe])
-        assert fired.wait(5.0)
-        assert stalls[0] >= 0.14, stalls      # the limit (0.1 s) and the 0.04 s the driver was held back
-        assert spans and all(since == probe.last for since, _ in spans)    # the silence's span, from its start
-    finally:
-        dog.stop()
+    probe = fixed_probe('driver_starved', 0.1, last=time.monotonic())
+    spans = []
+    probe.publisher_starved = lambda since, now: spans.append((since, now)) or 0.04
+    silence = first_stall(probe)
+    assert silence >= 0.14, silence      # the limit (0.1 s) and the 0.04 s the driver was held back
+    assert spans and all(since == probe.last for since, _ in spans)    # the silence's span, from its start
 
 
 def test_a_wait_meter_counts_only_what_goes_beyond_the_usual_rate():
@@ -270,15 +269,8 @@ def test_a_process_made_to_wait_for_its_cpu_shows_it_in_its_run_queue_time():
 def test_the_driver_s_and_the_reader_s_waits_add_up():
     """A message waits for the driver to run, then for the receive thread: a silence that held both back
     by 0.03 s each comes 0.06 s later."""
-    fired = threading.Event()
-    stalls = []
-    dog = StallDetector(lambda probe, silence, limit: (stalls.append(silence), fired.set()))
-    try:
-        probe = fixed_probe('both_starved', 0.2, last=time.monotonic())
-        probe.reader_starved = lambda: 0.03
-        probe.publisher_starved = lambda since, now: 0.03
-        dog.arm([probe])
-        assert fired.wait(5.0)
-        assert stalls[0] >= 0.26 and probe.starved >= 0.06, (stalls, probe.starved)
-    finally:
-        dog.stop()
+    probe = fixed_probe('both_starved', 0.2, last=time.monotonic())
+    probe.reader_starved = lambda: 0.03
+    probe.publisher_starved = lambda since, now: 0.03
+    silence = first_stall(probe)
+    assert silence >= 0.26 and probe.starved >= 0.06, (silence, probe.starved)
