@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import pytest
 
 from temoto_action_engine.action_base import ActionError
-from temoto_action_engine.actions.show_environment.show_environment import DEFAULT_PRIORITY, parse_priority
+from temoto_action_engine.view_sources import DEFAULT_PRIORITY, parse_priority
 from temoto_action_engine.engine import ActionEngine
 from temoto_action_engine.indexer import ActionIndex
 from temoto_testing.action_engine import FakeRegistrarFactory
@@ -360,7 +360,7 @@ def test_a_status_for_a_released_resource_is_ignored(setup):
     wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
     action = run.nodes['show_environment_0'].action
     action.post(status(424242, Status.FAILED, 'stale'))
-    action.post(status(action.active.resource_id, Status.UPDATE, 'just an update'))
+    action.post(status(action.view.shown.resource_id, Status.UPDATE, 'just an update'))
     devices.unplug('d435')
     wait_for(lambda: len(of(events, 'sensor_active')) == 2, 10, 'hokuyo active')
     assert len(of(events, 'sensor_failed')) == 1
@@ -407,10 +407,10 @@ def test_a_display_failure_reaches_the_action_and_the_same_sensor_is_shown_again
     _, run = engine.say('show the environment')
     wait_for(lambda: of(events, 'sensor_active'), 10, 'first sensor active')
     action = run.nodes['show_environment_0'].action
-    failed_display = action.active.display_id
+    failed_display = action.view.shown.display_id
     devices.crash_display(failed_display)
     restored = wait_for(lambda: of(events, 'display_restored'), 10, 'the display shown again')
-    assert restored[0]['sensor_name'] == 'd435' and action.active.display_id != failed_display
+    assert restored[0]['sensor_name'] == 'd435' and action.view.shown.display_id != failed_display
     assert of(events, 'sensor_failed')[0]['failed_part'] == 'display'
     wait_for(lambda: failed_display not in devices.shown, 10, 'the failed display released')
     assert list(devices.shown.values()) == [('point cloud', '/d435/points')]
