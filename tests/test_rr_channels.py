@@ -7,7 +7,7 @@ import pytest
 
 from temoto_core.rr import channels as channels_module
 from temoto_core.rr.channels import MasterAway, StatusChannels
-from temoto_core.rr.query import Consumer
+from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
 
 HANG = 10.0
@@ -42,7 +42,7 @@ def channels(monkeypatch, rospy_client):           # rospy's clock stamps every 
     HeldPublisher.held, HeldPublisher.made, HeldPublisher.by_topic = set(), [], {}
     HeldPublisher.release = threading.Event()
     monkeypatch.setattr(channels_module.rospy, 'Publisher', HeldPublisher)
-    yield StatusChannels('temoto', 'owner', 'owner', connect_timeout=1.0)
+    yield StatusChannels('owner', connect_timeout=1.0)
     HeldPublisher.release.set()
 
 
@@ -52,8 +52,8 @@ def test_a_status_on_an_open_channel_does_not_wait_for_a_channel_being_made(chan
     making = threading.Thread(target=channels.acquire, args=('/temoto/b/status',), daemon=True)
     making.start()
     wait_for(lambda: '/temoto/b/status' in HeldPublisher.made, HANG, 'the second channel to be under way')
-    sent = threading.Thread(target=channels.announce, daemon=True,
-                            args=(Consumer('/temoto/a/status', '/a', 'temoto', '', 0), 'srv', 7, 1, 'failed', []))
+    status = ResourceStatus(server_name='srv', resource_id=7, status_code=1, message='failed')
+    sent = threading.Thread(target=lambda: channels.publisher('/temoto/a/status').publish(status), daemon=True)
     sent.start()
     sent.join(HANG)
     assert not sent.is_alive(), 'a status to an open channel waited for another channel to be made'
@@ -86,7 +86,7 @@ class Away:
 def test_a_new_channel_is_refused_naming_the_master_when_it_does_not_answer(monkeypatch):
     HeldPublisher.held, HeldPublisher.made = set(), []
     monkeypatch.setattr(channels_module.rospy, 'Publisher', HeldPublisher)
-    channels = StatusChannels('temoto', 'owner', 'owner', connect_timeout=1.0, master_reach=Away())
+    channels = StatusChannels('owner', connect_timeout=1.0, master_reach=Away())
     channels.acquire('/temoto/open/status')          # opened before: needs no master
     channels.acquire('/temoto/open/status', master_needed=True)
     with pytest.raises(MasterAway, match=r'the master at 127\.0\.0\.1:9 does not answer.*/temoto/new/status'):

@@ -3,12 +3,13 @@ heard (client_side.reconcile_with): the logic alone, the owner's registry given 
 failing). The cross-process case is test_rr_recovery.py."""
 import json
 import logging
+from types import SimpleNamespace
 
 from temoto_core.errors import ErrorCode, Subsystem
 from temoto_core.msg import RMPRequest
 from temoto_core.rr.client_side import ClientSide
 from temoto_core.rr.core import RegistrarCore
-from temoto_core.rr.query import ACTIVE, ClientQuery
+from temoto_core.rr.query import ACTIVE, ClientQuery, HeldQueries
 from temoto_core.srv import GetRegistryResponse
 
 TARGET = ('chaos', 'temoto_context_manager', 'track_object')
@@ -16,13 +17,13 @@ ME = RMPRequest(client_name='/chaos_client_2', client_uri='http://station:1/')
 
 
 def side_holding(external_id, registry):
-    side = ClientSide(RegistrarCore('rr_t', 'chaos', Subsystem.CORE), None, ME, None)
+    heard = []
+    lost = SimpleNamespace(lost=lambda target, external_id, message: heard.append((target, external_id, message)))
+    side = ClientSide(RegistrarCore('rr_t', 'chaos', Subsystem.CORE), None, HeldQueries(), ME, None, lost)
     query = ClientQuery(TARGET, 'hand', None)
     query.external_id, query.state = external_id, ACTIVE
     side.by_external[(TARGET, external_id)] = query
     side.invoke = lambda service, request, seconds, watched=True: GetRegistryResponse(json=json.dumps(registry))
-    heard = []
-    side.failed_at_owner = lambda target, external_id, message: heard.append((target, external_id, message))
     return side, heard
 
 

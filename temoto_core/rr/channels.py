@@ -20,10 +20,8 @@ from typing import Dict, List, Optional
 
 import rospy
 
-from temoto_core.errors import ErrorFrame
 from temoto_core.master_reach import MasterReach
 from temoto_core.msg import ResourceStatus
-from temoto_core.rr.query import Consumer
 
 # An unused status channel is unregistered after this long: long enough for a consumer that comes back at
 # once (a reload, the next step of a loop) to find it still connected, short enough that the channels of
@@ -36,11 +34,7 @@ class MasterAway(Exception):
 
 
 class StatusChannels:
-    def __init__(self, namespace: str, rr_name: str, prefix: str, connect_timeout: float,
-                 incarnation: int = 0, master_reach: Optional[MasterReach] = None) -> None:
-        self._incarnation = incarnation      # sent with every status: receivers drop older incarnations'
-        self._namespace = namespace
-        self._rr_name = rr_name
+    def __init__(self, prefix: str, connect_timeout: float, master_reach: Optional[MasterReach] = None) -> None:
         self._prefix = prefix
         self._connect_timeout = connect_timeout
         self._lock = threading.Lock()
@@ -50,23 +44,8 @@ class StatusChannels:
         self._users: Dict[str, int] = {}     # status topic -> consumers (and loads in flight) using it
         self._idle: Dict[str, float] = {}    # status topic -> when its last user left
 
-    def announce(self, consumer: Consumer, server_name: str, external_id: int, code: int, message: str,
-                 stack: list) -> None:
-        """Publish one status to one consumer (``stack``: ErrorFrames or Error messages)."""
-        if not consumer.status_topic:
-            return
-        msg = ResourceStatus(temoto_namespace=self._namespace, manager_name=self._rr_name, server_name=server_name,
-                             resource_id=external_id, status_code=code, message=message, incarnation=self._incarnation,
-                             error_stack=[f.to_msg() if isinstance(f, ErrorFrame) else f for f in stack])
-        msg.header.stamp = rospy.Time.now()
-        try:
-            self._publisher(consumer.status_topic).publish(msg)
-        except rospy.ROSException as err:     # rospy is shutting down: the consumer hears of it from the master
-            rospy.logwarn('%s: status %d for %s:%d to %s not sent: %s', self._prefix, code, server_name,
-                          external_id, consumer.status_topic, err)
-
-    def _publisher(self, topic: str) -> rospy.Publisher:
-        """The channel's publisher, made by one thread while the others wait for it. It is made outside the
+    def publisher(self, topic: str) -> rospy.Publisher:
+        """The channel's publisher (``status_pipeline.announce`` publishes on it), made by one thread while the others wait for it. It is made outside the
         lock: rospy may hold the making thread until the master answers, and a status on another channel
         must not wait for that."""
         while True:
@@ -112,7 +91,7 @@ class StatusChannels:
             for topic in topics:
                 self._users[topic] = self._users.get(topic, 0) + 1
                 self._idle.pop(topic, None)
-        pubs = {topic: self._publisher(topic) for topic in topics}
+        pubs = {topic: self.publisher(topic) for topic in topics}
         deadline = time.monotonic() + self._connect_timeout
         delay = 0.0005
         while any(p.get_num_connections() == 0 for p in pubs.values()) and time.monotonic() < deadline:

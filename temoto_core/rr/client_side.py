@@ -22,9 +22,11 @@ from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.messages import clone, legal_name, service_class, shallow_copy
 from temoto_core.rr.owners import OwnerWatch, owned_by
-from temoto_core.rr.query import ACTIVE, FAILED, GONE, LOADING, ClientQuery, ServerQuery, Target, target_name
+from temoto_core.rr.query import (ACTIVE, FAILED, GONE, LOADING, ClientQuery, HeldQueries, ServerQuery, Target,
+                                  target_name)
 from temoto_core.rr.recorder import Recorder
 from temoto_core.rr.status import StatusEvent
+from temoto_core.rr.status_pipeline import StatusPipeline
 from temoto_core.srv import GetRegistry, UnloadResource
 
 StatusCallback = Callable[[StatusEvent], None]
@@ -37,24 +39,26 @@ UNKNOWN_SERVICE = 'the master does not know it'
 
 
 class ClientSide:
-    def __init__(self, core: RegistrarCore, links: Links, header: RMPRequest, recorder: Recorder,
-                 default_deadline: float = DEFAULT_DEADLINE) -> None:
+    def __init__(self, core: RegistrarCore, links: Links, held: HeldQueries, header: RMPRequest,
+                 recorder: Recorder, pipeline: StatusPipeline, default_deadline: float = DEFAULT_DEADLINE) -> None:
         self._core = core
         self.default_deadline = default_deadline
         self._links = links
         self._recorder = recorder
+        # statuses that overtook the response announcing their resource are parked there, and a FAILED found in
+        # an owner's registry is handed to it as if its status had arrived
+        self._pipeline = pipeline
         self._header = header     # the same for every request of this registrar; never mutated
-        self.by_key: Dict[Tuple[Target, Hashable], ClientQuery] = {}
-        self.by_local: Dict[int, ClientQuery] = {}
-        self.by_external: Dict[Tuple[Target, int], ClientQuery] = {}
+        self.held = held
+        self.by_key, self.by_local, self.by_external = held.by_key, held.by_local, held.by_external
         self._proxies: Dict[str, List[rospy.ServiceProxy]] = {}
         self._proxies_lock = threading.Lock()
-        # set by the status receiver: statuses that overtook the response announcing their resource
-        self.owners: Optional[OwnerWatch] = None      # set by the registrar: the owners this side depends on
-        self.take_parked: Callable[[Target, int], list] = lambda target, external_id: []
-        self.deliver: Callable[[object], None] = lambda msg: None
-        # set by the registrar: a FAILED found in an owner's registry, handled as if its status had arrived
-        self.failed_at_owner: Callable[[Target, int, str], None] = lambda target, external_id, message: None
+        # The one part given after construction: the owner watch needs this side's holdings and its unloads,
+        # and this side's calls need the watch's verdicts. The registrar calls watch_owners() right after.
+        self.owners: Optional[OwnerWatch] = None
+
+    def watch_owners(self, owners: OwnerWatch) -> None:
+        self.owners = owners
 
     # ------------------------------------------------------------------------------------------ call
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[StatusCallback],
@@ -125,12 +129,12 @@ class ClientSide:
             query.move(ACTIVE)
             self.by_external[(query.target, query.external_id)] = query
             out = self._attach(query, local_id, status_cb, parent)
-            parked = self.take_parked(query.target, query.external_id)
+            parked = self._pipeline.take_parked(query.target, query.external_id)
             core.notify_change()
         if self.owners is not None:
             self.owners.notice(response.trr.owner_node, response.trr.owner_uri, response.trr.owner_incarnation)
         for msg in parked:
-            self.deliver(msg)
+            self._pipeline.receive(msg)
         return out
 
     def _attach(self, query: ClientQuery, local_id: int, status_cb, parent: Optional[ServerQuery]):
@@ -378,7 +382,7 @@ class ClientSide:
             message = '%s: FAILED at its owner%s; its status never reached this node' % (
                 target_name(target), ' (%s)' % why if why else '')
             rospy.logwarn('%s: %s', core.prefix, message)
-            self.failed_at_owner(target, external_id, message)
+            self._pipeline.lost(target, external_id, message)
         # a release that did not reach the owner (it died or was cut off meanwhile) is not done: the owner stays
         # to be read again, and the stray is found and released at its next answer
         return unreleased == 0
@@ -391,9 +395,6 @@ class ClientSide:
         with self._core.lock:
             return [(q.target, q.external_id) for q in self.by_external.values() if owned_by(q, node)]
 
-    def loading_from(self, target: Target) -> bool:
-        """Whether a call to ``target`` is still waiting for its response (lock held)."""
-        return any(q.target == target and q.state is LOADING for q in self.by_key.values())
 
 
 def registrar_of(service: str) -> Tuple[str, str]:

@@ -30,6 +30,7 @@ from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import CHANNEL_GRACE, StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.server_side import ServerSide
+from temoto_core.rr.status_pipeline import StatusPipeline
 from temoto_core.xmlrpc_util import proxy as xmlrpc_proxy
 
 
@@ -37,11 +38,12 @@ UNREACHABLE = frozenset({errno.EHOSTUNREACH, errno.ENETUNREACH, errno.ENETDOWN, 
 
 
 class ConsumerWatch:
-    def __init__(self, core: RegistrarCore, server: ServerSide, channels: StatusChannels, period: float,
-                 recovery_grace: float) -> None:
+    def __init__(self, core: RegistrarCore, server: ServerSide, channels: StatusChannels, pipeline: StatusPipeline,
+                 period: float, recovery_grace: float) -> None:
         self._core = core
         self._server = server
         self._channels = channels
+        self._pipeline = pipeline
         self.period = period
         self.recovery_grace = recovery_grace
         self._dead_since: Dict[str, float] = {}    # URI of a dead consumer that may come back -> when found dead
@@ -103,7 +105,7 @@ class ConsumerWatch:
                 continue
             # a release the holder did not ask for is announced to it (a new incarnation listening on the
             # same status topic hears of an id it never held, and ignores it)
-            self._channels.announce(consumer, server_name, external_id, ResourceStatus.FAILED, reason,
+            self._pipeline.announce(consumer, server_name, external_id, ResourceStatus.FAILED, reason,
                                     [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, reason, core.prefix)])
             try:
                 self._server.release_consumer(server_name, external_id)

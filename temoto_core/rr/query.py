@@ -126,3 +126,19 @@ class ClientQuery(_Query):
 
     def __repr__(self) -> str:
         return 'client query %s:%d' % (target_name(self.target), self.external_id)
+
+
+class HeldQueries:
+    """The holder's tables: filled by the client side (``client_side.py``), read by the status pipeline
+    (``status_pipeline.py``) to map an arriving status to the local ids that hold its resource. All three
+    are read and changed with the registrar's lock held."""
+    __slots__ = ('by_key', 'by_local', 'by_external')
+
+    def __init__(self) -> None:
+        self.by_key: Dict[Tuple[Target, Hashable], ClientQuery] = {}     # what an equal new call may share
+        self.by_local: Dict[int, ClientQuery] = {}                      # each local id held
+        self.by_external: Dict[Tuple[Target, int], ClientQuery] = {}    # the owner's id of each resource
+
+    def loading_from(self, target: Target) -> bool:
+        """Whether a call to ``target`` is still waiting for its response (lock held)."""
+        return any(q.target == target and q.state is LOADING for q in self.by_key.values())

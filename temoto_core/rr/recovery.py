@@ -36,8 +36,8 @@ from temoto_core.rr.journal import JournalContents, JournaledServed
 from temoto_core.rr.keys import key_of
 from temoto_core.rr.links import Links
 from temoto_core.rr.query import ACTIVE, FAILED, ClientQuery, Consumer, Server, ServerQuery, Target, target_name
-from temoto_core.rr.receiver import StatusReceiver
 from temoto_core.rr.server_side import ServerSide
+from temoto_core.rr.status_pipeline import StatusPipeline
 from temoto_core.srv import Reclaim
 
 RecoverCallback = Callable[[object, object], None]
@@ -55,14 +55,14 @@ def service_of(request_type: str):
 
 class Recovery:
     def __init__(self, core: RegistrarCore, contents: JournalContents, server: ServerSide, client: ClientSide,
-                 links: Links, channels: StatusChannels, receiver: StatusReceiver, header,
+                 links: Links, channels: StatusChannels, pipeline: StatusPipeline, header,
                  stale: Sequence[Tuple[str, int]] = (), lost: Optional[Dict[int, str]] = None) -> None:
         self._core = core
         self._server = server
         self._client = client
         self._links = links
         self._channels = channels
-        self._receiver = receiver
+        self._pipeline = pipeline
         self._header = header
         self._served: Dict[str, List[JournaledServed]] = {}
         for entry in contents.served:
@@ -150,8 +150,8 @@ class Recovery:
             if why is not None and query.internal_id not in unheld_ids:
                 message = 'lost while %s was down: %s' % (core.prefix, why)
                 rospy.logwarn('%s: %s resource %d %s', core.prefix, server.name, query.internal_id, message)
-                side.propagate(query, ResourceStatus.FAILED, message,
-                               [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, message, core.prefix)])
+                self._pipeline.forward(query, ResourceStatus.FAILED, message,
+                                       [ErrorFrame(ErrorCode.RESOURCE_FAILED, core.subsystem, message, core.prefix)])
         for _query, leaving in unheld:
             for external_id in leaving:
                 self._release_stale(server.name, external_id)
@@ -237,4 +237,4 @@ class Recovery:
             message = '%s resource %d was %s when %s came back%s' % (
                 target_name(target), query.external_id, 'failed' if state == FAILED.value else 'gone', core.prefix,
                 ': ' + why if why else '')
-            self._receiver.lost(target, query.external_id, message)
+            self._pipeline.lost(target, query.external_id, message)

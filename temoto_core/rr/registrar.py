@@ -4,26 +4,30 @@ unload in cascade, and carry status up every chain.
 One registrar is embedded per subsystem (a manager node, or one action instance).
 ``ResourceRegistrar`` is a thin front over the parts, each in its own module:
 
-=================  ==================================================================
-``query.py``       the records, and the state machine every query follows
-``server_side.py`` the owner's side: load, share, release, unload in cascade, send status
-``client_side.py`` the holder's side: call, share equal calls, release
-``links.py``       which held resource belongs to which served one
-``receiver.py``    a status that arrives: mapped to local ids, forwarded up, handed to callbacks
-``channels.py``    the status topics this registrar publishes to
-``liveness.py``    consumers that died without unloading
-``owners.py``      owners cut off, stopped or dead: what is held from them fails, owed unloads wait
-``deadlines.py``   every call's deadline, and the watch that cuts late calls
-``keys.py``        request equality
-``journal.py``     the crash-safe local record (SQLite); ``recorder.py`` writes every change to it
-``recovery.py``    a restarted registrar: journal, reality, neighbours
-=================  ==================================================================
+======================  ================================================================================
+``query.py``            the records, and the state machine every query follows
+``server_side.py``      the owner's side: load, share, release, unload in cascade
+``client_side.py``      the holder's side: call, share equal calls, release
+``links.py``            which held resource belongs to which served one
+``status_pipeline.py``  a status's way: sent by an owner, forwarded to consumers, received, delivered
+``channels.py``         the status topics this registrar publishes to (a pool of publishers)
+``liveness.py``         consumers that died without unloading
+``owners.py``           owners cut off, stopped or dead: what is held from them fails, owed unloads wait
+``deadlines.py``        every call's deadline, and the watch that cuts late calls
+``keys.py``             request equality
+``journal.py``          the crash-safe local record (SQLite); ``recorder.py`` writes every change to it
+``recovery.py``         a restarted registrar: journal, reality, neighbours
+======================  ================================================================================
 
-A FAILED from a driver's exit travels: the ER Manager's ``send_status``
-(``server_side``) publishes on each consumer's channel (``channels``); the Sensor
-Manager's ``receiver`` maps it to its own id, forwards it through the link
-(``links``) to the sensor's consumers (``server_side.propagate``), and so on up to
-the action's callback.
+A FAILED from a driver's exit travels through ``status_pipeline`` in each registrar
+on its way: the ER Manager's ``send_status`` forwards it to each consumer of the
+process; the Sensor Manager receives it, maps it to its own id, forwards it through
+the link (``links``) to the sensor's consumers, and so on up to the action's callback.
+
+The parts are built in dependency order, each given its collaborators: the holder's
+tables (``HeldQueries``), the status pipeline that reads them, the client side, the
+server side, the watches. One edge goes back: the client side and the owner watch
+need each other (``ClientSide.watch_owners``).
 """
 from typing import Callable, Dict, Optional
 
@@ -46,13 +50,13 @@ from temoto_core.rr.liveness import ConsumerWatch
 from temoto_core.rr.messages import legal_name
 from temoto_core.rr.owner_state import OwnerState
 from temoto_core.rr.owners import OwnerWatch
-from temoto_core.rr.query import ACTIVE, Server, target_name
-from temoto_core.rr.receiver import StatusReceiver
+from temoto_core.rr.query import ACTIVE, HeldQueries, Server, target_name
 from temoto_core.rr.recorder import Recorder
 from temoto_core.rr.recovery import RecoverCallback, Recovery, service_of
 from temoto_core.rr.registry import ClientEntry, ConsumerEntry, RegistrySnapshot, ServerEntry, encode_message, readable
 from temoto_core.rr.server_side import ServerSide
 from temoto_core.rr.settings import RegistrarSettings
+from temoto_core.rr.status_pipeline import StatusPipeline
 from temoto_core.srv import GetRegistry, GetRegistryResponse, Reclaim, UnloadResource, UnloadResourceResponse
 
 RESERVED_LEAVES = ('unload', 'status', 'registry', 'reclaim')
@@ -97,41 +101,39 @@ class ResourceRegistrar:
         self.status_topic = core.topic('status')
         self.incarnation = core.incarnation
         self._links = Links()
-        self._channels = StatusChannels(core.namespace, core.name, core.prefix, status_connect_timeout,
-                                        core.incarnation, MasterReach())
+        held = HeldQueries()
+        self._owner_state = OwnerState(self._journal.owner_state() if self._journal is not None else None)
+        self._channels = StatusChannels(core.prefix, status_connect_timeout, MasterReach())
+        recorder = self._recorder = Recorder(self._journal, settings.journal_pause)
+        self._pipeline = StatusPipeline(core, self._links, held, self._channels, recorder, self.status_topic)
         header = RMPRequest(status_topic=self.status_topic, temoto_namespace=core.namespace,
                             client_name=rospy.get_name(), client_uri=rospy.get_node_uri() or '',
                             incarnation=core.incarnation)
-        recorder = self._recorder = Recorder(self._journal, settings.journal_pause)
-        self._client = ClientSide(core, self._links, header, recorder, settings.call_deadline)
-        self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder)
-        self._receiver = StatusReceiver(core, self._links, self._client, self._server.propagate, self.status_topic)
-        self._client.failed_at_owner = self._receiver.lost
-        self._watch = ConsumerWatch(core, self._server, self._channels, settings.consumer_check_period,
-                                    settings.recovery_grace)
+        self._client = ClientSide(core, self._links, held, header, recorder, self._pipeline, settings.call_deadline)
+        # only a registrar that can come back needs its neighbours to keep its records
+        record_of = (lambda query: backup.record(query, held.by_local, self._owner_state)) \
+            if self._journal is not None else None
+        self._server = ServerSide(core, self._links, self._channels, self._client.unload, recorder, record_of)
+        self._watch = ConsumerWatch(core, self._server, self._channels, self._pipeline,
+                                    settings.consumer_check_period, settings.recovery_grace)
         try:
-            self._owners = OwnerWatch(core, self._client.holds_from, self._client.held_from, self._receiver.lost,
+            self._owners = OwnerWatch(core, self._client.holds_from, self._client.held_from, self._pipeline.lost,
                                       self._client.resend_unload, self._client.reconcile_with,
                                       settings.owner_check_period, settings.owner_liveness_bound,
                                       settings.recovery_grace, settings.owner_busy_bound,
                                       hears_from=self._hears_from, hear_again=self._hear_again)
         except ValueError as err:
             raise core.error(ErrorCode.BAD_REQUEST, str(err))
-        self._client.owners = self._owners
-        self._owner_state = OwnerState()
+        self._client.watch_owners(self._owners)
         self._recovery = None
         if self._journal is not None:
-            self._owner_state = OwnerState(self._journal.owner_state())
             reconciled = self._reconcile_with_neighbours(self._journal.contents())
             self._recovery = Recovery(core, reconciled.contents, self._server, self._client, self._links,
-                                      self._channels, self._receiver, header, stale=reconciled.stale,
+                                      self._channels, self._pipeline, header, stale=reconciled.stale,
                                       lost=reconciled.lost)
-        if self._journal is not None:
-            # only a registrar that can come back needs its neighbours to keep its records
-            self._server.record_of = lambda query: backup.record(query, self._client.by_local, self._owner_state)
         # with a journal, the registry is being recovered until resume() is done (the registry says so)
         self._recovering = self._journal is not None
-        self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._receiver.on_status_msg,
+        self._status_sub = rospy.Subscriber(self.status_topic, ResourceStatus, self._pipeline.receive,
                                             queue_size=1000, tcp_nodelay=True)
         self._registry_srv = rospy.Service(core.topic('registry'), GetRegistry,
                                            lambda _req: GetRegistryResponse(json=self.registry().to_json()))
@@ -253,7 +255,7 @@ class ResourceRegistrar:
         FAILED marks the resource failed (it is no longer shared) and, if its load
         callback is still running, makes that load fail.
         """
-        self._server.send_status(internal_id, code, message, error_stack)
+        self._pipeline.send(self._server.served(internal_id), internal_id, code, message, error_stack)
 
     # ------------------------------------------------------------------------------------------ holding
     def call(self, rr_name: str, server_name: str, request, status_cb: Optional[StatusCallback] = None,
@@ -284,7 +286,7 @@ class ResourceRegistrar:
 
     def register_status_callback(self, callback: StatusCallback) -> None:
         """``callback(event)`` runs for every status that reaches any client query of this registrar."""
-        self._receiver.add_callback(callback)
+        self._pipeline.add_callback(callback)
 
     # ------------------------------------------------------------------------------------------ introspection
     def registry(self) -> RegistrySnapshot:
@@ -333,8 +335,8 @@ class ResourceRegistrar:
         why = '%s is shutting down' % core.prefix
         for query in served:
             if query.state is ACTIVE:
-                server.propagate(query, ResourceStatus.FAILED, why,
-                                 [ErrorFrame(ErrorCode.SHUTDOWN, core.subsystem, why, core.prefix)])
+                self._pipeline.forward(query, ResourceStatus.FAILED, why,
+                                       [ErrorFrame(ErrorCode.SHUTDOWN, core.subsystem, why, core.prefix)])
         for query in served:
             for external_id in list(query.consumers):
                 try:
@@ -359,7 +361,7 @@ class ResourceRegistrar:
         self._status_sub.unregister()
         self._channels.close()
         client.close_proxies()
-        self._receiver.close()
+        self._pipeline.close()
         self._recorder.close()
         if self._journal is not None:
             self._journal.close()

@@ -1,5 +1,5 @@
-"""The owner's side of a registrar: serve loads, share equal requests, release consumers, unload in cascade,
-and send an owner's status to every consumer of a resource.
+"""The owner's side of a registrar: serve loads, share equal requests, release consumers, unload in cascade.
+An owner's status goes to the consumers through ``status_pipeline.py``.
 
 Each unique request becomes a *server query* with an internal id (what the owner
 sees); each consumer gets its own external id (what it holds). An equal request
@@ -27,13 +27,15 @@ from temoto_core.srv import Reclaim
 
 class ServerSide:
     def __init__(self, core: RegistrarCore, links: Links, channels: StatusChannels,
-                 release_held: Callable[[int], None], recorder: Recorder) -> None:
+                 release_held: Callable[[int], None], recorder: Recorder,
+                 record_of: Optional[Callable[[ServerQuery], str]] = None) -> None:
         self._core = core
         self._links = links
         self._channels = channels
         self.recorder = recorder
         self._release_held = release_held         # the client side's unload: cascade and rollback go through it
-        self.record_of: Callable[[ServerQuery], str] = lambda query: ''   # backup.record, set by the registrar
+        # the record its consumers keep of each resource (backup.record), for a registrar that can come back
+        self.record_of: Callable[[ServerQuery], str] = record_of or (lambda query: '')
         self.servers: Dict[str, Server] = {}
         self.by_internal: Dict[int, ServerQuery] = {}
         self.by_external: Dict[Tuple[str, int], ServerQuery] = {}
@@ -230,49 +232,10 @@ class ServerSide:
         except TemotoError as err:
             rospy.logwarn('%s: %s: %s', self._core.prefix, why, err)
 
-    # ------------------------------------------------------------------------------------------ status
-    def send_status(self, internal_id: int, code: int, message: str, error_stack=None) -> None:
-        """See ``ResourceRegistrar.send_status``."""
-        core = self._core
-        if code not in STATUS_CODES:
-            raise core.error(ErrorCode.BAD_REQUEST, 'unknown status code %r (expected 0, 1 or 2)' % (code,))
-        with core.lock:
-            query = self.by_internal.get(internal_id)
-            if query is None:
-                raise core.error(ErrorCode.RESOURCE_NOT_FOUND, 'send_status: no resource with id %d in %s'
-                                 % (internal_id, core.name))
-        if error_stack is None:
-            stack = [ErrorFrame(ErrorCode.RESOURCE_FAILED if code == ResourceStatus.FAILED else ErrorCode.UNSPECIFIED,
-                                core.subsystem, message, core.prefix)]
-        else:
-            stack = list(error_stack)
-        self.propagate(query, code, message, stack)
-
-    def propagate(self, query: ServerQuery, code: int, message: str, stack: List[ErrorFrame],
-                  via_link: Optional[int] = None) -> None:
-        """Tell every consumer of ``query``; a FAILED during its load makes the load fail instead."""
+    def served(self, internal_id: int) -> Optional[ServerQuery]:
+        """The query of served resource ``internal_id``, if there is one."""
         with self._core.lock:
-            if code == ResourceStatus.FAILED:
-                if query.state is LOADING:
-                    error = TemotoError.from_msgs([f.to_msg() for f in stack], message)
-                    if via_link is not None:
-                        query.link_failures.setdefault(via_link, error)
-                    elif query.failure is None:
-                        query.failure = error
-                    return
-                if query.state is ACTIVE:
-                    query.move(FAILED)
-                    if query.failure is None:        # why, for the registry (the consumers hear it now)
-                        query.failure = TemotoError.from_msgs([f.to_msg() for f in stack], message)
-                    self.recorder.failed(query)
-                    if query.server.by_key.get(query.key) is query:
-                        del query.server.by_key[query.key]
-            elif query.state is not ACTIVE:
-                return
-            consumers = list(query.consumers.items())
-        stack_msgs = [f.to_msg() for f in stack]
-        for external_id, consumer in consumers:
-            self._channels.announce(consumer, query.server.name, external_id, code, message, stack_msgs)
+            return self.by_internal.get(internal_id)
 
     # ------------------------------------------------------------------------------------------ reclaim
     def reclaim(self, req):
