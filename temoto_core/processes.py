@@ -137,8 +137,10 @@ def tail(path: str, lines: int = 20) -> str:
         return '(no log)'
 
 
-class ManagedProcess:
-    """A child in its own session, with its output in a log file."""
+class LoggedChild:
+    """A child of a tool or a test (``temoto demo``, a fixture), in its own session so that a stop reaches
+    everything it started, with its output in a log file. (The ER Manager's children, watched by pidfd and
+    restarted by policy, are ``temoto_er_manager.supervisor.ManagedProcess``.)"""
 
     def __init__(self, argv: Sequence[str], env: Dict[str, str], log_path: str, name: str = '') -> None:
         self.argv = list(argv)
@@ -183,7 +185,7 @@ class ProcessGroupLauncher:
         self.workdir = workdir
         self._wrap = wrap
         self._run_in = run_in
-        self.processes: List[ManagedProcess] = []
+        self.processes: List[LoggedChild] = []
         self._private_params: List[str] = []     # set through a node's command line; removed by stop_all
         self._rospack = None
 
@@ -205,16 +207,16 @@ class ProcessGroupLauncher:
         return [sys.executable, path] if b'python' in first else [path]
 
     # -- start --------------------------------------------------------------------------------
-    def command(self, argv: Sequence[str], name: str, env: Optional[Dict[str, str]] = None) -> ManagedProcess:
+    def command(self, argv: Sequence[str], name: str, env: Optional[Dict[str, str]] = None) -> LoggedChild:
         """Any command, tracked and stopped like a node (no registration wait)."""
         log = os.path.join(self.workdir, '%s.%d.log' % (name, len(self.processes)))
-        proc = ManagedProcess(self._wrap(list(argv)), env or self.env, log, name)
+        proc = LoggedChild(self._wrap(list(argv)), env or self.env, log, name)
         self.processes.append(proc)
         return proc
 
     def node(self, package: str, executable: str, args: Sequence[str] = (), name: Optional[str] = None,
              namespace: str = '', params: Optional[Dict[str, object]] = None, wait: bool = True,
-             timeout: float = REGISTER_TIMEOUT) -> ManagedProcess:
+             timeout: float = REGISTER_TIMEOUT) -> LoggedChild:
         name = name or executable
         argv = self._argv_for(self.find_executable(package, executable)) + list(args) + ['__name:=' + name]
         if namespace:
@@ -232,7 +234,7 @@ class ProcessGroupLauncher:
         return proc
 
     def launch(self, package: str, launch_file: str, args: Sequence[str] = (), wait: bool = True,
-               timeout: float = REGISTER_TIMEOUT) -> ManagedProcess:
+               timeout: float = REGISTER_TIMEOUT) -> LoggedChild:
         import rospkg
         import roslaunch.config     # lazy: roslaunch's loader takes ~0.2 s to import
         path = os.path.join(rospkg.RosPack(rospkg.get_ros_paths(self.env)).get_path(package), 'launch', launch_file)
@@ -243,10 +245,10 @@ class ProcessGroupLauncher:
             self.wait_registered(proc, names, timeout)
         return proc
 
-    def wait_registered(self, proc: ManagedProcess, node_names: Sequence[str], timeout: float) -> None:
+    def wait_registered(self, proc: LoggedChild, node_names: Sequence[str], timeout: float) -> None:
         self._run_in(lambda: self._wait_registered(proc, node_names, timeout))
 
-    def _wait_registered(self, proc: ManagedProcess, node_names: Sequence[str], timeout: float) -> None:
+    def _wait_registered(self, proc: LoggedChild, node_names: Sequence[str], timeout: float) -> None:
         master = xmlrpc.client.ServerProxy(self.env['ROS_MASTER_URI'])
         pending = set(node_names)
         deadline = time.monotonic() + timeout

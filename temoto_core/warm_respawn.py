@@ -12,11 +12,10 @@ Rules it keeps:
   killed takes its node with it, and roslaunch's (or the demo's) respawn starts both again, cold.
 - **A stop is a stop.** SIGINT or SIGTERM to the parent is passed to the node, and the parent ends with the
   node's exit status; a node that exits by itself (any exit code) is not respawned either.
-- **No fork with threads.** The parent forks only while it is single-threaded (a thread does not survive
-  a fork, and a lock it held stays locked in the child). numpy's BLAS starts a thread pool at import, so a
-  parent that finds more than one thread starts itself once more with the pools set to one thread
-  (``OPENBLAS_NUM_THREADS=1`` and friends; the managers do no linear algebra). If that does not help, or
-  without a journal, the node runs in the parent's process as it always did.
+- **No fork with threads** (``temoto_core.forking``, the rules the ER Manager's zygote follows too). numpy's
+  BLAS starts a thread pool at import, so a parent that finds more than one thread starts itself once more
+  with the pools set to one thread (the managers do no linear algebra). If that does not help, or without a
+  journal, the node runs in the parent's process as it always did.
 - **The parameters it started with.** A node reads its private parameters from the master as it starts,
   and a master that started again since (a robot host that lost power) has none: the node would come up
   with its defaults (another namespace, no journal), a different node under the same name. The parent
@@ -28,31 +27,20 @@ Rules it keeps:
 """
 from __future__ import annotations
 
-import atexit
 import os
 import signal
 import sys
-import threading
 import time
-import traceback
 from typing import Callable, Optional
 
 import rosgraph
 import rosgraph.names
 
-from temoto_core.process_group import die_with_parent
+from temoto_core.forking import SINGLE_THREAD_ENV, finish, fork, run_main, single_thread_env_set, thread_count
 
-SINGLE_THREAD_ENV = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMEXPR_NUM_THREADS')
 QUICK_DEATH_S = 2.0
 BACKOFF_S = (0.0, 0.5, 1.0, 2.0, 5.0)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-def thread_count() -> int:
-    try:
-        return len(os.listdir('/proc/self/task'))
-    except OSError:
-        return 1
 
 
 def node_name(default: str, argv: list) -> str:
@@ -81,8 +69,8 @@ def run(main: Callable[[], int], default_name: str, argv: Optional[list] = None)
     if not journaled(name, argv):
         return main()
     if thread_count() != 1:
-        if not all(os.environ.get(k) == '1' for k in SINGLE_THREAD_ENV):
-            env = dict(os.environ, **{k: '1' for k in SINGLE_THREAD_ENV})
+        if not single_thread_env_set():
+            env = dict(os.environ, **SINGLE_THREAD_ENV)
             os.execve(sys.executable, [sys.executable] + list(argv), env)     # never returns
         sys.stderr.write('%s: warm respawn off: %d threads after the imports\n' % (name, thread_count()))
         return main()
@@ -152,27 +140,17 @@ class _Parent:
                                  % self.name)
 
     def _fork(self) -> int:
-        parent = os.getpid()
-        pid = os.fork()
+        pid = fork(signal.SIGKILL)      # thread_count() was 1 when run() chose a parent, and it starts none
         if pid:
             return pid
+        code = 1
         try:
             for sig in STOP_SIGNALS:
                 signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
-            if not die_with_parent(signal.SIGKILL, parent):     # the parent died before it took effect
-                os._exit(1)
-            code = self.main()
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-        except BaseException:
-            traceback.print_exc()
-            code = 1
-        # as the interpreter would finish: non-daemon threads, then atexit (rospy's own shutdown hooks)
-        threading._shutdown()
-        atexit._run_exitfuncs()
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code or 0)
+            code = run_main(self.main)
+            finish(code)
+        finally:
+            os._exit(code)
 
     def _wait(self) -> int:
         while True:

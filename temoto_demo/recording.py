@@ -13,7 +13,7 @@ import sys
 import xmlrpc.client
 from typing import Dict, List, Optional
 
-from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.processes import LoggedChild, stop_process_group
 from temoto_core.wait import wait_for
 
 from . import topics as T
@@ -45,8 +45,8 @@ class Recording:
         self.robot = robot
         self.log_dir = log_dir or os.path.dirname(self.bag_path)
         self.streams = list(streams if streams is not None else T.DEFAULT_STREAMS)
-        self.relay: Optional[ManagedProcess] = None
-        self.recorder: Optional[ManagedProcess] = None
+        self.relay: Optional[LoggedChild] = None
+        self.recorder: Optional[LoggedChild] = None
 
     @property
     def pids(self) -> List[int]:
@@ -55,7 +55,7 @@ class Recording:
     def start(self, timeout: float = 15.0) -> 'Recording':
         os.makedirs(self.log_dir, exist_ok=True)
         master = self.env['ROS_MASTER_URI']
-        self.relay = ManagedProcess([sys.executable, '-m', 'temoto_demo.relay',
+        self.relay = LoggedChild([sys.executable, '-m', 'temoto_demo.relay',
                                      '__name:=' + RELAY_NODE.lstrip('/'), '_temoto_namespace:=' + self.namespace,
                                      '_robot:=' + (self.robot or '/'),
                                      '_streams:=' + ','.join(self.streams)],
@@ -72,7 +72,7 @@ class Recording:
         wait_for(relay_ready, timeout, 'the stream relay to register')
         argv = [RECORDER, '-O', self.bag_path, '--lz4', '-e'] + T.record_regexes(self.namespace, self.robot) + \
                ['__name:=' + RECORDER_NODE.lstrip('/')]
-        self.recorder = ManagedProcess(argv, self.env, os.path.join(self.log_dir, 'record.log'), 'record')
+        self.recorder = LoggedChild(argv, self.env, os.path.join(self.log_dir, 'record.log'), 'record')
 
         def recorder_ready():
             if not self.recorder.alive():

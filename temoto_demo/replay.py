@@ -25,7 +25,7 @@ import rospy
 from rosbags.highlevel import AnyReader
 
 from temoto_core.master import RosMaster
-from temoto_core.processes import ManagedProcess, ProcessGroupLauncher
+from temoto_core.processes import LoggedChild, ProcessGroupLauncher
 from temoto_core.wait import wait_for
 from temoto_output_manager.host_client import RvizHostClient
 

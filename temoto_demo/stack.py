@@ -23,7 +23,7 @@ import xmlrpc.client
 from dataclasses import dataclass
 from typing import Callable, Dict, List, Optional, Sequence
 
-from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.processes import LoggedChild, stop_process_group
 from temoto_core.wait import wait_for
 
 # Seconds of SIGINT grace per node: the engine stops its graphs (stop_timeout_s 15 s at worst) and
@@ -91,7 +91,7 @@ class Stack:
         self.log_dir = log_dir
         self.launch_args = list(launch_args)
         self.param_overrides = dict(param_overrides or {})
-        self.running: List[tuple] = []      # (NodeSpec, ManagedProcess)
+        self.running: List[tuple] = []      # (NodeSpec, LoggedChild)
         self.params: Dict[str, object] = {}
         self.respawns: List[dict] = []      # {'name', 'died', 'started', 'pid'} (time.monotonic())
         self._lock = threading.Lock()
@@ -114,7 +114,7 @@ class Stack:
         self._upload_params(master)
         os.makedirs(self.log_dir, exist_ok=True)
         for spec in node_specs(config, self.env):
-            self.running.append((spec, ManagedProcess(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)))
+            self.running.append((spec, LoggedChild(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)))
 
         def all_registered():
             for spec, proc in self.running:
@@ -134,7 +134,7 @@ class Stack:
             if code != 1:
                 raise RuntimeError('could not set %s: %s' % (key, msg))
 
-    def node(self, name: str) -> ManagedProcess:
+    def node(self, name: str) -> LoggedChild:
         """The process running node ``name`` now (a respawn replaces it)."""
         with self._lock:
             return next(proc for spec, proc in self.running if spec.name == name)
@@ -179,7 +179,7 @@ class Stack:
         with self._lock:
             if self._stopping:
                 return
-            proc = ManagedProcess(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)
+            proc = LoggedChild(self.wrap(spec.argv), spec.env, self._log_of(spec), spec.name)
             self.running[index] = (spec, proc)
             self.respawns.append({'name': spec.name, 'died': died, 'started': time.monotonic(), 'pid': proc.pid,
                                   'returncode': old.proc.returncode})

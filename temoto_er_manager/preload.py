@@ -15,7 +15,9 @@ import subprocess
 import sys
 from typing import Optional
 
-from .zygote import MAX_MESSAGE, SINGLE_THREAD_ENV, send
+from temoto_core.forking import SINGLE_THREAD_ENV
+
+from .zygote import MAX_MESSAGE, send
 
 DEFAULT_MODULES = ['rospy', 'numpy', 'std_msgs.msg', 'sensor_msgs.msg']
 _PKG_PARENT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

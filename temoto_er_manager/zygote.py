@@ -34,10 +34,11 @@ Two ``SOCK_SEQPACKET`` socket pairs (one JSON message per packet):
 
 Differences from a plain ``python script`` start (documented, deliberate):
 
-- BLAS/OpenMP pools are set to one thread (``OPENBLAS_NUM_THREADS=1`` and
-  friends) before numpy is imported, so that no thread exists at fork time; the
-  zygote checks that it is single-threaded before every fork. A node's numpy
-  therefore runs single-threaded BLAS;
+- the fork follows ``temoto_core.forking``, as the warm-respawn parent's does:
+  BLAS/OpenMP pools are set to one thread before numpy is imported, so that no
+  thread exists at fork time, and the zygote forks only single-threaded (a
+  node's numpy therefore runs single-threaded BLAS); the child ends as a plain
+  interpreter would;
 - modules imported by the zygote saw the manager's environment and argv at
   import time. ``rospy.names`` reads both at import and is re-initialised in the
   child; other preloaded modules must not capture the environment at import;
@@ -48,7 +49,6 @@ Differences from a plain ``python script`` start (documented, deliberate):
 """
 from __future__ import annotations
 
-import atexit
 import ctypes
 import importlib
 import io
@@ -61,14 +61,11 @@ import socket
 import sys
 import traceback
 
+from temoto_core.forking import ForkRefused, fork, finish, run_main, thread_count
 from temoto_core.process_group import die_with_parent
 
 _PR_SET_NAME = 15
 MAX_MESSAGE = 1 << 20
-# set in the zygote's environment by the manager so that BLAS libraries start no thread pools
-SINGLE_THREAD_ENV = {k: '1' for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS',
-                                       'NUMEXPR_NUM_THREADS', 'VECLIB_MAXIMUM_THREADS', 'GOTO_NUM_THREADS',
-                                       'BLIS_NUM_THREADS')}
 
 
 def send(sock: socket.socket, message: dict, fds: tuple = ()) -> None:
@@ -82,14 +79,6 @@ def send(sock: socket.socket, message: dict, fds: tuple = ()) -> None:
 def returncode(status: int) -> int:
     """A wait status in the Popen convention (-N: killed by signal N)."""
     return os.waitstatus_to_exitcode(status)
-
-
-def thread_count() -> int:
-    """Threads of this process as the kernel sees them (native ones included)."""
-    try:
-        return len(os.listdir('/proc/self/task'))
-    except OSError:
-        return 1
 
 
 # -- the zygote process ----------------------------------------------------------------------------
@@ -162,27 +151,24 @@ class _Server:
         if req.get('op') != 'spawn' or len(fds) != 1:
             send(self.ctrl, {'error': 'bad request to the zygote: %r' % (req.get('op'),)})
             return
-        threads = thread_count()
-        if threads != 1:                            # fork would copy locks held by threads that do not exist
-            send(self.ctrl, {'error': 'the zygote has %d threads; it forks only single-threaded' % threads})
+        try:
+            pid = fork(int(req.get('death_signal') or 0))
+        except (ForkRefused, ValueError, TypeError) as e:
+            send(self.ctrl, {'error': 'the zygote cannot fork: %s' % e})
             return
-        zygote = os.getpid()
-        pid = os.fork()
         if pid == 0:
-            _child(self, req, fds[0], zygote)        # never returns
+            _child(self, req, fds[0])                # never returns
         self.children[pid] = False
         send(self.ctrl, {'pid': pid})
 
 
-def _child(server: _Server, req: dict, log_fd: int, zygote: int) -> None:
-    """In the forked child: become the node, run its script, exit with its status. Never returns."""
+def _child(server: _Server, req: dict, log_fd: int) -> None:
+    """In the forked child (its death signal set): become the node, run its script, exit with its status.
+    Never returns."""
     code = 127
     try:
         try:
             os.setsid()
-            death_signal = int(req.get('death_signal') or 0)
-            if death_signal and not die_with_parent(death_signal, zygote):   # the zygote died meanwhile
-                os._exit(125)
             signal.set_wakeup_fd(-1)
             for sig in (signal.SIGCHLD, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
                         signal.SIGUSR2):
@@ -215,7 +201,9 @@ def _child(server: _Server, req: dict, log_fd: int, zygote: int) -> None:
             os.write(2, ('[temoto_er_manager zygote] cannot start %r: %s: %s\n'
                          % (req.get('argv'), type(e).__name__, e)).encode())
             os._exit(127)
-        code = _run(script)
+        code = run_main(lambda: runpy.run_path(script, run_name='__main__'),
+                        lambda e: _print_exception(e, script))
+        finish(code)
     finally:
         os._exit(code)
 
@@ -242,56 +230,12 @@ def _reset_preloaded_state() -> None:
         nprandom.seed()
 
 
-def _run(script: str) -> int:
-    """Run ``script`` as ``__main__`` and finish like the interpreter would; the exit code."""
-    code = 0
-    try:
-        runpy.run_path(script, run_name='__main__')
-    except SystemExit as e:
-        code = _system_exit_code(e)
-    except KeyboardInterrupt as e:
-        _print_exception(e, script)
-        code = -signal.SIGINT                        # Python re-raises an uncaught SIGINT as a signal death
-    except BaseException as e:
-        _print_exception(e, script)
-        code = 1
-    # Py_FinalizeEx's order: wait for non-daemon threads, run atexit callbacks (rospy's shutdown), flush
-    try:
-        import threading      # lazy: as the interpreter does it at exit, whatever the script imported
-        threading._shutdown()
-    except BaseException:
-        traceback.print_exc()
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except BaseException:
-            pass
-    if code < 0:
-        signal.signal(-code, signal.SIG_DFL)
-        os.kill(os.getpid(), -code)
-        code = 128 - code
-    return code
-
-
 def _print_exception(e: BaseException, script: str) -> None:
     """The traceback a plain interpreter prints: from the script's frame on, without the zygote's."""
     tb = e.__traceback__
     while tb is not None and tb.tb_frame.f_code.co_filename != script:
         tb = tb.tb_next
     traceback.print_exception(type(e), e, tb or e.__traceback__)
-
-
-def _system_exit_code(e: SystemExit) -> int:
-    if e.code is None:
-        return 0
-    if isinstance(e.code, int):
-        return e.code & 0xff
-    try:
-        print(e.code, file=sys.stderr)
-    except BaseException:
-        pass
-    return 1
 
 
 def main(argv: list) -> int:

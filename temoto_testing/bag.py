@@ -4,7 +4,7 @@ import subprocess
 import xmlrpc.client
 from typing import Dict, Optional, Sequence
 
-from temoto_core.processes import ManagedProcess, stop_process_group
+from temoto_core.processes import LoggedChild, stop_process_group
 from temoto_core.wait import wait_for
 
 # The C++ recorder exits 0 on SIGINT; the Python `rosbag record` wrapper leaves
@@ -20,11 +20,11 @@ class BagRecorder:
         self.topics = list(topics)
         self.env = env
         self.node_name = '/' + node_name.lstrip('/')
-        self.process: Optional[ManagedProcess] = None
+        self.process: Optional[LoggedChild] = None
 
     def start(self, timeout: float = 15.0) -> 'BagRecorder':
         argv = [RECORDER, '-O', self.path, '__name:=' + self.node_name.lstrip('/')] + self.topics
-        self.process = ManagedProcess(argv, self.env, self.path + '.log', 'rosbag_record')
+        self.process = LoggedChild(argv, self.env, self.path + '.log', 'rosbag_record')
         wait_for(self._subscribed, timeout, 'the bag recorder to subscribe to %s' % self.topics)
         return self
 
