@@ -2,6 +2,7 @@
 
 - ``ros_master`` (session): one roscore per test session, so one per xdist worker;
 - ``rospy_client`` (session): the in-process rospy node (``init_node`` works once per process);
+- ``collect`` (function): ``collect(topic, type)`` records a topic's messages with their arrival times;
 - ``procs`` (function) and ``module_procs`` (module): node scripts and launch files as subprocesses,
   stopped at teardown;
 - ``bag_recorder`` (function): a factory for bags recorded during a test;
@@ -20,6 +21,7 @@ from temoto_core import hosts
 from temoto_core.master import RosMaster
 from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
 from temoto_testing.bag import BagRecorder
+from temoto_testing.topics import TopicLog
 
 # A test that runs an inner pytest session passes this so it knows the inner token.
 FORCED_TOKEN_ENV = 'TEMOTO_TEST_SESSION_FORCE'
@@ -50,6 +52,21 @@ def rospy_client(ros_master):
     rospy.init_node('pytest_client', anonymous=True, disable_signals=True)
     yield rospy
     rospy.signal_shutdown('test session over')
+
+
+@pytest.fixture
+def collect(rospy_client):
+    """``collect(topic, msg_type)``: a :class:`TopicLog` of that topic, unsubscribed after the test."""
+    made = []
+
+    def make(topic, msg_type):
+        log = TopicLog(rospy_client, topic, msg_type)
+        made.append(log)
+        return log
+
+    yield make
+    for log in made:
+        log.close()
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ from typing import Mapping
 import numpy as np
 
 from vaultbot_sim.kinematics import matrix_from_quat
+from vaultbot_sim.spec import BASE_JOINTS
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,26 @@ class Scene:
                 self.p.resetJointState(body, i, q, physicsClientId=self.cid)
 
     def set_robot(self, cfg: Mapping[str, float]) -> None:
+        """The robot's joints, and its base's place in the world (``BASE_JOINTS``, when ``cfg`` has them)."""
         self._set(self.robot, cfg)
+        if BASE_JOINTS[0] in cfg:
+            x, y, yaw = (cfg.get(n, 0.0) for n in BASE_JOINTS)
+            self.p.resetBasePositionAndOrientation(self.robot, (x, y, 0.0), (0.0, 0.0, math.sin(yaw / 2),
+                                                                              math.cos(yaw / 2)),
+                                                   physicsClientId=self.cid)
+
+    def contacts(self, margin: float = 0.0, ignore: frozenset = frozenset({'floor'})) -> list[tuple[str, str, float]]:
+        """(robot link, world link, distance) of every pair of the robot and the world, as posed, that is closer
+        than ``margin`` metres (a negative distance: they overlap), but for the world's links in ``ignore`` (the
+        floor the wheels stand on). Sorted by distance."""
+        p = self.p
+        names = {body: {i: n for n, i in links.items()} for body, links in self._links.items()}
+        closest: dict = {}
+        for c in p.getClosestPoints(self.robot, self.world, margin, physicsClientId=self.cid):
+            pair = (names[self.robot][c[3]], names[self.world][c[4]])
+            if pair[1] not in ignore and c[8] <= margin:
+                closest[pair] = min(c[8], closest.get(pair, c[8]))
+        return sorted(((a, b, d) for (a, b), d in closest.items()), key=lambda t: t[2])
 
     def set_world(self, cfg: Mapping[str, float]) -> None:
         self._set(self.world, cfg)

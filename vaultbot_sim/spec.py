@@ -21,10 +21,15 @@ HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
                                **{f'left_{n}_joint': q for n, q in zip(ARM_JOINTS, _LEFT)},
                                **{f'right_{n}_joint': q for n, q in zip(ARM_JOINTS, _RIGHT)}}
 
+# The base's place in the robot's world frame, published with the joint states as three virtual joints (the
+# simulation's ground truth; not URDF joints): every driver poses its copy of the world from them.
+BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
+
 SWEEP_JOINT = 'right_wrist_3_joint'
 PERSON_JOINT = 'person_shoulder_joint'
 
-DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar')
+# sensors, and the base's controller: each has a cable that `temoto sim unplug` pulls
+DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base')
 STATES = ('plugged', 'unplugged')
 MODES = ('crash', 'stall')
 
