@@ -14,6 +14,7 @@ node scripts, message definitions, the robot's URDFs), into site-packages;
 from setuptools import find_packages, setup
 
 PACKAGES = [
+    'control_msgs',             # upstream's definitions (control_msgs/README.md); Debian has no package of them
     'temoto_core',
     'temoto_er_manager',
     'temoto_sensor_manager',
@@ -29,7 +30,7 @@ PACKAGES = [
 ]
 
 # what ROS (rospack, roslaunch, rosrun) and the nodes read beside the Python code, per package
-ROS_FILES = ['package.xml', 'launch/*.launch', 'config/*.yaml', 'nodes/*', 'msg/*.msg', 'srv/*.srv']
+ROS_FILES = ['package.xml', 'launch/*.launch', 'config/*.yaml', 'nodes/*', 'msg/*.msg', 'srv/*.srv', 'action/*.action']
 EXTRA_FILES = {'vaultbot_sim': ['urdf/*.urdf'], 'temoto_action_engine': ['actions/*/*.py', 'actions/*/*.json']}
 
 setup(

@@ -11,7 +11,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # above it, nor one beside it in its own layer. The managers are layered among themselves as they use each
 # other (the Sensor Manager starts its drivers through the ER Manager; the Context Manager reads sensors).
 LAYERS = [
-    ['temoto_core'],
+    ['temoto_core', 'control_msgs'],             # control_msgs: upstream's message definitions only
     ['temoto_er_manager', 'vaultbot_sim'],       # the simulated robot needs only the core
     ['temoto_sensor_manager', 'temoto_output_manager'],
     ['temoto_context_manager'],
