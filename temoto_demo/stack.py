@@ -69,7 +69,7 @@ def node_specs(config, env: Dict[str, str]) -> List[NodeSpec]:
             raise FileNotFoundError('%s: no executable %r in package %r' % (n.filename, n.type, n.package))
         ns = (n.namespace or '/').rstrip('/')
         full = '%s/%s' % (ns, n.name)
-        argv = _argv_for(found[0]) + shlex.split(n.args or '') + ['%s:=%s' % r for r in n.remap_args]
+        argv = _argv_for(found[0]) + shlex.split(n.args or '') + ['%s:=%s' % tuple(r) for r in n.remap_args]
         argv += ['__name:=' + n.name] + (['__ns:=' + ns] if ns else [])
         node_env = dict(env)
         node_env.update(dict(n.env_args))

@@ -58,14 +58,16 @@ def test_the_motors_follow_their_command_and_their_watchdog_zeroes_a_stale_one()
     assert plant.velocity[0] == pytest.approx(0.0), 'braked at 2 m/s^2 from 0.03 m/s'
 
 
-def test_a_touching_pose_is_not_entered_and_the_base_stops():
+def test_a_touching_pose_is_not_entered_and_the_base_stops_where_it_touched():
     plant = BasePlant()
     plant.velocity = (1.0, 0.0)
     plant.command(*wheel_speeds(1.0, 0.0), now=0.0)
     plant.step(0.0)
     wall = Contact('chassis_link', 'wall', 0.0, 0.0)
     contact = plant.step(0.02, touching=lambda pose: wall if pose[0] > 0.01 else None)
-    assert contact is wall and plant.pose == (0.0, 0.0, 0.0) and plant.at_rest
+    assert contact is wall and plant.at_rest
+    assert 0.01 - 0.02 / 64 <= plant.pose[0] <= 0.01, 'stopped at the last free 64th of the step'
+    assert plant.wheels[0] * 0.165 == pytest.approx(plant.pose[0]), 'the wheels turned as far as it went'
 
 
 def test_wheel_odometry_integrates_what_the_wheels_turned():

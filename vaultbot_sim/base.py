@@ -26,6 +26,7 @@ TRACK = 0.571                 # the distance between the left and the right whee
 COMMAND_RATE_HZ = 100.0       # the controller's wheel command stream
 MOTOR_TIMEOUT_S = 0.04        # the motors' own watchdog: four command periods
 CMD_VEL_TIMEOUT_S = 0.25      # the controller's: no cmd_vel for this long, and it commands zero
+BISECTIONS = 6                # a touching step is cut to its last free 64th
 
 Pose = Tuple[float, float, float]
 
@@ -132,8 +133,8 @@ class BasePlant:
 
     ``command(left, right, now)`` is the motors' input. ``step(now, touching)`` moves the body: the actual
     velocity follows the command within the physical limits; a command older than ``motor_timeout`` counts as
-    zero (the watchdog); a pose where ``touching(pose)`` names a contact is not entered, and the base stops
-    there (a kinematic simulation's collision: blocked, never through).
+    zero (the watchdog); a pose where ``touching(pose)`` names a contact is not entered: the base stops at the
+    last free pose on its way (a kinematic simulation's collision: blocked, never through).
     """
 
     def __init__(self, limits: BaseLimits = HUSKY, motor_timeout: float = MOTOR_TIMEOUT_S,
@@ -180,14 +181,24 @@ class BasePlant:
         mean = ((self.velocity[0] + linear) / 2, (self.velocity[1] + angular) / 2)
         nxt = advance(self.pose, mean[0], mean[1], dt)
         contact = touching(nxt) if nxt != self.pose else None
+        moved = 1.0
         if contact is not None:
-            self.velocity = (0.0, 0.0)
-            return contact
+            # stop where it touched, found by bisection to a 64th of the step: not a whole step short, so that a
+            # base pushed on goes on touching (one contact), as a real one would stand against the wall
+            moved, hi = 0.0, 1.0
+            for _ in range(BISECTIONS):
+                mid = (moved + hi) / 2
+                if touching(advance(self.pose, mean[0], mean[1], dt * mid)) is None:
+                    moved = mid
+                else:
+                    hi = mid
+            nxt = advance(self.pose, mean[0], mean[1], dt * moved)
         left, right = wheel_speeds(*mean)
-        self.wheels[0] += left * dt
-        self.wheels[1] += right * dt
-        self.pose, self.velocity = nxt, (linear, angular)
-        return None
+        self.wheels[0] += left * dt * moved
+        self.wheels[1] += right * dt * moved
+        self.pose = nxt
+        self.velocity = (linear, angular) if contact is None else (0.0, 0.0)
+        return contact
 
 
 class WheelOdometry:

@@ -6,9 +6,9 @@ As a real base driver does (husky_base with diff_drive_controller):
   logged, and changes nothing;
 - no ``cmd_vel`` for ``~cmd_vel_timeout`` (0.25 s): it commands zero at once, and the motors brake
   at their limit. A dead commander never leaves the robot moving;
-- it streams the wheel speeds to the motors (``wheel_command``) at ``base.COMMAND_RATE_HZ``. The
-  motors have a watchdog of their own (``base.MOTOR_TIMEOUT_S``), so a controller that dies or
-  stalls leaves the base braking;
+- it streams the wheel speeds to the motors (``wheel_command``) at ``base.COMMAND_RATE_HZ`` while
+  they are not zero, and a zero once a second at rest. The motors have a watchdog of their own
+  (``base.MOTOR_TIMEOUT_S``), so a controller that dies or stalls leaves the base braking;
 - it publishes ``odom`` (``nav_msgs/Odometry``) and ``/tf`` ``odom -> base_link`` from the wheels'
   joint states, at their rate (50 Hz);
 - its cable is the sim's ``base`` device: ``temoto sim unplug base --mode crash`` makes it exit 1,
@@ -39,6 +39,7 @@ from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.spec import BASE_JOINTS, WHEEL_JOINTS
 
 EXIT_DEVICE_LOST = 1
+IDLE_PERIOD_S = 1.0     # at rest, one zero command a second
 
 
 def planar_matrix(x: float, y: float, yaw: float) -> np.ndarray:
@@ -140,11 +141,20 @@ class BaseController:
         next_t = time.monotonic()
         rospy.loginfo('base: commanding the wheels at %.0f Hz; cmd_vel timeout %.2f s', self.rate,
                       self.shaper.timeout)
+        idle_since = None                   # when the command last became zero
         while ok():
             if self.running:
+                now = time.monotonic()
                 with self.lock:
-                    linear, angular = self.shaper.step(time.monotonic())
-                self.pub_wheels.publish(self._wheel_command(linear, angular))
+                    linear, angular = self.shaper.step(now)
+                # at rest, a zero now and then: the motors hold zero by themselves, and a robot that stands
+                # most of the time should not cost 100 messages a second
+                if (linear, angular) != (0.0, 0.0):
+                    idle_since = None
+                    self.pub_wheels.publish(self._wheel_command(linear, angular))
+                elif idle_since is None or now - idle_since >= IDLE_PERIOD_S:
+                    idle_since = now
+                    self.pub_wheels.publish(self._wheel_command(0.0, 0.0))
             next_t += period
             delay = next_t - time.monotonic()
             if delay > 0:

@@ -35,14 +35,16 @@ from tf2_msgs.msg import TFMessage
 
 import numpy as np
 
-from vaultbot_sim.base import MOTOR_TIMEOUT_S, BasePlant, Contact, wheel_speeds
+from vaultbot_sim.arm import ArmPlant, JointRange
+from vaultbot_sim.base import MOTOR_TIMEOUT_S, BasePlant
+from vaultbot_sim.body import Body, joint_names
 from vaultbot_sim.devices import DeviceError, DeviceTable
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world
 from vaultbot_sim.motion import HandWave, SimState, WristSweep
-from vaultbot_sim.msg import BaseState, Contact as ContactMsg, DeviceState, DeviceStates
+from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceState, DeviceStates
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.scene import Scene
-from vaultbot_sim.spec import BASE_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
+from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
 from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
 
 
@@ -52,11 +54,6 @@ def frame_prefix(value: object) -> str:
     if prefix and not rosgraph.names.is_legal_base_name(prefix.replace('/', '_')):
         raise ValueError('~frame_prefix %r: letters, digits, _ and / only, starting with a letter' % (value,))
     return prefix + '/' if prefix else ''
-
-
-# a touch lasts until the robot is this far from what it touched: a base held against a wall does not count a
-# new contact at every creep of a step
-CONTACT_MARGIN = 0.01
 
 
 def planar_pose(value: object, name: str) -> tuple[float, float, float]:
@@ -117,12 +114,9 @@ class SimNode:
                         period=params.number('hand_period', 8.0, above=0),
                         enabled=params.flag('hand_motion', True))
         self.state = SimState(sweep, hand)
-        self.plant = BasePlant(motor_timeout=params.number('motor_timeout', MOTOR_TIMEOUT_S, above=0, maximum=1.0),
-                               pose=planar_pose(rospy.get_param('~base_pose', [0.0, 0.0, 0.0]), 'base_pose'))
-        self.contacts = 0
-        self.touching: set = set()          # (robot link, world link) pairs within CONTACT_MARGIN now
-        self.touching_next: set = set()
-        self._motors = threading.Condition()
+        motor_timeout = params.number('motor_timeout', MOTOR_TIMEOUT_S, above=0, maximum=1.0)
+        base = BasePlant(motor_timeout=motor_timeout,
+                         pose=planar_pose(rospy.get_param('~base_pose', [0.0, 0.0, 0.0]), 'base_pose'))
         self.robot = TreeModel(self.robot_urdf)
         self.world = TreeModel(self.world_urdf)
         self.devices = DeviceTable()
@@ -144,13 +138,20 @@ class SimNode:
         self.pub_devices = rospy.Publisher('~device_states', DeviceStates, queue_size=1, latch=True)
         self.pub_base = rospy.Publisher('~base_state', BaseState, queue_size=50, tcp_nodelay=True)
         self.pub_contacts = rospy.Publisher('~contacts', ContactMsg, queue_size=50, tcp_nodelay=True)
+        self.pub_arms = rospy.Publisher('~arm_states', ArmState, queue_size=50, tcp_nodelay=True)
         # the collision world: the robot and the world in a private pybullet copy, posed, never stepped
-        self.collider = Scene(self.robot_urdf, self.world_urdf)
+        ranges = {j.name: JointRange(j.lower, j.upper) for j in self.robot.joints}
+        arms = {arm: ArmPlant(joints, HOLD_POSE, ranges, motor_timeout)
+                for arm, joints in joint_names(('left', 'right'), ARM_JOINTS).items()}
+        self.body = Body(Scene(self.robot_urdf, self.world_urdf), base, arms)
         self._publish_static()
         self._publish_devices()
         rospy.Service('~set_device_state', SetDeviceState, self._on_set_device)
         rospy.Service('~set_sweep', SetSweep, self._on_set_sweep)
         rospy.Subscriber('wheel_command', JointState, self._on_wheel_command, queue_size=10, tcp_nodelay=True)
+        for arm in self.body.arms:
+            rospy.Subscriber('%s/joint_command' % arm, JointState, self._on_arm_command, arm, queue_size=10,
+                             tcp_nodelay=True)
         threading.Thread(target=self._watch_motors, name='motor watchdog', daemon=True).start()
         rospy.loginfo('vaultbot_sim: world %s, joint states at %.0f Hz', self.world_urdf, self.rate)
 
@@ -191,93 +192,98 @@ class SimNode:
                 self.state.sweep.set(bool(req.enabled), float(req.speed))
             except ValueError as e:
                 return SetSweepResponse(success=False, message=str(e))
+            right = self.body.arms['right_arm']
+            if req.enabled and right.held:
+                # whoever held the Hokuyo's arm gave it back: the sweep goes on from where the wrist is
+                with self.body.lock:
+                    self.state.sweep.position = right.position[SWEEP_JOINT]
+                    self.state.hold.update({j: right.position[j] for j in right.joints if j != SWEEP_JOINT})
+                    right.release()
             text = f'sweep {"on" if req.enabled else "off"} at {self.state.sweep.speed:.3f} rad/s'
             rospy.loginfo('vaultbot_sim: %s', text)
             return SetSweepResponse(success=True, message=text)
 
-    # --- the base's motors and body -------------------------------------------------------
+    # --- the motors -----------------------------------------------------------------------------------
     def _on_wheel_command(self, msg: JointState) -> None:
         try:
             left, right = wheel_command(msg)
-            with self._motors:
-                self.plant.command(left, right, time.monotonic())
-                self._motors.notify()
         except ValueError as e:
             rospy.logerr_throttle(1.0, 'vaultbot_sim: wheel command refused: %s' % e)
+            return
+        if self.body.command_base(left, right, time.monotonic()):
+            self._publish_base(rospy.Time.now())      # the stop's moment, not the next step's
+
+    def _on_arm_command(self, msg: JointState, arm: str) -> None:
+        """A setpoint per joint (positions and velocities), or a stop: velocities only, all zero (brake to a
+        hold where the joints are; a hold sent as positions would pull the arm back to where it was seen)."""
+        if not msg.position and msg.velocity and all(v == 0.0 for v in msg.velocity):
+            self.body.stop_arm(arm, time.monotonic())
+            self._publish_arm(arm, rospy.Time.now())
+            return
+        try:
+            if len(msg.name) != len(msg.position) or len(msg.name) != len(msg.velocity):
+                raise ValueError('%d names, %d positions and %d velocities' % (len(msg.name), len(msg.position),
+                                                                               len(msg.velocity)))
+            self.body.command_arm(arm, {n: (q, v) for n, q, v in zip(msg.name, msg.position, msg.velocity)},
+                                  time.monotonic())
+        except ValueError as e:
+            rospy.logerr_throttle(1.0, 'vaultbot_sim: %s command refused: %s' % (arm, e))
 
     def _watch_motors(self) -> None:
-        """The motors' own watchdog, on its own thread: a stale command is replaced by zero within the timeout,
-        whatever the sim's step rate, and the moment is published at once (the ground truth of the stop)."""
+        """The motors' own watchdog, on its own thread: a stale command is dropped within the timeout, whatever
+        the sim's step rate, and the moment is published at once (the ground truth of the stop)."""
         while ok():
-            with self._motors:
-                now = time.monotonic()
-                if self.plant.watchdog(now):
-                    self._publish_base(rospy.Time.now())
-                last = self.plant.command_at
-                wait = 0.5 if last is None or self.plant.commanded == (0.0, 0.0) else \
-                    max(0.0, last + self.plant.motor_timeout - now) + 0.0005
-                self._motors.wait(wait)
-
-    def _touching(self, robot_cfg: dict):
-        """The collision check of a candidate pose: the first new contact, or None when the pose is free."""
-        def check(pose):
-            cfg = dict(robot_cfg, **dict(zip(BASE_JOINTS, pose)))
-            self.collider.set_robot(cfg)
-            near = self.collider.contacts(margin=CONTACT_MARGIN)
-            self.touching_next = {(a, b) for a, b, _ in near}
-            overlap = [(a, b) for a, b, d in near if d <= 0.0]
-            return Contact(overlap[0][0], overlap[0][1], pose[0], pose[1]) if overlap else None
-        return check
+            for part in self.body.watchdog(time.monotonic()):
+                stamp = rospy.Time.now()
+                self._publish_base(stamp) if part == 'base' else self._publish_arm(part, stamp)
+            self.body.wait_for_deadline(time.monotonic())
 
     def _publish_base(self, stamp: rospy.Time) -> None:
-        plant = self.plant
-        msg = BaseState(x=plant.pose[0], y=plant.pose[1], yaw=plant.pose[2], linear=plant.velocity[0],
-                        angular=plant.velocity[1], commanded_linear=plant.commanded[0],
-                        commanded_angular=plant.commanded[1], command_stale=plant.tripped_at is not None,
-                        contacts=self.contacts)
+        with self.body.lock:
+            plant = self.body.base
+            msg = BaseState(x=plant.pose[0], y=plant.pose[1], yaw=plant.pose[2], linear=plant.velocity[0],
+                            angular=plant.velocity[1], commanded_linear=plant.commanded[0],
+                            commanded_angular=plant.commanded[1], command_stale=plant.tripped_at is not None,
+                            contacts=self.body.contacts)
         msg.header.stamp = stamp
         self.pub_base.publish(msg)
 
-    def _step_base(self, robot_cfg: dict, stamp: rospy.Time) -> tuple[list, list, list]:
-        with self._motors:
-            speed = abs(self.plant.velocity[0])
-            self.touching_next = self.touching          # unchanged unless the base tries to move
-            contact = self.plant.step(time.monotonic(), self._touching(robot_cfg))
-            began = contact is not None and not self.touching
-            self.touching = self.touching_next
-            if began:                                   # one event per touch, however long it is pushed
-                self.contacts += 1
-                msg = ContactMsg(robot_link=contact.robot_link, object_link=contact.object_link, x=contact.x,
-                                 y=contact.y, speed=speed)
-                msg.header.stamp = stamp
-                self.pub_contacts.publish(msg)
-                rospy.logwarn('vaultbot_sim: contact: %s touched %s at (%.2f, %.2f), %.2f m/s', contact.robot_link,
-                              contact.object_link, contact.x, contact.y, speed)
-            self._publish_base(stamp)
-            return self._base_joints()
+    def _publish_arm(self, arm: str, stamp: rospy.Time) -> None:
+        commanded, speed = self.body.arm_speeds(arm)
+        plant = self.body.arms[arm]
+        msg = ArmState(arm=arm, held=plant.held, command_stale=plant.tripped_at is not None,
+                       commanded_speed=commanded, speed=speed)
+        msg.header.stamp = stamp
+        self.pub_arms.publish(msg)
 
-    def _base_joints(self) -> tuple[list, list, list]:
-        """The base's virtual joints and the wheels: names, positions, velocities (lock held)."""
-        plant = self.plant
-        (x, y, yaw), (v, w) = plant.pose, plant.velocity
-        left, right = plant.wheels
-        wheel_v = wheel_speeds(v, w)
-        names = list(BASE_JOINTS) + list(WHEEL_JOINTS)
-        pos = [x, y, yaw] + [left if 'left' in n else right for n in WHEEL_JOINTS]
-        vel = [v * math.cos(yaw), v * math.sin(yaw), w] + [wheel_v[0] if 'left' in n else wheel_v[1]
-                                                            for n in WHEEL_JOINTS]
-        return names, pos, vel
+    def _step_body(self, hold: dict, stamp: rospy.Time):
+        with self.lock:
+            right = self.body.arms['right_arm']
+            if right.held and self.state.sweep.enabled:
+                self.state.sweep.set(False)           # someone holds the Hokuyo's arm: the sweep yields
+                rospy.loginfo('vaultbot_sim: the right arm is held: the sweep stops')
+        step = self.body.step(time.monotonic(), hold)
+        for contact, speed in step.contacts:
+            msg = ContactMsg(robot_link=contact.robot_link, object_link=contact.object_link, x=contact.x,
+                             y=contact.y, speed=speed)
+            msg.header.stamp = stamp
+            self.pub_contacts.publish(msg)
+            rospy.logwarn('vaultbot_sim: contact: %s touched %s at (%.2f, %.2f), %.2f m/s', contact.robot_link,
+                          contact.object_link, contact.x, contact.y, speed)
+        self._publish_base(stamp)
+        for arm in self.body.arms:
+            self._publish_arm(arm, stamp)
+        return step
 
     def step(self) -> None:
         now = rospy.Time.now()
         with self.lock:
             (names, pos, vel), (wnames, wpos, wvel) = self.state.step(now.to_sec())
-        cfg = dict(zip(names, pos))
-        bnames, bpos, bvel = self._step_base(cfg, now)
-        keep = [i for i, n in enumerate(names) if n not in WHEEL_JOINTS]
-        names = [names[i] for i in keep] + bnames
-        pos = [pos[i] for i in keep] + bpos
-        vel = [vel[i] for i in keep] + bvel
+        body = self._step_body(dict(zip(names, pos)), now)
+        keep = [i for i, n in enumerate(names) if n not in body.names]
+        names = [names[i] for i in keep] + body.names
+        pos = [pos[i] for i in keep] + body.positions
+        vel = [vel[i] for i in keep] + body.velocities
         js = JointState(name=names, position=pos, velocity=vel)
         js.header.stamp = now
         self.pub_js.publish(js)

@@ -28,8 +28,8 @@ BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 SWEEP_JOINT = 'right_wrist_3_joint'
 PERSON_JOINT = 'person_shoulder_joint'
 
-# sensors, and the base's controller: each has a cable that `temoto sim unplug` pulls
-DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base')
+# sensors, and the base's and the arms' controllers: each has a cable that `temoto sim unplug` pulls
+DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base', 'left_arm', 'right_arm')
 STATES = ('plugged', 'unplugged')
 MODES = ('crash', 'stall')
 

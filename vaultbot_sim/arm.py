@@ -1,0 +1,106 @@
+"""The UR5 arms' joint motors, simulated: what they accept, and how they stop on their own. No ROS.
+
+An arm's controller (``arm_controller.py``) streams a *setpoint* per joint, a position and the
+velocity to pass it with, at ``COMMAND_RATE_HZ``. The motors track it within the UR5's limits:
+pi rad/s per joint (the datasheet) and ``ACCEL`` rad/s^2 (ours), and never beyond a joint's range.
+They carry a watchdog as the base's motors do: a setpoint older than ``MOTOR_TIMEOUT_S`` is
+dropped, and the joints brake to a hold where they are. A controller that dies or stalls leaves
+the arm holding, not moving.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, Mapping, Optional, Sequence, Tuple
+
+from vaultbot_sim.base import ramp
+
+COMMAND_RATE_HZ = 100.0
+MOTOR_TIMEOUT_S = 0.04
+SPEED = math.pi                 # rad/s, every UR5 joint
+ACCEL = 8.0                     # rad/s^2, ours: a joint at full speed stops within 0.4 s and 0.62 rad
+TRACKING_GAIN = 20.0            # 1/s: how hard a motor closes a position error beyond the setpoint's velocity
+
+
+@dataclass(frozen=True)
+class JointRange:
+    lower: float
+    upper: float
+
+    def clamp(self, q: float) -> float:
+        return min(self.upper, max(self.lower, q))
+
+
+class ArmPlant:
+    """Six joint motors: the ground truth of where an arm's joints are and how fast they turn."""
+
+    def __init__(self, joints: Sequence[str], start: Mapping[str, float], ranges: Mapping[str, JointRange],
+                 motor_timeout: float = MOTOR_TIMEOUT_S) -> None:
+        self.joints = list(joints)
+        self.ranges = {j: ranges[j] for j in self.joints}
+        self.position: Dict[str, float] = {j: float(start[j]) for j in self.joints}
+        self.velocity: Dict[str, float] = {j: 0.0 for j in self.joints}
+        self.setpoint: Optional[Dict[str, Tuple[float, float]]] = None     # joint -> (position, velocity)
+        self.motor_timeout = motor_timeout
+        self.command_at: Optional[float] = None
+        self.tripped_at: Optional[float] = None
+        self.held = False          # commanded at least once: someone holds this arm (the sweep yields)
+        self._last: Optional[float] = None
+
+    def command(self, setpoint: Mapping[str, Tuple[float, float]], now: float) -> None:
+        """A setpoint for every joint of this arm; raises ValueError naming what is wrong, and changes nothing."""
+        missing = [j for j in self.joints if j not in setpoint]
+        if missing:
+            raise ValueError('no setpoint for %s' % ', '.join(missing))
+        extra = sorted(set(setpoint) - set(self.joints))
+        if extra:
+            raise ValueError('not joints of this arm: %s' % ', '.join(extra))
+        for j, (q, v) in setpoint.items():
+            if not (math.isfinite(q) and math.isfinite(v)):
+                raise ValueError('%s: position %r and velocity %r must be finite' % (j, q, v))
+        self.setpoint = {j: (self.ranges[j].clamp(q), max(-SPEED, min(SPEED, v))) for j, (q, v) in setpoint.items()}
+        self.command_at, self.tripped_at, self.held = now, None, True
+
+    def stop(self, now: float) -> None:
+        """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no watchdog trip either."""
+        self.setpoint, self.command_at, self.tripped_at, self.held = None, now, None, True
+
+    def release(self) -> None:
+        """Nobody holds the arm any more: the simulation's hold pose (and sweep) drive it again from here."""
+        self.held, self.setpoint = False, None
+        self.velocity = {j: 0.0 for j in self.joints}
+
+    def watchdog(self, now: float) -> bool:
+        """Drop a stale setpoint (the joints brake to a hold); True when it does so now."""
+        if self.setpoint is not None and (self.command_at is None or now - self.command_at > self.motor_timeout):
+            self.setpoint = None
+            self.tripped_at = now
+            return True
+        return False
+
+    @property
+    def at_rest(self) -> bool:
+        return all(v == 0.0 for v in self.velocity.values())
+
+    def step(self, now: float) -> None:
+        dt = 0.0 if self._last is None else min(max(0.0, now - self._last), 0.1)
+        self._last = now
+        self.watchdog(now)
+        if dt <= 0.0:
+            return
+        for j in self.joints:
+            v, q = self.velocity[j], self.position[j]
+            if self.setpoint is None:
+                want = 0.0
+            else:
+                q_set, v_set = self.setpoint[j]
+                e = q_set - q
+                # the error closed proportionally, but never faster than the joint can brake to it (no overshoot)
+                fix = math.copysign(min(TRACKING_GAIN * abs(e), math.sqrt(2 * ACCEL * abs(e))), e)
+                want = max(-SPEED, min(SPEED, v_set + fix))
+            v2 = ramp(v, want, ACCEL, ACCEL, dt)
+            q2 = q + (v + v2) / 2 * dt
+            r = self.ranges[j]
+            if q2 != r.clamp(q2):          # the range's end: a hard stop
+                q2, v2 = r.clamp(q2), 0.0
+            self.position[j], self.velocity[j] = q2, v2
