@@ -10,10 +10,16 @@ figures are measured from there, never from a controller's or a manager's word:
 2. the controller stalled (its cable pulled in stall mode: the process stays up, silent);
 3. ``cmd_vel`` falls silent (the commander died): last ``cmd_vel`` -> commanded zero
    (the controller's 0.25 s timeout);
-4. false stops: watchdog trips while the controller is alive, over a steady drive.
+4. false stops: watchdog trips while the controller is alive, over a steady drive;
+5. the left arm's controller SIGKILLed, or stalled, during a trajectory: -> the motors'
+   setpoint dropped (commanded joint speed zero), then at rest;
+6. the servo stream falls silent: last servo message -> the arm told to hold (the deadman),
+   then at rest; and a servo message -> its setpoint sent to the motors (the controller's
+   latency), p95.
 
-Each trial drives the other way than the last, so the base stays in the test world's free
-space. ``--hogs N`` runs N busy loops beside it.
+Each base trial drives the other way than the last, so the base stays in the test world's
+free space; each arm trial turns the shoulder the other way. ``--hogs N`` runs N busy loops
+beside it.
 
 Prints a markdown table and writes bench/results/robot.json.
 Usage: python bench/bench_robot.py [--trials N] [--steady S] [--hogs N]
@@ -36,7 +42,12 @@ from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs  # noq
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_testing.sensor_manager import set_cable  # noqa: E402
 from vaultbot_sim.base import CMD_VEL_TIMEOUT_S, HUSKY, MOTOR_TIMEOUT_S  # noqa: E402
-from vaultbot_sim.msg import BaseState  # noqa: E402
+from vaultbot_sim.msg import ArmState, BaseState  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
+import actionlib  # noqa: E402
+from control_msgs.msg import FollowJointTrajectoryAction, FollowJointTrajectoryGoal  # noqa: E402
+from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
 
 HANG = 20.0
 SPEED = 0.5
@@ -126,6 +137,91 @@ def trial(launcher, cmd, truth, case, index):
         wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest between trials')
 
 
+LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
+
+
+class ArmTruth:
+    """The sim's left arm states, and the left controller's setpoints (for its latency)."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.states, self.setpoints = [], []
+        rospy.Subscriber('/vaultbot_sim/arm_states', ArmState, self._on_state, queue_size=500, tcp_nodelay=True)
+        rospy.Subscriber('/left_arm/joint_command', JointState, self._on_setpoint, queue_size=500, tcp_nodelay=True)
+
+    def _on_state(self, msg):
+        if msg.arm == 'left_arm':
+            with self.lock:
+                self.states.append(msg)
+
+    def _on_setpoint(self, msg):
+        with self.lock:
+            self.setpoints.append((time.time(), msg))
+
+    def since(self, t):
+        with self.lock:
+            return [s for s in self.states if s.header.stamp.to_sec() >= t]
+
+    def last(self):
+        with self.lock:
+            return self.states[-1] if self.states else None
+
+
+def arm_stopped(arm, t0):
+    zero = wait_for(lambda: next((s for s in arm.since(t0) if s.commanded_speed == 0.0), None), HANG,
+                    'the arm to be told to hold')
+    rest = wait_for(lambda: next((s for s in arm.since(zero.header.stamp.to_sec()) if s.speed == 0.0), None),
+                    HANG, 'the arm at rest')
+    return zero.header.stamp.to_sec(), rest.header.stamp.to_sec()
+
+
+def arm_trial(launcher, arm, case, index, servo_pub):
+    controller = launcher.node('vaultbot_sim', 'arm_controller', name='left_arm_controller',
+                               params={'arm': 'left_arm'})
+    direction = 1 if index % 2 == 0 else -1
+    latencies = []
+    try:
+        start = HOLD_POSE[LEFT[0]]
+        if case == 'servo':
+            wait_for(lambda: servo_pub.get_num_connections() > 0, HANG, 'the controller on servo_command')
+            t1 = time.monotonic()
+            sent = []
+            for k in range(int(1.0 * 125)):          # one second at 125 Hz, as MoveIt Servo streams
+                q = [start + direction * 0.5 * (time.monotonic() - t1)] + [HOLD_POSE[j] for j in LEFT[1:]]
+                stamp = time.time()
+                servo_pub.publish(JointTrajectory(joint_names=LEFT, points=[JointTrajectoryPoint(
+                    positions=q, velocities=[direction * 0.5] + [0.0] * 5)]))
+                sent.append((stamp, q[0]))
+                time.sleep(max(0.0, t1 + (k + 1) / 125.0 - time.monotonic()))
+            t0 = sent[-1][0]
+            with arm.lock:
+                got = {round(m.position[0], 9): t for t, m in arm.setpoints if m.position}
+            latencies = [got[round(q, 9)] - t for t, q in sent if round(q, 9) in got]
+        else:
+            client = actionlib.SimpleActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
+            client.wait_for_server(rospy.Duration(HANG))
+            goal = FollowJointTrajectoryGoal()
+            goal.trajectory.joint_names = LEFT
+            point = JointTrajectoryPoint(positions=[start + direction * 1.5] + [HOLD_POSE[j] for j in LEFT[1:]])
+            point.time_from_start = rospy.Duration(3.0)
+            goal.trajectory.points = [point]
+            client.send_goal(goal)
+            wait_for(lambda: arm.last() is not None and arm.last().speed > 0.3, HANG, 'the arm to move')
+            t0 = time.time()
+            if case == 'kill':
+                os.kill(controller.pid, signal.SIGKILL)
+            else:
+                set_cable('left_arm', 'unplugged', 'stall')
+        zero, rest = arm_stopped(arm, t0)
+        return zero - t0, rest - zero, latencies
+    finally:
+        controller.stop()
+        if case == 'stall':
+            set_cable('left_arm', 'plugged')
+        # back to the start for the next trial: the sim is restarted by nobody, so the arm is sent home
+        wait_for(lambda: arm.last().speed == 0.0, HANG, 'the arm at rest between trials')
+
+
 def false_stops(launcher, cmd, truth, seconds):
     """Watchdog trips while a live controller is commanded to drive, back and forth."""
     controller = launcher.node('vaultbot_sim', 'base_controller', name='base_controller')
@@ -167,6 +263,11 @@ def main() -> int:
         trips, took = false_stops(launcher, cmd, truth, args.steady)
         results['false_stops'] = {'trips': trips, 'seconds': took}
         cmd.close()
+        arm = ArmTruth()
+        servo_pub = rospy.Publisher('/left_arm/servo_command', JointTrajectory, queue_size=10, tcp_nodelay=True)
+        for case in ('kill', 'stall', 'servo'):
+            print('bench_robot: arm %s x %d ...' % (case, args.trials), file=sys.stderr, flush=True)
+            results['arm_' + case] = [arm_trial(launcher, arm, case, i, servo_pub) for i in range(args.trials)]
     finally:
         stop_hogs(hogs)
         launcher.stop_all()
@@ -185,6 +286,20 @@ def main() -> int:
         rows.append(('… then at rest (braking from %.1f m/s), p50 / max' % SPEED,
                      '%s / %s' % (ms(pct(rests, 50)), ms(max(rests))),
                      '%s at %.0f m/s² (+ one 20 ms step)' % (ms(brake), HUSKY.decel)))
+    for case, what, goal in (('arm_kill', 'the left arm\'s controller SIGKILLed during a trajectory', 50e-3),
+                             ('arm_stall', 'the left arm\'s controller stalled during a trajectory', 50e-3),
+                             ('arm_servo', 'the servo stream silent (125 Hz before)', 100e-3)):
+        zeros = [z for z, _, _ in results[case]]
+        rests = [r for _, r, _ in results[case]]
+        rows.append(('%s → told to hold, p50 / p99 (n=%d)' % (what, len(zeros)),
+                     '%s / %s (max %s)' % (ms(pct(zeros, 50)), ms(pct(zeros, 99)), ms(max(zeros))),
+                     '≤ %s p99' % ms(goal)))
+        rows.append(('… then at rest, p50 / max', '%s / %s' % (ms(pct(rests, 50)), ms(max(rests))),
+                     'braking at 8 rad/s²'))
+    lat = [x for _, _, trial_lat in results['arm_servo'] for x in trial_lat]
+    if lat:
+        rows.append(('servo message → its setpoint to the motors, p50 / p95 (n=%d)' % len(lat),
+                     '%.1f / %.1f ms' % (pct(lat, 50) * 1e3, pct(lat, 95) * 1e3), '≤ 10 ms p95'))
     fs = results['false_stops']
     rows.append(('false stops: motor watchdog trips with a live controller, %.0f s of driving' % fs['seconds'],
                  str(fs['trips']), '0'))

@@ -18,8 +18,8 @@ def run(code: str) -> subprocess.CompletedProcess:
 
 def test_a_process_with_threads_is_refused_and_a_single_threaded_one_forks():
     out = run('''
-        import os, threading
-        from temoto_core.forking import ForkRefused, fork, finish
+        import os, threading, time
+        from temoto_core.forking import ForkRefused, fork, finish, thread_count
         release = threading.Event()
         t = threading.Thread(target=release.wait)
         t.start()
@@ -30,6 +30,11 @@ def test_a_process_with_threads_is_refused_and_a_single_threaded_one_forks():
             print('refused:', e)
         release.set()
         t.join()
+        # join returns once the thread's Python part is done; the kernel's thread goes a moment later
+        for _ in range(1000):
+            if thread_count() == 1:
+                break
+            time.sleep(0.001)
         pid = fork(0)
         if pid == 0:
             finish(7)

@@ -129,6 +129,8 @@ class ArmController:
                 self.servo = (time.monotonic(), setpoint)
         except ValueError as e:
             rospy.logerr_throttle(1.0, '%s: servo command refused: %s' % (self.arm, e))
+            return
+        self.send(setpoint)               # at once: the command loop only fills the gaps between two
 
     # --- outputs ---------------------------------------------------------------------------------------
     def send(self, setpoint: Dict[str, Tuple[float, float]]) -> None:
