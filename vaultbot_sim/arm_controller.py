@@ -251,11 +251,17 @@ class ArmController:
                     age = now - heard
                     self.send({j: (self.ranges[j].clamp(q + v * age), v) for j, (q, v) in setpoint.items()})
             next_t += period
-            delay = next_t - time.monotonic()
+            wake = next_t
+            with self.lock:
+                if self.servo is not None:         # the deadman wakes the loop on time, not at its next tick
+                    wake = min(wake, self.servo[0] + self.servo_timeout + 0.0002)
+            delay = wake - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             elif delay < -period:
                 next_t = time.monotonic()
+            if wake < next_t:
+                next_t -= period                 # the tick is still to come
 
 
 def main() -> None:
