@@ -20,6 +20,7 @@ PACKAGES = [
     'temoto_sensor_manager',
     'temoto_output_manager',
     'temoto_context_manager',
+    'temoto_robot_manager',
     'temoto_action_engine',
     'temoto_speech',
     'temoto_testing',

@@ -1,0 +1,1 @@
+"""TeMoto Robot Manager: robots, their features, and motion that stops when what it depends on is gone."""

@@ -1,0 +1,309 @@
+"""The robot description file: which robots there are, and the parts of each feature, checked line by line.
+
+Modelled on the original's ``robot_description.yaml`` (a list of robots, each with its reliability
+and the features ``navigation``, ``manipulation`` and ``gripper``); its keys are this project's.
+One file holds a list under ``robots``::
+
+    robots:
+      - name: vaultbot                       # a ROS base name, unique in the file
+        description: Husky A200 with two UR5s
+        reliability: 0.9                     # optional prior, 0 to 1 (default 0.8): the best robot is chosen
+        navigation:
+          driver:                            # the base's controller (cmd_vel in, odom out), through the ER Manager
+            package: vaultbot_sim
+            executable: base.launch
+            running: true                    # optional: it runs with the robot already; checked, not started
+          cmd_vel_topic: cmd_vel
+          odom_topic: odom
+          odom_frame: odom
+          base_frame: base_link
+          footprint: [0.99, 0.67]            # length and width (m), for the costmap and the collision monitor
+          obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
+            - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data}
+          places:                            # named places: [x, y, yaw] in odom_frame (m, m, rad)
+            home: [0.0, 0.0, 0.0]
+        manipulation:
+          left_arm:                          # one entry per arm
+            controller: {package: vaultbot_sim, executable: arm_controller, args: _arm:=left_arm}
+            action: left_arm/follow_joint_trajectory
+            servo_topic: left_arm/servo_command
+            joints: [left_shoulder_pan_joint, ...]
+            base_frame: left_base_link
+            tool_frame: left_tool0
+            named_poses:                     # one position per joint, in the order of joints
+              hold: [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
+        gripper:
+          controller: {package: vaultbot_sim, executable: gripper_controller}
+          action: left_gripper/gripper_command
+          arm: left_arm                      # the arm that carries it
+
+Every problem is reported with its file and line (``temoto robots check FILE``); a robot with a
+problem is left out, the others load.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import rosgraph.names
+import yaml
+
+from temoto_core import yaml_lines
+from temoto_core.reliability import DEFAULT_PRIOR
+
+FEATURES = ('navigation', 'manipulation', 'gripper')
+_ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
+_PART_KEYS = {'package', 'executable', 'args', 'running'}
+_NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_frame', 'base_frame', 'footprint',
+                    'obstacle_sources', 'places'}
+_SOURCE_KEYS = {'label', 'sensor_type', 'output_topic'}
+_ARM_KEYS = {'controller', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
+_GRIPPER_KEYS = {'controller', 'action', 'arm'}
+
+
+class DescriptionError(ValueError):
+    """One problem of a description file; ``where`` is ``file:line``."""
+
+    def __init__(self, where: str, message: str) -> None:
+        super().__init__('%s: %s' % (where, message))
+        self.where, self.message = where, message
+
+
+@dataclass(frozen=True)
+class Part:
+    """A process a feature needs: started through the ER Manager, unless it runs with the robot already."""
+    package: str
+    executable: str
+    args: str = ''
+    running: bool = False
+
+
+@dataclass(frozen=True)
+class ObstacleSource:
+    label: str
+    sensor_type: str
+    output_topic: str
+
+
+@dataclass(frozen=True)
+class Navigation:
+    driver: Part
+    controller: Optional[Part]
+    cmd_vel_topic: str
+    odom_topic: str
+    odom_frame: str
+    base_frame: str
+    footprint: Tuple[float, float]
+    obstacle_sources: Tuple[ObstacleSource, ...]
+    places: Dict[str, Tuple[float, float, float]]
+
+
+@dataclass(frozen=True)
+class Arm:
+    name: str
+    controller: Part
+    action: str
+    servo_topic: str
+    joints: Tuple[str, ...]
+    base_frame: str
+    tool_frame: str
+    named_poses: Dict[str, Tuple[float, ...]]
+
+
+@dataclass(frozen=True)
+class Gripper:
+    controller: Part
+    action: str
+    arm: str
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    name: str
+    description: str = ''
+    reliability: float = DEFAULT_PRIOR
+    temoto_namespace: str = ''
+    navigation: Optional[Navigation] = None
+    manipulation: Dict[str, Arm] = field(default_factory=dict)
+    gripper: Optional[Gripper] = None
+    source: str = ''               # file:line
+
+    @property
+    def features(self) -> List[str]:
+        return [f for f, on in (('navigation', self.navigation), ('manipulation', self.manipulation),
+                                ('gripper', self.gripper)) if on]
+
+
+class _Reader:
+    """Reads one robot's mapping, naming the file and line of whatever is wrong."""
+
+    def __init__(self, path: str, lines: yaml_lines.Lines) -> None:
+        self.path, self.lines = path, lines
+
+    def error(self, at: Sequence, message: str) -> DescriptionError:
+        return DescriptionError('%s:%d' % (self.path, self.lines.of(tuple(at))), message)
+
+    @staticmethod
+    def label(at: Sequence) -> str:
+        out = ''
+        for p in at:
+            out += '[%d]' % p if isinstance(p, int) else ('.' if out else '') + str(p)
+        return out
+
+    def mapping(self, value: Any, at: Sequence, keys: set, required: Sequence[str] = ()) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(at, '%s must be a mapping, got %r' % (self.label(at), value))
+        for key in value:
+            if key not in keys:
+                close = difflib.get_close_matches(str(key), sorted(keys), n=1)
+                raise self.error(list(at) + [key], 'unknown key %s.%s%s (known: %s)' % (
+                    self.label(at), key, ' (did you mean %r?)' % close[0] if close else '', ', '.join(sorted(keys))))
+        for key in required:
+            if key not in value:
+                raise self.error(at, '%s needs %r' % (self.label(at), key))
+        return value
+
+    def text(self, parent: dict, key: str, at: Sequence, default: Optional[str] = None, name: bool = False) -> str:
+        if key not in parent and default is not None:
+            return default
+        value = parent.get(key)
+        where = list(at) + [key]
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(where, '%s must be a non-empty string, got %r' % (self.label(where), value))
+        if name and not rosgraph.names.is_legal_name(value):
+            raise self.error(where, '%s %r is not a legal ROS name' % (self.label(where), value))
+        return value.strip()
+
+    def numbers(self, value: Any, at: Sequence, count: int, what: str) -> Tuple[float, ...]:
+        if not isinstance(value, list) or len(value) != count or \
+                not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+            raise self.error(at, '%s must be %s: %d finite numbers, got %r' % (self.label(at), what, count, value))
+        return tuple(float(v) for v in value)
+
+    def part(self, value: Any, at: Sequence) -> Part:
+        raw = self.mapping(value, at, _PART_KEYS, ('package', 'executable'))
+        running = raw.get('running', False)
+        if not isinstance(running, bool):
+            raise self.error(list(at) + ['running'], '%s.running must be true or false' % self.label(at))
+        args = raw.get('args', '')
+        if not isinstance(args, str):
+            raise self.error(list(at) + ['args'], '%s.args must be a string' % self.label(at))
+        return Part(self.text(raw, 'package', at), self.text(raw, 'executable', at), args, running)
+
+    def navigation(self, value: Any, at: Sequence) -> Navigation:
+        raw = self.mapping(value, at, _NAVIGATION_KEYS, ('driver', 'obstacle_sources'))
+        sources_at = list(at) + ['obstacle_sources']
+        sources = raw['obstacle_sources']
+        if not isinstance(sources, list) or not sources:
+            raise self.error(sources_at, '%s must be a non-empty list, ranked' % self.label(sources_at))
+        ranked = []
+        for i, s in enumerate(sources):
+            s_at = sources_at + [i]
+            s_raw = self.mapping(s, s_at, _SOURCE_KEYS, ('sensor_type', 'output_topic'))
+            ranked.append(ObstacleSource(self.text(s_raw, 'label', s_at, default=str(s_raw.get('sensor_type'))),
+                                         self.text(s_raw, 'sensor_type', s_at), self.text(s_raw, 'output_topic', s_at)))
+        places = {}
+        places_raw = raw.get('places', {})
+        if not isinstance(places_raw, dict):
+            raise self.error(list(at) + ['places'], '%s.places must be a mapping of names to [x, y, yaw]'
+                             % self.label(at))
+        for place, pose in places_raw.items():
+            places[str(place)] = self.numbers(pose, list(at) + ['places', place], 3, '[x, y, yaw]')
+        footprint = self.numbers(raw.get('footprint', [0.99, 0.67]), list(at) + ['footprint'], 2, '[length, width]')
+        if min(footprint) <= 0:
+            raise self.error(list(at) + ['footprint'], '%s.footprint must be positive' % self.label(at))
+        return Navigation(
+            self.part(raw['driver'], list(at) + ['driver']),
+            self.part(raw['controller'], list(at) + ['controller']) if 'controller' in raw else None,
+            self.text(raw, 'cmd_vel_topic', at, default='cmd_vel', name=True),
+            self.text(raw, 'odom_topic', at, default='odom', name=True),
+            self.text(raw, 'odom_frame', at, default='odom'), self.text(raw, 'base_frame', at, default='base_link'),
+            footprint, tuple(ranked), places)
+
+    def arm(self, name: str, value: Any, at: Sequence) -> Arm:
+        raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))
+        joints = raw['joints']
+        if not isinstance(joints, list) or not joints or not all(isinstance(j, str) and j for j in joints) \
+                or len(set(joints)) != len(joints):
+            raise self.error(list(at) + ['joints'], '%s.joints must list each joint once, got %r'
+                             % (self.label(at), joints))
+        poses = {}
+        poses_raw = raw.get('named_poses', {})
+        if not isinstance(poses_raw, dict):
+            raise self.error(list(at) + ['named_poses'], '%s.named_poses must be a mapping' % self.label(at))
+        for pose, q in poses_raw.items():
+            poses[str(pose)] = self.numbers(q, list(at) + ['named_poses', pose], len(joints),
+                                            'one position per joint (%s)' % ', '.join(joints))
+        return Arm(name, self.part(raw['controller'], list(at) + ['controller']),
+                   self.text(raw, 'action', at, name=True),
+                   self.text(raw, 'servo_topic', at, default='%s/servo_command' % name, name=True),
+                   tuple(joints), self.text(raw, 'base_frame', at, default='base_link'),
+                   self.text(raw, 'tool_frame', at), poses)
+
+    def robot(self, value: Any, at: Sequence) -> RobotDescription:
+        raw = self.mapping(value, at, _ROBOT_KEYS, ('name',))
+        name = self.text(raw, 'name', at)
+        if not rosgraph.names.is_legal_base_name(name):
+            raise self.error(list(at) + ['name'], 'robot name %r is not a legal ROS base name' % name)
+        reliability = raw.get('reliability', DEFAULT_PRIOR)
+        if isinstance(reliability, bool) or not isinstance(reliability, (int, float)) or not 0 <= reliability <= 1:
+            raise self.error(list(at) + ['reliability'], 'reliability must be a number from 0 to 1, got %r'
+                             % (reliability,))
+        if not any(f in raw for f in FEATURES):
+            raise self.error(at, 'robot %r has no feature: give navigation, manipulation or gripper' % name)
+        arms = {}
+        if 'manipulation' in raw:
+            m_at = list(at) + ['manipulation']
+            m_raw = raw['manipulation']
+            if not isinstance(m_raw, dict) or not m_raw:
+                raise self.error(m_at, 'manipulation must map each arm\'s name to its description')
+            for arm_name, arm in m_raw.items():
+                arms[str(arm_name)] = self.arm(str(arm_name), arm, m_at + [arm_name])
+        gripper = None
+        if 'gripper' in raw:
+            g_at = list(at) + ['gripper']
+            g_raw = self.mapping(raw['gripper'], g_at, _GRIPPER_KEYS, ('controller', 'action', 'arm'))
+            carrier = self.text(g_raw, 'arm', g_at)
+            if carrier not in arms:
+                raise self.error(g_at + ['arm'], 'gripper.arm %r is not an arm of manipulation (%s)'
+                                 % (carrier, ', '.join(arms) or 'none'))
+            gripper = Gripper(self.part(g_raw['controller'], g_at + ['controller']),
+                              self.text(g_raw, 'action', g_at, name=True), carrier)
+        return RobotDescription(
+            name, str(raw.get('description', '')), float(reliability),
+            self.text(raw, 'temoto_namespace', at, default=''),
+            self.navigation(raw['navigation'], list(at) + ['navigation']) if 'navigation' in raw else None,
+            arms, gripper, '%s:%d' % (self.path, self.lines.of(tuple(at))))
+
+
+def load_file(path: str) -> Tuple[List[RobotDescription], List[DescriptionError]]:
+    """The robots of one file and the problems found, each with its file and line."""
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError as err:
+        return [], [DescriptionError(path, 'cannot read the description: %s' % err.strerror)]
+    try:
+        data, lines = yaml_lines.load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, 'problem_mark', None)
+        where = '%s:%d' % (path, mark.line + 1) if mark else path
+        return [], [DescriptionError(where, 'not valid YAML: %s' % getattr(err, 'problem', err))]
+    if not isinstance(data, dict) or not isinstance(data.get('robots'), list) or not data['robots']:
+        return [], [DescriptionError('%s:1' % path, "the file must hold a non-empty list under the key 'robots'")]
+    reader = _Reader(path, lines)
+    robots: List[RobotDescription] = []
+    problems: List[DescriptionError] = []
+    for i, raw in enumerate(data['robots']):
+        try:
+            robot = reader.robot(raw, ['robots', i])
+        except DescriptionError as err:
+            problems.append(err)
+            continue
+        if any(r.name == robot.name for r in robots):
+            problems.append(reader.error(['robots', i, 'name'], 'robot %r is described twice' % robot.name))
+            continue
+        robots.append(robot)
+    return robots, problems

@@ -1,0 +1,135 @@
+"""Robot description files (temoto_robot_manager/description.py): the VaultBot's own, and every kind of
+mistake reported at its line; then `temoto robots check` as a user runs it."""
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from temoto_robot_manager.description import load_file
+from vaultbot_sim.kinematics import ROBOT_URDF, resolve_world
+from vaultbot_sim.scene import Scene
+from vaultbot_sim.spec import BASE_JOINTS, HOLD_POSE
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+VAULTBOT = os.path.join(ROOT, 'temoto_robot_manager', 'config', 'vaultbot.yaml')
+
+GOOD = """\
+robots:
+  - name: rover
+    navigation:
+      driver: {package: rover_base, executable: base.launch}
+      obstacle_sources:
+        - {sensor_type: lidar, output_topic: lidar_data}
+      places:
+        dock: [1.0, 2.0, 0.5]
+    manipulation:
+      arm:
+        controller: {package: rover_arm, executable: arm_controller}
+        action: arm/follow_joint_trajectory
+        joints: [a, b]
+        tool_frame: tool0
+        named_poses:
+          up: [0.0, 1.0]
+    gripper:
+      controller: {package: rover_arm, executable: gripper}
+      action: gripper/gripper_command
+      arm: arm
+"""
+
+
+def write(tmp_path, text, name='robots.yaml'):
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+def test_the_vaultbots_description_matches_the_simulated_robot():
+    robots, problems = load_file(VAULTBOT)
+    assert problems == [] and [r.name for r in robots] == ['vaultbot']
+    vaultbot = robots[0]
+    assert vaultbot.features == ['navigation', 'manipulation']
+    for arm in vaultbot.manipulation.values():
+        assert arm.named_poses['hold'] == pytest.approx([HOLD_POSE[j] for j in arm.joints], abs=1e-3)
+    assert [s.label for s in vaultbot.navigation.obstacle_sources] == [
+        'base LIDAR scan', 'arm LIDAR stitched cloud', 'RGB-D camera cloud']
+
+
+def test_every_named_place_of_the_vaultbot_is_free_in_the_lab():
+    """A place the robot cannot stand on is a goal that can only fail: each is checked in the lab's geometry."""
+    vaultbot = load_file(VAULTBOT)[0][0]
+    scene = Scene(ROBOT_URDF, resolve_world('lab'))
+    try:
+        for place, pose in vaultbot.navigation.places.items():
+            scene.set_robot(dict(HOLD_POSE, **dict(zip(BASE_JOINTS, pose))))
+            assert scene.contacts(margin=0.05) == [], 'place %s %s touches the lab' % (place, pose)
+    finally:
+        scene.close()
+
+
+def test_a_good_file_loads_every_feature(tmp_path):
+    robots, problems = load_file(write(tmp_path, GOOD))
+    assert problems == []
+    rover = robots[0]
+    assert rover.navigation.places == {'dock': (1.0, 2.0, 0.5)} and rover.navigation.cmd_vel_topic == 'cmd_vel'
+    assert rover.manipulation['arm'].named_poses == {'up': (0.0, 1.0)} and rover.gripper.arm == 'arm'
+    assert rover.source.endswith('robots.yaml:2')
+
+
+@pytest.mark.parametrize('old, new, line, words', [
+    ('      driver:', '      drivr:', 4, "unknown key robots[0].navigation.drivr (did you mean 'driver'?)"),
+    ('        dock: [1.0, 2.0, 0.5]', '        dock: [1.0, 2.0]', 8, 'places.dock must be [x, y, yaw]'),
+    ('          up: [0.0, 1.0]', '          up: [0.0, .nan]', 16, 'one position per joint (a, b)'),
+    ('      arm: arm', '      arm: other_arm', 20, "gripper.arm 'other_arm' is not an arm of manipulation (arm)"),
+    ('  - name: rover', '  - name: 2rover', 2, "robot name '2rover' is not a legal ROS base name"),
+    ('      obstacle_sources:\n        - {sensor_type: lidar, output_topic: lidar_data}',
+     '      obstacle_sources: []', 5, 'obstacle_sources must be a non-empty list'),
+    ('        joints: [a, b]', '        joints: [a, a]', 13, 'joints must list each joint once'),
+    ('        action: arm/follow_joint_trajectory', '        action: "arm follow"', 12,
+     "action 'arm follow' is not a legal ROS name"),
+])
+def test_each_mistake_is_reported_at_its_line_and_the_robot_left_out(tmp_path, old, new, line, words):
+    assert old in GOOD
+    path = write(tmp_path, GOOD.replace(old, new))
+    robots, problems = load_file(path)
+    assert robots == [] and len(problems) == 1
+    assert problems[0].where == '%s:%d' % (path, line) and words in problems[0].message, str(problems[0])
+
+
+def test_a_file_that_is_not_yaml_or_holds_no_robots_says_so(tmp_path):
+    robots, problems = load_file(write(tmp_path, 'robots:\n  - name: [unclosed\n'))
+    assert robots == [] and 'not valid YAML' in problems[0].message and problems[0].where.endswith(':3')
+    robots, problems = load_file(write(tmp_path, 'sensors: []\n', 'other.yaml'))
+    assert "list under the key 'robots'" in problems[0].message
+    robots, problems = load_file(str(tmp_path / 'missing.yaml'))
+    assert 'cannot read' in problems[0].message
+
+
+def test_a_robot_described_twice_keeps_the_first(tmp_path):
+    robots, problems = load_file(write(tmp_path, GOOD + GOOD[len('robots:\n'):]))
+    assert [r.name for r in robots] == ['rover'] and 'described twice' in problems[0].message
+    assert problems[0].where.endswith(':21')
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'] + list(args), capture_output=True,
+                          text=True, timeout=60)
+
+
+def test_temoto_robots_check_says_what_is_wrong_and_where(tmp_path):
+    good = run_cli('check', VAULTBOT)
+    assert good.returncode == 0 and good.stdout.startswith('ok    %s:4: vaultbot' % VAULTBOT), good.stdout
+    bad_path = write(tmp_path, GOOD.replace('      driver:', '      drivr:'))
+    bad = run_cli('check', VAULTBOT, bad_path)
+    assert bad.returncode == 1
+    assert 'error %s:4: unknown key robots[0].navigation.drivr' % bad_path in bad.stdout, bad.stdout
+    assert run_cli().returncode == 2, 'no subcommand: a usage error'
+
+
+def test_the_description_reads_without_a_master():
+    env = {k: v for k, v in os.environ.items() if k != 'ROS_MASTER_URI'}
+    out = subprocess.run([sys.executable, '-c', textwrap.dedent('''
+        from temoto_robot_manager.description import load_file
+        print(len(load_file(%r)[0]))''' % VAULTBOT)], capture_output=True, text=True, timeout=60, env=env)
+    assert out.stdout.strip() == '1', out.stderr
