@@ -138,6 +138,8 @@ def trial(launcher, cmd, truth, case, index):
 
 
 LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
+TERMINAL = {actionlib.GoalStatus.REJECTED, actionlib.GoalStatus.ABORTED, actionlib.GoalStatus.SUCCEEDED,
+            actionlib.GoalStatus.PREEMPTED, actionlib.GoalStatus.RECALLED, actionlib.GoalStatus.LOST}
 
 
 class ArmTruth:
@@ -199,14 +201,18 @@ def arm_trial(launcher, arm, case, index, servo_pub):
             latencies = [got[round(q, 9)] - t for t, q in sent if round(q, 9) in got]
         else:
             client = actionlib.SimpleActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
-            client.wait_for_server(rospy.Duration(HANG))
+            if not client.wait_for_server(rospy.Duration(HANG)):
+                raise RuntimeError('the left arm\'s action server did not come up')
             goal = FollowJointTrajectoryGoal()
             goal.trajectory.joint_names = LEFT
             point = JointTrajectoryPoint(positions=[start + direction * 1.5] + [HOLD_POSE[j] for j in LEFT[1:]])
             point.time_from_start = rospy.Duration(3.0)
             goal.trajectory.points = [point]
             client.send_goal(goal)
-            wait_for(lambda: arm.last() is not None and arm.last().speed > 0.3, HANG, 'the arm to move')
+            wait_for(lambda: (arm.last() is not None and arm.last().speed > 0.3) or
+                     client.get_state() in TERMINAL, HANG, 'the arm to move')
+            if client.get_state() in TERMINAL:
+                raise RuntimeError('the trajectory ended before the arm moved: %s' % client.get_goal_status_text())
             t0 = time.time()
             if case == 'kill':
                 os.kill(controller.pid, signal.SIGKILL)
@@ -247,6 +253,7 @@ def main() -> int:
     p.add_argument('--trials', type=int, default=30)
     p.add_argument('--steady', type=float, default=30.0, help='seconds of driving for the false-stop count')
     p.add_argument('--hogs', type=int, default=0)
+    p.add_argument('--only', choices=('base', 'arms'), help='one part\'s cases')
     args = p.parse_args()
     master, launcher = loopback_master('bench_robot_')
     hogs = cpu_hogs(args.hogs)
@@ -256,16 +263,17 @@ def main() -> int:
         rospy.init_node('bench_robot', anonymous=True, disable_signals=True)
         truth, cmd = Truth(), Commander()
         wait_for(lambda: truth.last() is not None, HANG, 'the sim\'s base state')
-        for case in ('kill', 'stall', 'cmd_vel'):
+        for case in ('kill', 'stall', 'cmd_vel') if args.only != 'arms' else ():
             print('bench_robot: %s x %d ...' % (case, args.trials), file=sys.stderr, flush=True)
             results[case] = [trial(launcher, cmd, truth, case, i) for i in range(args.trials)]
-        print('bench_robot: false stops over %.0f s ...' % args.steady, file=sys.stderr, flush=True)
-        trips, took = false_stops(launcher, cmd, truth, args.steady)
-        results['false_stops'] = {'trips': trips, 'seconds': took}
+        if args.only != 'arms':
+            print('bench_robot: false stops over %.0f s ...' % args.steady, file=sys.stderr, flush=True)
+            trips, took = false_stops(launcher, cmd, truth, args.steady)
+            results['false_stops'] = {'trips': trips, 'seconds': took}
         cmd.close()
         arm = ArmTruth()
         servo_pub = rospy.Publisher('/left_arm/servo_command', JointTrajectory, queue_size=10, tcp_nodelay=True)
-        for case in ('kill', 'stall', 'servo'):
+        for case in ('kill', 'stall', 'servo') if args.only != 'base' else ():
             print('bench_robot: arm %s x %d ...' % (case, args.trials), file=sys.stderr, flush=True)
             results['arm_' + case] = [arm_trial(launcher, arm, case, i, servo_pub) for i in range(args.trials)]
     finally:
@@ -278,6 +286,8 @@ def main() -> int:
     for case, what, goal in (('kill', 'the base controller SIGKILLed while driving', 50e-3),
                              ('stall', 'the base controller stalled (alive, silent)', 50e-3),
                              ('cmd_vel', 'cmd_vel silent (the commander died)', CMD_VEL_TIMEOUT_S + 20e-3)):
+        if case not in results:
+            continue
         zeros = [z for z, _ in results[case]]
         rests = [r for _, r in results[case]]
         rows.append(('%s → commanded zero, p50 / p99 (n=%d)' % (what, len(zeros)),
@@ -289,6 +299,8 @@ def main() -> int:
     for case, what, goal in (('arm_kill', 'the left arm\'s controller SIGKILLed during a trajectory', 50e-3),
                              ('arm_stall', 'the left arm\'s controller stalled during a trajectory', 50e-3),
                              ('arm_servo', 'the servo stream silent (125 Hz before)', 100e-3)):
+        if case not in results:
+            continue
         zeros = [z for z, _, _ in results[case]]
         rests = [r for _, r, _ in results[case]]
         rows.append(('%s → told to hold, p50 / p99 (n=%d)' % (what, len(zeros)),
@@ -296,17 +308,19 @@ def main() -> int:
                      '≤ %s p99' % ms(goal)))
         rows.append(('… then at rest, p50 / max', '%s / %s' % (ms(pct(rests, 50)), ms(max(rests))),
                      'braking at 8 rad/s²'))
-    missed = [z - 1.0 / 125 for z, _, _ in results['arm_servo']]
-    rows.append(('… the same, from the message that did not come (8 ms after the last), p50 / p99',
-                 '%s / %s' % (ms(pct(missed, 50)), ms(pct(missed, 99))), '≤ 100 ms p99'))
-    lat = [x for _, _, trial_lat in results['arm_servo'] for x in trial_lat]
+    missed = [z - 1.0 / 125 for z, _, _ in results.get('arm_servo', [])]
+    if missed:
+        rows.append(('… the same, from the message that did not come (8 ms after the last), p50 / p99',
+                     '%s / %s' % (ms(pct(missed, 50)), ms(pct(missed, 99))), '≤ 100 ms p99'))
+    lat = [x for _, _, trial_lat in results.get('arm_servo', []) for x in trial_lat]
     if lat:
         rows.append(('servo message → its setpoint to the motors, p50 / p95 (n=%d)' % len(lat),
                      '%.1f / %.1f ms' % (pct(lat, 50) * 1e3, pct(lat, 95) * 1e3), '≤ 10 ms p95'))
-    fs = results['false_stops']
-    rows.append(('false stops: motor watchdog trips with a live controller, %.0f s of driving' % fs['seconds'],
-                 str(fs['trips']), '0'))
-    print_table('Robot: the base\'s stops (motor watchdog %s; %d CPU hogs)' % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)
+    fs = results.get('false_stops')
+    if fs:
+        rows.append(('false stops: motor watchdog trips with a live controller, %.0f s of driving' % fs['seconds'],
+                     str(fs['trips']), '0'))
+    print_table('Robot: the base\'s and the arms\' stops (motor watchdog %s; %d CPU hogs)' % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'robot.json'), 'w') as f:
         json.dump({'hogs': args.hogs, **results}, f, indent=1)

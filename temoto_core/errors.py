@@ -37,6 +37,7 @@ class ErrorCode(enum.IntEnum):
     SHUTDOWN = 19
     NAME_TAKEN = 20             # a node name that a live node (or another managed process) already has
     RECOVERING = 21             # a registrar still taking its registry back after a restart: ask again
+    ROBOT_NOT_FOUND = 22        # no described robot has what was asked
 
 
 class Subsystem(enum.IntEnum):
@@ -47,6 +48,7 @@ class Subsystem(enum.IntEnum):
     CONTEXT_MANAGER = 4
     ACTION_ENGINE = 5
     SIMULATION = 6
+    ROBOT_MANAGER = 7
 
 
 class ErrorFrame:

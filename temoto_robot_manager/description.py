@@ -19,7 +19,8 @@ One file holds a list under ``robots``::
           base_frame: base_link
           footprint: [0.99, 0.67]            # length and width (m), for the costmap and the collision monitor
           obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
-            - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data}
+            - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data,
+               package: vaultbot_sim, executable: sick_driver}     # optional: that device, not the best of the type
           places:                            # named places: [x, y, yaw] in odom_frame (m, m, rad)
             home: [0.0, 0.0, 0.0]
         manipulation:
@@ -58,7 +59,7 @@ _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(F
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_frame', 'base_frame', 'footprint',
                     'obstacle_sources', 'places'}
-_SOURCE_KEYS = {'label', 'sensor_type', 'output_topic'}
+_SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
 _GRIPPER_KEYS = {'controller', 'action', 'arm'}
 
@@ -82,9 +83,13 @@ class Part:
 
 @dataclass(frozen=True)
 class ObstacleSource:
+    """A source of obstacles, asked of the Sensor Manager: its best sensor of the type, or the one named by its
+    package and executable (the base's own scanner, when an arm carries another of the same type)."""
     label: str
     sensor_type: str
     output_topic: str
+    package: str = ''
+    executable: str = ''
 
 
 @dataclass(frozen=True)
@@ -203,7 +208,9 @@ class _Reader:
             s_at = sources_at + [i]
             s_raw = self.mapping(s, s_at, _SOURCE_KEYS, ('sensor_type', 'output_topic'))
             ranked.append(ObstacleSource(self.text(s_raw, 'label', s_at, default=str(s_raw.get('sensor_type'))),
-                                         self.text(s_raw, 'sensor_type', s_at), self.text(s_raw, 'output_topic', s_at)))
+                                         self.text(s_raw, 'sensor_type', s_at), self.text(s_raw, 'output_topic', s_at),
+                                         self.text(s_raw, 'package', s_at, default=''),
+                                         self.text(s_raw, 'executable', s_at, default='')))
         places = {}
         places_raw = raw.get('places', {})
         if not isinstance(places_raw, dict):

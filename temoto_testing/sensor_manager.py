@@ -116,6 +116,18 @@ def set_cable(device, state, mode=''):
     return time.monotonic()
 
 
+def start_robot_manager(launcher, descriptions=''):
+    """The Robot Manager, with the VaultBot's description unless ``descriptions`` names others."""
+    proc = launcher.node('temoto_robot_manager', 'temoto_robot_manager',
+                         params={'descriptions': descriptions} if descriptions else {})
+    rospy.wait_for_service('/%s/temoto_robot_manager/load_robot' % NS, timeout=20)
+    return proc
+
+
+def robot_info():
+    return _json('/%s/temoto_robot_manager/robots' % NS)
+
+
 def start_context_manager(launcher, trackers=''):
     params = {'trackers': trackers} if trackers else {}
     proc = launcher.node('temoto_context_manager', 'temoto_context_manager', params=params)

@@ -1,0 +1,207 @@
+"""The Robot Manager's logic: a described robot loaded with the features wanted, its parts linked to it.
+
+``load_robot`` is a resource of this manager's registrar. Its parts are linked sub-resources,
+each asked for inside the load (``temoto_core.rr``: a call made in a load callback is linked
+to the resource being loaded):
+- each feature's controller and driver, started through the ER Manager, unless the
+  description says it runs with the robot already (``running: true``), which is then checked:
+  its topic must have a publisher;
+- for navigation, the best obstacle source that works, asked of the Sensor Manager down the
+  description's ranking (``temoto_core.fallback.first_that_works``).
+
+So a part that fails (a controller that crashes, an obstacle sensor that stalls) reaches the
+holder of the robot as FAILED through the registrar, with the part named on the error stack, and
+an unload releases every part. A load that fails is rolled back by the registrar (nothing stays
+started), and the error names the part and the reason. A robot whose load fails, or whose part
+fails, is less reliable next time (``temoto_core.reliability``), as the original's manager
+lowered a failed robot's reliability.
+
+What the original did wrong and this does not: it reported success when a part had failed
+(``res.success = true`` after forwarding), waited for drivers without a bound, and never
+passed a failure on to its client.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Dict, List, Optional, Sequence
+
+import rosgraph
+import rospy
+from diagnostic_msgs.msg import KeyValue
+
+from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.fallback import first_that_works
+from temoto_core.reliability import Reliability
+from temoto_core.rr import ResourceRegistrar, StatusEvent
+from temoto_core.rr.settings import journal_param
+from temoto_core.srv import GetRegistry, GetRegistryResponse
+from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
+from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, ROBOTS, RR_NAME as NAME
+from temoto_robot_manager.description import FEATURES, Part, RobotDescription
+from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
+
+SUB = Subsystem.ROBOT_MANAGER
+RUNNING_CHECK_S = 5.0          # a part that runs with the robot must show its topic within this
+CHECK_PERIOD_S = 0.1
+
+
+class RobotManager:
+    def __init__(self, robots: Sequence[RobotDescription], problems: Sequence[object] = (),
+                 namespace: Optional[str] = None) -> None:
+        self.robots: Dict[str, RobotDescription] = {r.name: r for r in robots}
+        self.reliability: Dict[str, Reliability] = {r.name: Reliability(prior=r.reliability) for r in robots}
+        self.problems = [str(p) for p in problems]
+        for problem in self.problems:
+            rospy.logerr('%s: description: %s', NAME, problem)
+        self._lock = threading.Lock()
+        self._robot_of_part: Dict[int, str] = {}     # a part's local id -> the robot it serves
+        self._loaded: Dict[int, dict] = {}           # load_robot internal id -> what it holds
+        self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB, journal=journal_param())
+        self.namespace = self.rr.namespace
+        self.rr.register_status_callback(self._on_part_status)
+        self.rr.add_server(LOAD_ROBOT, LOAD_ROBOT_TYPE, self._load, self._unload, recover=lambda q, s: None)
+        self._info_srv = rospy.Service('/%s/%s/%s' % (self.namespace, NAME, ROBOTS), GetRegistry,
+                                       lambda _req: GetRegistryResponse(json=self.info_json()))
+        self.rr.resume()
+        rospy.loginfo('%s: ready with robots %s', NAME, ', '.join(
+            '%s (%s)' % (r.name, ', '.join(r.features)) for r in robots) or 'none')
+
+    # -- load_robot --------------------------------------------------------------------------------------
+    def choose(self, robot_name: str, features: List[str]) -> RobotDescription:
+        """The robot asked for by name, or the most reliable one with every feature; raises naming why none."""
+        unknown = [f for f in features if f not in FEATURES]
+        if unknown:
+            raise TemotoError(ErrorCode.BAD_REQUEST, SUB, 'unknown feature %s (features: %s)'
+                              % (', '.join(repr(f) for f in unknown), ', '.join(FEATURES)))
+        if robot_name:
+            robot = self.robots.get(robot_name)
+            if robot is None:
+                raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'no robot %r is described (described: %s)'
+                                  % (robot_name, ', '.join(sorted(self.robots)) or 'none'))
+            missing = [f for f in features if f not in robot.features]
+            if missing:
+                raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'robot %s has no %s (it has: %s)'
+                                  % (robot_name, ', '.join(missing), ', '.join(robot.features)))
+            return robot
+        able = [r for r in self.robots.values() if all(f in r.features for f in features)]
+        if not able:
+            raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'no described robot has %s (described: %s)' % (
+                ', '.join(features) or 'a feature', '; '.join('%s: %s' % (r.name, ', '.join(r.features))
+                                                              for r in self.robots.values()) or 'none'))
+        return max(able, key=lambda r: self.reliability[r.name].value)
+
+    def _load(self, req, res) -> None:
+        features = [f.strip() for f in req.features if f.strip()]
+        robot = self.choose(req.robot_name.strip(), features)
+        features = features or robot.features
+        parts: List[KeyValue] = []
+        try:
+            if 'navigation' in features:
+                parts += self._navigation(robot)
+            if 'manipulation' in features:
+                for arm in robot.manipulation.values():
+                    parts.append(self._part(robot, 'manipulation.%s.controller' % arm.name, arm.controller,
+                                            arm.action + '/status'))
+            if 'gripper' in features:
+                parts.append(self._part(robot, 'gripper.controller', robot.gripper.controller,
+                                        robot.gripper.action + '/status'))
+        except TemotoError:
+            self.reliability[robot.name].failure()
+            raise
+        self.reliability[robot.name].success()
+        res.robot_name, res.features, res.parts = robot.name, features, parts
+        with self._lock:
+            self._loaded[res.trr.resource_id] = {'robot': robot.name, 'features': features,
+                                                 'parts': {kv.key: kv.value for kv in parts}}
+        rospy.loginfo('%s: loaded %s with %s: %s', NAME, robot.name, ', '.join(features),
+                      '; '.join('%s = %s' % (kv.key, kv.value) for kv in parts))
+
+    def _unload(self, req, res) -> None:
+        """The registrar releases the linked parts; only the bookkeeping is left."""
+        with self._lock:
+            self._loaded.pop(res.trr.resource_id, None)
+
+    def _navigation(self, robot: RobotDescription) -> List[KeyValue]:
+        nav = robot.navigation
+        parts = [self._part(robot, 'navigation.driver', nav.driver, nav.odom_topic)]
+        if nav.controller is not None:
+            parts.append(self._part(robot, 'navigation.controller', nav.controller, ''))
+
+        def attempt(source):
+            resp = self.rr.call(SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE._request_class(
+                sensor_type=source.sensor_type, package_name=source.package, executable=source.executable,
+                output_topics=[KeyValue(source.output_topic, '')]))
+            with self._lock:
+                self._robot_of_part[resp.trr.resource_id] = robot.name
+            topic = dict((kv.key, kv.value) for kv in resp.output_topics).get(source.output_topic, '')
+            return '%s (%s) on %s' % (source.label, resp.sensor_name, topic)
+        _, served = first_that_works(nav.obstacle_sources, attempt, what='an obstacle source for %s' % robot.name,
+                                     subsystem=SUB, name=lambda s: s.label)
+        return parts + [KeyValue('navigation.obstacles', served)]
+
+    def _part(self, robot: RobotDescription, label: str, part: Part, topic: str) -> KeyValue:
+        """Start ``part`` through the ER Manager (linked), or check that it runs; raises naming the part."""
+        if part.running:
+            if topic and not self._published(topic):
+                raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, '%s of %s: nothing publishes %s after %.0f s; it '
+                                  'should run with the robot (%s %s)' % (label, robot.name, rospy.resolve_name(topic),
+                                                                          RUNNING_CHECK_S, part.package,
+                                                                          part.executable))
+            return KeyValue(label, 'runs with the robot (%s %s)' % (part.package, part.executable))
+        try:
+            resp = self.rr.call(ER_MANAGER, LOAD_PROCESS, LOAD_PROCESS_TYPE._request_class(
+                action='ros_execute', package_name=part.package, executable=part.executable, args=part.args))
+        except TemotoError as err:
+            raise err.extended(ErrorCode.RESOURCE_FAILED, SUB, '%s of %s could not start' % (label, robot.name),
+                               self.rr.prefix) from None
+        with self._lock:
+            self._robot_of_part[resp.trr.resource_id] = robot.name
+        if topic and not self._published(topic):
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, '%s of %s started (pid %d) but nothing publishes %s '
+                              'after %.0f s' % (label, robot.name, resp.pid, rospy.resolve_name(topic),
+                                                RUNNING_CHECK_S))
+        return KeyValue(label, 'process %d (%s %s %s)' % (resp.pid, part.package, part.executable, part.args))
+
+    @staticmethod
+    def _published(topic: str) -> bool:
+        """Whether ``topic`` has a publisher at the master, within a bound."""
+        name = rospy.resolve_name(topic)
+        master = rosgraph.Master(rospy.get_name())
+        deadline = time.monotonic() + RUNNING_CHECK_S
+        while True:
+            try:
+                if any(t == name for t, _ in master.getPublishedTopics('')):
+                    return True
+            except (rosgraph.MasterException, OSError):
+                pass
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(CHECK_PERIOD_S)
+
+    # -- status ----------------------------------------------------------------------------------------------
+    def _on_part_status(self, event: StatusEvent) -> None:
+        """A part's FAILED: its robot is less reliable. The registrar has already forwarded it to the holders."""
+        if not event.failed:
+            return
+        with self._lock:
+            robot = self._robot_of_part.pop(event.resource_id, None)
+        if robot is not None:
+            self.reliability[robot].failure()
+            rospy.logwarn('%s: a part of %s failed: %s', NAME, robot, event.message)
+
+    # -- introspection -----------------------------------------------------------------------------------------
+    def info_json(self) -> str:
+        with self._lock:
+            loaded = list(self._loaded.values())
+        return json.dumps({'robots': [{
+            'name': r.name, 'description': r.description, 'features': r.features,
+            'reliability': round(self.reliability[r.name].value, 3),
+            'places': sorted(r.navigation.places) if r.navigation else [],
+            'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
+            'loaded': [dict(entry, features=list(entry['features'])) for entry in loaded if entry['robot'] == r.name],
+        } for r in self.robots.values()], 'problems': self.problems}, sort_keys=True)
+
+    def shutdown(self) -> None:
+        self.rr.shutdown()

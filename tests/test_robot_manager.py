@@ -1,0 +1,93 @@
+"""The Robot Manager end to end: load_robot starts each feature's parts through the ER and Sensor Managers as
+linked sub-resources; a part's failure reaches the robot's holder; an unload leaves nothing running.
+Shared by the module: roscore, vaultbot_sim with its base controller, and the three managers."""
+import os
+import signal
+import threading
+
+import pytest
+
+from temoto_core.errors import ErrorCode, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_testing import made_interfaces, wait_for
+from temoto_testing.sensor_manager import (ROOT, er_processes, managers_idle, robot_info, start_er_manager,
+                                           start_robot_manager, start_sensor_manager, start_sim)
+
+HANG = 60.0
+RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
+ARM_CONTROLLERS = {'left_arm_controller', 'right_arm_controller'}
+
+
+@pytest.fixture(scope='module')
+def stack(rospy_client, module_procs, tmp_path_factory):
+    start_sim(module_procs)
+    module_procs.node('vaultbot_sim', 'base_controller')
+    start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
+    start_sensor_manager(module_procs, first_data_timeout=20.0, extra='')      # the VaultBot's sensors only
+    start_robot_manager(module_procs)
+    return module_procs
+
+
+@pytest.fixture
+def rmi(stack):
+    with made_interfaces(RobotManagerInterface) as make:
+        yield make
+    managers_idle(RRS, timeout=30)
+
+
+def running_labels():
+    return {' '.join(p['command']) if isinstance(p['command'], list) else p['command'] for p in er_processes()}
+
+
+def arm_controllers_running():
+    return {name for name in ARM_CONTROLLERS if any(name in label for label in running_labels())}
+
+
+def test_a_robot_with_every_feature_runs_its_parts_and_an_unload_stops_them(rmi):
+    rm = rmi()
+    robot = rm.load_robot(['navigation', 'manipulation'])
+    assert robot.robot_name == 'vaultbot' and robot.features == ('navigation', 'manipulation')
+    assert robot.parts['navigation.driver'].startswith('runs with the robot')
+    assert robot.parts['navigation.obstacles'].startswith('base LIDAR scan (sick_lms511) on ')
+    assert robot.parts['manipulation.left_arm.controller'].startswith('process ')
+    assert arm_controllers_running() == ARM_CONTROLLERS
+    loaded = robot_info()['robots'][0]['loaded']
+    assert [entry['features'] for entry in loaded] == [['navigation', 'manipulation']]
+    rm.release(robot.resource_id)
+    wait_for(lambda: not arm_controllers_running(), HANG, 'the arm controllers to stop')
+    assert robot_info()['robots'][0]['loaded'] == []
+
+
+def test_a_crashed_part_reaches_the_holder_as_failed_naming_it(rmi):
+    heard = []
+    got = threading.Event()
+
+    def on_status(event):
+        heard.append(event)
+        got.set()
+    rm = rmi()
+    robot = rm.load_robot(['manipulation'], on_status=on_status)
+    pid = next(p['pid'] for p in er_processes() if 'left_arm_controller' in str(p['command']))
+    before = robot_info()['robots'][0]['reliability']
+    os.kill(pid, signal.SIGKILL)
+    assert got.wait(HANG), 'no status reached the robot\'s holder'
+    event = heard[0]
+    assert event.code == ResourceStatus.FAILED and event.resource_id == robot.resource_id
+    assert 'arm_controller' in str(event.message) + ' '.join(str(f) for f in event.error_stack)
+    wait_for(lambda: robot_info()['robots'][0]['reliability'] < before, HANG, 'the robot to be less reliable')
+    rm.release(robot.resource_id)
+    wait_for(lambda: not arm_controllers_running(), HANG, 'the other arm controller to stop too')
+
+
+@pytest.mark.parametrize('features, name, code, words', [
+    (['flying'], '', ErrorCode.BAD_REQUEST, "unknown feature 'flying'"),
+    (['gripper'], '', ErrorCode.ROBOT_NOT_FOUND, 'no described robot has gripper'),
+    ([], 'husky_9', ErrorCode.ROBOT_NOT_FOUND, "no robot 'husky_9' is described (described: vaultbot)"),
+])
+def test_a_bad_request_is_refused_naming_what_is_wrong_and_starts_nothing(rmi, features, name, code, words):
+    before = running_labels()
+    with pytest.raises(TemotoError) as caught:
+        rmi().load_robot(features, robot_name=name)
+    assert any(f.code == code for f in caught.value.stack) and words in str(caught.value), str(caught.value)
+    assert running_labels() == before
