@@ -84,6 +84,7 @@ class Commander:
         self.speed = 0.0
         self.silent = True
         self.last_sent = 0.0
+        self.quiet = threading.Event()     # set by the thread once it has seen ``silent``: nothing more goes out
         self._stop = threading.Event()
         threading.Thread(target=self._run, daemon=True, name='cmd_vel').start()
 
@@ -94,6 +95,15 @@ class Commander:
                 msg.linear.x = self.speed
                 self.pub.publish(msg)
                 self.last_sent = time.time()
+            else:
+                self.quiet.set()
+
+    def fall_silent(self) -> float:
+        """Stop sending; the wall time of the last message, once the thread can send no more."""
+        self.quiet.clear()
+        self.silent = True
+        wait_for(self.quiet.is_set, HANG, 'the commander to fall silent')
+        return self.last_sent
 
     def close(self):
         self._stop.set()
@@ -125,8 +135,7 @@ def trial(launcher, cmd, truth, case, index):
         elif case == 'stall':
             set_cable('base', 'unplugged', 'stall')
         else:                           # the commander dies: cmd_vel stops
-            cmd.silent = True
-            t0 = cmd.last_sent
+            t0 = cmd.fall_silent()
         zero, rest = stopped(truth, t0)
         return zero - t0, rest - zero
     finally:
@@ -150,6 +159,12 @@ class ArmTruth:
         self.states, self.setpoints = [], []
         rospy.Subscriber('/vaultbot_sim/arm_states', ArmState, self._on_state, queue_size=500, tcp_nodelay=True)
         rospy.Subscriber('/left_arm/joint_command', JointState, self._on_setpoint, queue_size=500, tcp_nodelay=True)
+        rospy.Subscriber('/joint_states', JointState, self._on_joints, queue_size=5, tcp_nodelay=True)
+        self.pan = HOLD_POSE[LEFT[0]]
+
+    def _on_joints(self, msg):
+        if LEFT[0] in msg.name:
+            self.pan = msg.position[msg.name.index(LEFT[0])]
 
     def _on_state(self, msg):
         if msg.arm == 'left_arm':
@@ -205,7 +220,10 @@ def arm_trial(launcher, arm, case, index, servo_pub):
                 raise RuntimeError('the left arm\'s action server did not come up')
             goal = FollowJointTrajectoryGoal()
             goal.trajectory.joint_names = LEFT
-            point = JointTrajectoryPoint(positions=[start + direction * 1.5] + [HOLD_POSE[j] for j in LEFT[1:]])
+            # 1.5 rad from where the shoulder is, back toward the hold pose: every trial moves as far
+            here = arm.pan
+            point = JointTrajectoryPoint(positions=[here + (-1.5 if here > start else 1.5)] +
+                                         [HOLD_POSE[j] for j in LEFT[1:]])
             point.time_from_start = rospy.Duration(3.0)
             goal.trajectory.points = [point]
             client.send_goal(goal)
@@ -320,9 +338,11 @@ def main() -> int:
     if fs:
         rows.append(('false stops: motor watchdog trips with a live controller, %.0f s of driving' % fs['seconds'],
                      str(fs['trips']), '0'))
-    print_table('Robot: the base\'s and the arms\' stops (motor watchdog %s; %d CPU hogs)' % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)
+    print_table('Robot: the base\'s and the arms\' stops (motor watchdog %s; %d CPU hogs)'
+                % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
-    with open(os.path.join(ROOT, 'bench', 'results', 'robot.json'), 'w') as f:
+    with open(os.path.join(ROOT, 'bench', 'results', 'robot%s.json' % ('_' + args.only if args.only else '')),
+              'w') as f:
         json.dump({'hogs': args.hogs, **results}, f, indent=1)
     return 0
 

@@ -124,7 +124,10 @@ def test_temoto_robots_check_says_what_is_wrong_and_where(tmp_path):
     bad = run_cli('check', VAULTBOT, bad_path)
     assert bad.returncode == 1
     assert 'error %s:4: unknown key robots[0].navigation.drivr' % bad_path in bad.stdout, bad.stdout
-    assert run_cli().returncode == 2, 'no subcommand: a usage error'
+    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:9')      # nobody there
+    listed = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'], capture_output=True, text=True,
+                            timeout=60, env=env)
+    assert listed.returncode == 1 and 'the Robot Manager does not answer' in listed.stderr, listed.stderr
 
 
 def test_the_description_reads_without_a_master():

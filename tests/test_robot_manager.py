@@ -3,6 +3,8 @@ linked sub-resources; a part's failure reaches the robot's holder; an unload lea
 Shared by the module: roscore, vaultbot_sim with its base controller, and the three managers."""
 import os
 import signal
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -54,6 +56,10 @@ def test_a_robot_with_every_feature_runs_its_parts_and_an_unload_stops_them(rmi)
     assert arm_controllers_running() == ARM_CONTROLLERS
     loaded = robot_info()['robots'][0]['loaded']
     assert [entry['features'] for entry in loaded] == [['navigation', 'manipulation']]
+    listed = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'], capture_output=True, text=True,
+                            timeout=60)
+    assert listed.returncode == 0 and 'vaultbot' in listed.stdout and 'navigation, manipulation (' in listed.stdout, \
+        listed.stdout + listed.stderr
     rm.release(robot.resource_id)
     wait_for(lambda: not arm_controllers_running(), HANG, 'the arm controllers to stop')
     assert robot_info()['robots'][0]['loaded'] == []

@@ -18,8 +18,6 @@ As ros_control's joint_trajectory_controller does for a real UR5:
 from __future__ import annotations
 
 import math
-import os
-import sys
 import threading
 import time
 from typing import Dict, Optional, Tuple
@@ -34,13 +32,11 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from temoto_core import params
 from temoto_core.node import init_node, ok
 from vaultbot_sim.arm import COMMAND_RATE_HZ, SPEED, JointRange
-from vaultbot_sim.devices import Cable, CableWatch
-from vaultbot_sim.msg import DeviceStates
+from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.spec import ARM_JOINTS
-from vaultbot_sim.trajectory import (GOAL_TOLERANCE_VIOLATED, INVALID_GOAL, OLD_HEADER_TIMESTAMP,
+from vaultbot_sim.trajectory import (GOAL_TOLERANCE_VIOLATED, OLD_HEADER_TIMESTAMP,
                                      PATH_TOLERANCE_VIOLATED, Refused, Trajectory)
 
-EXIT_DEVICE_LOST = 1
 ARMS = ('left_arm', 'right_arm')
 UR5_RANGE = JointRange(-2 * math.pi, 2 * math.pi)
 SERVO_TIMEOUT_S = 0.1
@@ -59,20 +55,17 @@ class ArmController:
         self.sim_ns = rospy.resolve_name(params.text('sim_ns', 'vaultbot_sim', empty=False)).rstrip('/')
         self.servo_timeout = params.number('servo_timeout', SERVO_TIMEOUT_S, above=0, maximum=1.0)
         self.rate = params.number('rate', COMMAND_RATE_HZ, above=0, maximum=1000)
-        self.cable = CableWatch(self.arm)
         self.lock = threading.Lock()
         self.position: Dict[str, float] = {}
         self.servo: Optional[Tuple[float, Dict[str, Tuple[float, float]]]] = None    # (when, setpoint)
         self.running_goal = False
-        self._seen = threading.Event()
         self._positions = threading.Event()
         self.pub = rospy.Publisher('%s/joint_command' % self.arm, JointState, queue_size=10, tcp_nodelay=True)
-        rospy.Subscriber(self.sim_ns + '/device_states', DeviceStates, self._on_states, queue_size=5,
-                         tcp_nodelay=True)
+        self.cable = CableFollower(self.arm, '%s: arm controller' % self.arm, self.sim_ns)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
         timeout = params.number('startup_timeout', 10.0, above=0)
-        if not self._seen.wait(timeout) or not self._positions.wait(timeout):
-            self.fail('%s: no device states or joint states after %.0f s (is vaultbot_sim running?)'
+        if not self.cable.seen.wait(timeout) or not self._positions.wait(timeout):
+            fail('%s: no device states or joint states after %.0f s (is vaultbot_sim running?)'
                       % (self.arm, timeout))
         rospy.Subscriber('%s/servo_command' % self.arm, JointTrajectory, self._on_servo, queue_size=10,
                          tcp_nodelay=True)
@@ -81,20 +74,9 @@ class ArmController:
         self.server.start()
 
     # --- inputs ----------------------------------------------------------------------------------------
-    def fail(self, text: str) -> None:
-        rospy.logerr(text)
-        sys.stderr.flush()
-        os._exit(EXIT_DEVICE_LOST)
-
     @property
     def running(self) -> bool:
-        return self.cable.verdict == 'run'
-
-    def _on_states(self, msg: DeviceStates) -> None:
-        verdict = self.cable.update([Cable(d.name, d.plugged, d.mode) for d in msg.devices])
-        self._seen.set()
-        if verdict == 'crash':
-            self.fail('%s: arm controller disconnected (cable unplugged): exiting' % self.arm)
+        return self.cable.running
 
     def _on_joint_states(self, msg: JointState) -> None:
         pos = dict(zip(msg.name, msg.position))

@@ -17,8 +17,6 @@ As a real base driver does (husky_base with diff_drive_controller):
 from __future__ import annotations
 
 import math
-import os
-import sys
 import threading
 import time
 
@@ -32,13 +30,11 @@ from tf2_msgs.msg import TFMessage
 from temoto_core import params
 from temoto_core.node import init_node, ok
 from vaultbot_sim.base import (CMD_VEL_TIMEOUT_S, COMMAND_RATE_HZ, CommandShaper, WheelOdometry, wheel_speeds)
-from vaultbot_sim.devices import Cable, CableWatch
+from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.kinematics import quat_from_matrix
-from vaultbot_sim.msg import DeviceStates
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.spec import BASE_JOINTS, WHEEL_JOINTS
 
-EXIT_DEVICE_LOST = 1
 IDLE_PERIOD_S = 1.0     # at rest, one zero command a second
 
 
@@ -56,17 +52,14 @@ class BaseController:
                                                           maximum=10.0))
         self.rate = params.number('rate', COMMAND_RATE_HZ, above=0, maximum=1000)
         startup_timeout = params.number('startup_timeout', 10.0, above=0)
-        self.cable = CableWatch('base')
         self.lock = threading.Lock()
         self.odometry: WheelOdometry | None = None
-        self._seen = threading.Event()
         self.pub_wheels = rospy.Publisher('wheel_command', JointState, queue_size=10, tcp_nodelay=True)
         self.pub_odom = rospy.Publisher('odom', Odometry, queue_size=10, tcp_nodelay=True)
         self.pub_tf = rospy.Publisher('/tf', TFMessage, queue_size=10, tcp_nodelay=True)
-        rospy.Subscriber(self.sim_ns + '/device_states', DeviceStates, self._on_states, queue_size=5,
-                         tcp_nodelay=True)
-        if not self._seen.wait(startup_timeout):
-            self.fail('base: nothing on %s/device_states after %.0f s (is vaultbot_sim running?)'
+        self.cable = CableFollower('base', 'base: motor controller', self.sim_ns)
+        if not self.cable.seen.wait(startup_timeout):
+            fail('base: nothing on %s/device_states after %.0f s (is vaultbot_sim running?)'
                       % (self.sim_ns, startup_timeout))
         prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))
         self.odom_frame, self.base_frame = prefix + 'odom', prefix + 'base_link'
@@ -74,23 +67,9 @@ class BaseController:
         rospy.Subscriber('cmd_vel', Twist, self._on_cmd_vel, queue_size=10, tcp_nodelay=True)
         rospy.on_shutdown(self._stop_motors)
 
-    def fail(self, text: str) -> None:
-        """Exit as a base driver does when it loses its hardware: at once, without cleaning up."""
-        rospy.logerr(text)
-        sys.stderr.flush()
-        os._exit(EXIT_DEVICE_LOST)
-
     @property
     def running(self) -> bool:
-        return self.cable.verdict == 'run'
-
-    def _on_states(self, msg: DeviceStates) -> None:
-        verdict = self.cable.update([Cable(d.name, d.plugged, d.mode) for d in msg.devices])
-        self._seen.set()
-        if verdict == 'crash':
-            self.fail('base: motor controller disconnected (cable unplugged): exiting')
-        if verdict == 'stall':
-            rospy.logwarn_once('base: motor controller not responding (cable unplugged, stall): silent')
+        return self.cable.running
 
     def _on_cmd_vel(self, msg: Twist) -> None:
         try:

@@ -45,9 +45,9 @@ class StatusChannels:
         self._idle: Dict[str, float] = {}    # status topic -> when its last user left
 
     def publisher(self, topic: str) -> rospy.Publisher:
-        """The channel's publisher (``status_pipeline.announce`` publishes on it), made by one thread while the others wait for it. It is made outside the
-        lock: rospy may hold the making thread until the master answers, and a status on another channel
-        must not wait for that."""
+        """The channel's publisher (``status_pipeline.announce`` publishes on it), made by one thread while the
+        others wait for it. It is made outside the lock: rospy may hold the making thread until the master
+        answers, and a status on another channel must not wait for that."""
         while True:
             with self._lock:
                 pub = self._publishers.get(topic)

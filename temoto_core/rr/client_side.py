@@ -8,7 +8,7 @@ import json
 import threading
 import time
 import xmlrpc.client
-from typing import Callable, Dict, Hashable, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import rospy
 from rospy.exceptions import TransportException

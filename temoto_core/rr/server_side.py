@@ -8,18 +8,17 @@ response, never a half-filled one.
 """
 import http.client
 import xmlrpc.client
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Dict, Optional, Tuple
 
 import rosgraph
 import rospy
 
-from temoto_core.errors import ErrorCode, ErrorFrame, TemotoError
+from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.master_lookup import lookup_node
-from temoto_core.msg import ResourceStatus
 from temoto_core.rr.channels import MasterAway, StatusChannels
 from temoto_core.rr.core import RegistrarCore
 from temoto_core.rr.links import Links
-from temoto_core.rr.messages import STATUS_CODES, as_sent, legal_name, node_uri
+from temoto_core.rr.messages import as_sent, legal_name, node_uri
 from temoto_core.rr.query import (ACTIVE, FAILED, GONE, LOADING, UNLOADING, Consumer, Server, ServerQuery)
 from temoto_core.rr.recorder import Recorder
 from temoto_core.srv import Reclaim
