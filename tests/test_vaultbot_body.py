@@ -2,12 +2,14 @@
 query: how touches are counted, and how the arms' motors track, stop and protective-stop. The real collision
 world and the processes are in test_vaultbot_base.py and test_vaultbot_arms.py."""
 import math
+import time
 
 import pytest
 
 from vaultbot_sim.arm import ACCEL, SPEED, ArmPlant, JointRange
 from vaultbot_sim.base import BasePlant, wheel_speeds
 from vaultbot_sim.body import CONTACT_MARGIN, Body
+from vaultbot_sim.ticks import Ticks
 
 JOINTS = ['j1', 'j2']
 RANGES = {j: JointRange(-2 * math.pi, 2 * math.pi) for j in JOINTS}
@@ -97,3 +99,15 @@ def test_a_setpoint_must_name_every_joint_of_the_arm_with_finite_values():
     with pytest.raises(ValueError, match='finite'):
         plant.command({'j1': (math.nan, 0.0), 'j2': (0.0, 0.0)}, 0.0)
     assert plant.setpoint is None and not plant.held, 'a refused command changed nothing'
+
+
+def test_ticks_wake_early_for_a_deadline_and_keep_their_rhythm():
+    ticks = Ticks(0.5)                     # long enough that no machine is late by a whole tick here
+    t0 = ticks.next
+    ticks.wait(wake_by=t0 + 0.01)          # a deadline before the tick: woken for it, the tick still to come
+    assert ticks.next == t0 and time.monotonic() >= t0 + 0.01
+    ticks.wait()
+    assert ticks.next == pytest.approx(t0 + 0.5) and time.monotonic() >= t0 + 0.5
+    ticks.next -= 5.0                      # ten ticks late: started again from now, no burst of ticks
+    ticks.wait()
+    assert 0.0 <= time.monotonic() - ticks.next < 0.5

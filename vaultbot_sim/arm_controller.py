@@ -34,6 +34,7 @@ from temoto_core.node import init_node, ok
 from vaultbot_sim.arm import COMMAND_RATE_HZ, SPEED, JointRange
 from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.spec import ARM_JOINTS
+from vaultbot_sim.ticks import Ticks
 from vaultbot_sim.trajectory import (GOAL_TOLERANCE_VIOLATED, OLD_HEADER_TIMESTAMP,
                                      PATH_TOLERANCE_VIOLATED, Refused, Trajectory)
 
@@ -214,8 +215,7 @@ class ArmController:
 
     # --- the servo stream --------------------------------------------------------------------------------
     def spin(self) -> None:
-        period = 1.0 / self.rate
-        next_t = time.monotonic()
+        ticks = Ticks(1.0 / self.rate)
         rospy.loginfo('%s: trajectories on %s/follow_joint_trajectory, servoing on %s/servo_command (deadman %.2f s)',
                       self.arm, self.arm, self.arm, self.servo_timeout)
         while ok():
@@ -232,18 +232,10 @@ class ArmController:
                 else:                                        # between two commands: where the last one leads
                     age = now - heard
                     self.send({j: (self.ranges[j].clamp(q + v * age), v) for j, (q, v) in setpoint.items()})
-            next_t += period
-            wake = next_t
             with self.lock:
-                if self.servo is not None:         # the deadman wakes the loop on time, not at its next tick
-                    wake = min(wake, self.servo[0] + self.servo_timeout + 0.0002)
-            delay = wake - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -period:
-                next_t = time.monotonic()
-            if wake < next_t:
-                next_t -= period                 # the tick is still to come
+                # the deadman wakes the loop on time, not at its next tick
+                deadline = None if self.servo is None else self.servo[0] + self.servo_timeout + 0.0002
+            ticks.wait(deadline)
 
 
 def main() -> None:

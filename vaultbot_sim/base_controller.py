@@ -16,11 +16,9 @@ As a real base driver does (husky_base with diff_drive_controller):
 """
 from __future__ import annotations
 
-import math
 import threading
 import time
 
-import numpy as np
 import rospy
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
@@ -31,18 +29,12 @@ from temoto_core import params
 from temoto_core.node import init_node, ok
 from vaultbot_sim.base import (CMD_VEL_TIMEOUT_S, COMMAND_RATE_HZ, CommandShaper, WheelOdometry, wheel_speeds)
 from vaultbot_sim.cable_follower import CableFollower, fail
-from vaultbot_sim.kinematics import quat_from_matrix
+from vaultbot_sim.kinematics import planar_matrix, quat_from_matrix
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.spec import BASE_JOINTS, WHEEL_JOINTS
+from vaultbot_sim.ticks import Ticks
 
 IDLE_PERIOD_S = 1.0     # at rest, one zero command a second
-
-
-def planar_matrix(x: float, y: float, yaw: float) -> np.ndarray:
-    m = np.eye(4)
-    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = math.cos(yaw), -math.sin(yaw), math.sin(yaw), math.cos(yaw)
-    m[0, 3], m[1, 3] = x, y
-    return m
 
 
 class BaseController:
@@ -116,8 +108,7 @@ class BaseController:
             self.pub_wheels.publish(self._wheel_command(0.0, 0.0))
 
     def spin(self) -> None:
-        period = 1.0 / self.rate
-        next_t = time.monotonic()
+        ticks = Ticks(1.0 / self.rate)
         rospy.loginfo('base: commanding the wheels at %.0f Hz; cmd_vel timeout %.2f s', self.rate,
                       self.shaper.timeout)
         idle_since = None                   # when the command last became zero
@@ -134,12 +125,7 @@ class BaseController:
                 elif idle_since is None or now - idle_since >= IDLE_PERIOD_S:
                     idle_since = now
                     self.pub_wheels.publish(self._wheel_command(0.0, 0.0))
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -period:
-                next_t = time.monotonic()      # late: the next command now, not a burst of stale ones
+            ticks.wait()
 
 
 def main() -> None:

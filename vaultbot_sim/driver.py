@@ -32,6 +32,7 @@ from vaultbot_sim.devices import Cable, CableWatch
 from vaultbot_sim.motion import JointHistory
 from vaultbot_sim.msg import DeviceStates
 from vaultbot_sim.scene import RENDERERS, Scene
+from vaultbot_sim.ticks import Ticks
 
 EXIT_DEVICE_LOST = 1
 DIAGNOSTICS_CONNECT_S = 1.0   # at most, for a subscriber of /diagnostics to connect before a start-up error
@@ -160,8 +161,7 @@ class DriverBase:
         raise NotImplementedError
 
     def spin(self) -> None:
-        period = 1.0 / self.rate
-        next_t = time.monotonic()
+        ticks = Ticks(1.0 / self.rate)
         first = True
         while ok():
             if self.cable.verdict == 'run':
@@ -172,12 +172,7 @@ class DriverBase:
                     rospy.loginfo('%s: publishing at %.0f Hz', self.device, self.rate)
                     self.publishing = True
                     first = False
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -period:
-                next_t = time.monotonic()  # running late: drop frames rather than burst
+            ticks.wait()
         self.close()
 
     def close(self) -> None:

@@ -64,6 +64,14 @@ def matrix_from_quat(q) -> np.ndarray:
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
+def planar_matrix(x: float, y: float, yaw: float) -> np.ndarray:
+    """A pose in the plane (metres, radians) as a homogeneous transform."""
+    m = np.eye(4)
+    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = math.cos(yaw), -math.sin(yaw), math.sin(yaw), math.cos(yaw)
+    m[0, 3], m[1, 3] = x, y
+    return m
+
+
 @dataclass
 class Joint:
     name: str

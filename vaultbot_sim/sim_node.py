@@ -39,7 +39,7 @@ from vaultbot_sim.arm import ArmPlant, JointRange
 from vaultbot_sim.base import MOTOR_TIMEOUT_S, BasePlant
 from vaultbot_sim.body import Body, joint_names
 from vaultbot_sim.devices import DeviceError, DeviceTable
-from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world
+from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, planar_matrix, resolve_world
 from vaultbot_sim.motion import HandWave, SimState, WristSweep
 from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceState, DeviceStates
 from vaultbot_sim.rosmsgs import tf_message
@@ -89,16 +89,7 @@ def wheel_command(msg: JointState) -> tuple[float, float]:
 
 def origin_matrix(value: object) -> np.ndarray:
     """``~origin`` [x, y, yaw] (metres, radians) as a homogeneous transform."""
-    try:
-        x, y, yaw = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError('~origin %r: expected [x, y, yaw] in metres and radians' % (value,)) from None
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise ValueError('~origin %r: every value must be finite' % (value,))
-    m = np.eye(4)
-    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = math.cos(yaw), -math.sin(yaw), math.sin(yaw), math.cos(yaw)
-    m[0, 3], m[1, 3] = x, y
-    return m
+    return planar_matrix(*planar_pose(value, 'origin'))
 
 
 class SimNode:
