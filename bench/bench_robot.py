@@ -115,13 +115,18 @@ def drive(cmd, truth, direction):
              'the base to drive')
 
 
-def stopped(truth, t0):
-    """(commanded zero at, at rest at): stamps from the truth after ``t0``."""
-    zero = wait_for(lambda: next((s for s in truth.since(t0) if s.commanded_linear == 0.0), None), HANG,
-                    'the commanded velocity to be zero')
-    rest = wait_for(lambda: next((s for s in truth.since(zero.header.stamp.to_sec()) if s.linear == 0.0), None),
-                    HANG, 'the base at rest')
+def stop_moments(states, t0, commanded, actual, what):
+    """(commanded zero at, at rest at): stamps of the first states after ``t0`` whose ``commanded`` field, then
+    whose ``actual`` field, is zero; ``states`` is a Truth or an ArmTruth, ``what`` names the part."""
+    zero = wait_for(lambda: next((s for s in states.since(t0) if getattr(s, commanded) == 0.0), None), HANG,
+                    '%s to be told zero' % what)
+    rest = wait_for(lambda: next((s for s in states.since(zero.header.stamp.to_sec()) if getattr(s, actual) == 0.0),
+                                 None), HANG, '%s at rest' % what)
     return zero.header.stamp.to_sec(), rest.header.stamp.to_sec()
+
+
+def stopped(truth, t0):
+    return stop_moments(truth, t0, 'commanded_linear', 'linear', 'the base')
 
 
 def trial(launcher, cmd, truth, case, index):
@@ -185,11 +190,7 @@ class ArmTruth:
 
 
 def arm_stopped(arm, t0):
-    zero = wait_for(lambda: next((s for s in arm.since(t0) if s.commanded_speed == 0.0), None), HANG,
-                    'the arm to be told to hold')
-    rest = wait_for(lambda: next((s for s in arm.since(zero.header.stamp.to_sec()) if s.speed == 0.0), None),
-                    HANG, 'the arm at rest')
-    return zero.header.stamp.to_sec(), rest.header.stamp.to_sec()
+    return stop_moments(arm, t0, 'commanded_speed', 'speed', 'the arm')
 
 
 def arm_trial(launcher, arm, case, index, servo_pub):
