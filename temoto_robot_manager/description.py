@@ -17,7 +17,8 @@ One file holds a list under ``robots``::
           odom_topic: odom
           odom_frame: odom
           base_frame: base_link
-          footprint: [0.99, 0.67]            # length and width (m), for the costmap and the collision monitor
+          footprint: [-0.50, 0.64, -0.69, 0.67]   # x_min, x_max, y_min, y_max (m) in base_frame, arms included
+                                             # (or [length, width], centred): the costmap's and the monitor's
           obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
             - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data,
                package: vaultbot_sim, executable: sick_driver}     # optional: that device, not the best of the type
@@ -100,7 +101,7 @@ class Navigation:
     odom_topic: str
     odom_frame: str
     base_frame: str
-    footprint: Tuple[float, float]
+    footprint: Tuple[float, ...]          # [length, width] (centred) or [x_min, x_max, y_min, y_max] (m)
     obstacle_sources: Tuple[ObstacleSource, ...]
     places: Dict[str, Tuple[float, float, float]]
 
@@ -218,9 +219,16 @@ class _Reader:
                              % self.label(at))
         for place, pose in places_raw.items():
             places[str(place)] = self.numbers(pose, list(at) + ['places', place], 3, '[x, y, yaw]')
-        footprint = self.numbers(raw.get('footprint', [0.99, 0.67]), list(at) + ['footprint'], 2, '[length, width]')
-        if min(footprint) <= 0:
-            raise self.error(list(at) + ['footprint'], '%s.footprint must be positive' % self.label(at))
+        fp_at, fp_raw = list(at) + ['footprint'], raw.get('footprint', [0.99, 0.67])
+        if isinstance(fp_raw, list) and len(fp_raw) == 4:
+            footprint = self.numbers(fp_raw, fp_at, 4, '[x_min, x_max, y_min, y_max]')
+            if not (footprint[0] < 0 < footprint[1] and footprint[2] < 0 < footprint[3]):
+                raise self.error(fp_at, '%s.footprint [x_min, x_max, y_min, y_max] must hold the base\'s origin: '
+                                 'each min below 0, each max above' % self.label(at))
+        else:
+            footprint = self.numbers(fp_raw, fp_at, 2, '[length, width] or [x_min, x_max, y_min, y_max]')
+            if min(footprint) <= 0:
+                raise self.error(fp_at, '%s.footprint must be positive' % self.label(at))
         return Navigation(
             self.part(raw['driver'], list(at) + ['driver']),
             self.part(raw['controller'], list(at) + ['controller']) if 'controller' in raw else None,

@@ -44,6 +44,19 @@ def test_the_shaper_clamps_ramps_and_commands_zero_at_once_when_cmd_vel_falls_si
     assert shaper.step(0.31) == (0.0, 0.0), 'a refused command changed nothing'
 
 
+def test_the_shaper_passes_a_stop_on_at_once_and_ramps_any_other_slowing():
+    shaper = CommandShaper(timeout=0.25)
+    shaper.request(1.0, 0.0, 0.0)
+    for t in (0.0, 0.5, 1.0):
+        shaper.request(1.0, 0.0, t)
+        shaper.step(t)
+    assert shaper.output == pytest.approx((1.0, 0.0))
+    shaper.request(0.5, 0.0, 1.0)
+    assert shaper.step(1.1) == pytest.approx((0.8, 0.0)), 'slowing to a lower speed ramps at the braking limit'
+    shaper.request(0.0, 0.0, 1.1)
+    assert shaper.step(1.11) == (0.0, 0.0), 'a stop reaches the motors at once; they brake at their own limit'
+
+
 def test_the_motors_follow_their_command_and_their_watchdog_zeroes_a_stale_one():
     plant = BasePlant(motor_timeout=0.04)
     plant.command(*wheel_speeds(0.5, 0.0), now=0.0)

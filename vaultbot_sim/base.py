@@ -88,8 +88,8 @@ def advance(pose: Pose, linear: float, angular: float, dt: float) -> Pose:
 
 class CommandShaper:
     """The controller's side: the latest ``cmd_vel`` within the top speeds, reached at the acceleration limits,
-    and zero at once when ``cmd_vel`` has been silent for ``timeout`` (a dead commander never leaves the robot
-    moving; the motors then brake at their own limit)."""
+    and zero at once when ``cmd_vel`` asks for zero or has been silent for ``timeout`` (a dead commander never
+    leaves the robot moving; the motors then brake at their own limit)."""
 
     def __init__(self, limits: BaseLimits = HUSKY, timeout: float = CMD_VEL_TIMEOUT_S) -> None:
         self.limits, self.timeout = limits, timeout
@@ -112,6 +112,9 @@ class CommandShaper:
         self._last = now
         if self.silent(now):
             self.target = (0.0, 0.0)
+        if self.target == (0.0, 0.0):
+            # a stop is passed on at once: braking is the motors' job, at their own limit, and a navigator's
+            # or an operator's stop must not wait out a ramp in the controller before the wheels hear it
             self.output = (0.0, 0.0)
             return self.output
         lim = self.limits

@@ -30,6 +30,7 @@ import rosgraph
 import rospy
 from temoto_core.node import ok
 from temoto_core import params
+from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
@@ -45,6 +46,7 @@ from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceS
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.scene import Scene
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
+from vaultbot_sim.world_map import world_map
 from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
 
 
@@ -136,6 +138,8 @@ class SimNode:
                 for arm, joints in joint_names(('left', 'right'), ARM_JOINTS).items()}
         self.body = Body(Scene(self.robot_urdf, self.world_urdf), base, arms)
         self._publish_static()
+        self.pub_map = rospy.Publisher('map', OccupancyGrid, queue_size=1, latch=True)
+        self._publish_map()
         self._publish_devices()
         rospy.Service('~set_device_state', SetDeviceState, self._on_set_device)
         rospy.Service('~set_sweep', SetSweep, self._on_set_sweep)
@@ -149,6 +153,19 @@ class SimNode:
     def _frames(self, transforms: list) -> list:
         prefix = self.frame_prefix
         return [(prefix + parent, prefix + child, m) for parent, child, m in transforms] if prefix else transforms
+
+    def _publish_map(self) -> None:
+        """The lab's map, latched on ``map`` as a map server serves a saved one (``world_map.py``)."""
+        grid = world_map(self.world)
+        msg = OccupancyGrid()
+        msg.header.stamp, msg.header.frame_id = rospy.Time.now(), self.frame_prefix + 'world'
+        msg.info.map_load_time = msg.header.stamp
+        msg.info.resolution = grid.resolution
+        msg.info.width, msg.info.height = grid.size
+        msg.info.origin.position.x, msg.info.origin.position.y = grid.origin
+        msg.info.origin.orientation.w = 1.0
+        msg.data = grid.cells.ravel().tolist()
+        self.pub_map.publish(msg)
 
     def _publish_static(self) -> None:
         fixed = [('world', 'odom', np.eye(4))]

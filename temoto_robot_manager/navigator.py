@@ -1,0 +1,288 @@
+"""The navigator's logic: one goal at a time, from its checks to its end, with a stop for every reason. No ROS.
+
+``navigator_node.py`` is the ROS side (move_base's action, ``/move_base_simple/goal``, the topics);
+this class decides. A goal is:
+- **checked** before anything moves (:meth:`Navigator.check`): finite numbers, a known frame (the
+  node's), a unit quaternion, inside the map, and the robot's whole outline clear of the map's obstacles there.
+  A goal that fails a check raises :class:`BadGoal` naming the field; the robot is not touched;
+- **planned** on the costmap (``global_planner.py``) and replanned every ``REPLAN_PERIOD_S`` against
+  the live obstacles;
+- **driven** (``path_follower.py``), every command passed through the collision monitor
+  (``collision_monitor.py``);
+- **paused** while the obstacle source is stale (``freshness.py``): the command is zero until a fresh
+  frame comes, from the same source or from the one the Robot Manager fails over to;
+- **ended**: arrived, cancelled, or aborted with the reason (no path, blocked, no fresh obstacles for
+  ``SOURCE_PATIENCE_S``).
+
+Every state is one of :class:`State`; :meth:`tick` moves between them and returns the command.
+"""
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional, Tuple
+
+import numpy as np
+
+from temoto_robot_manager import global_planner
+from temoto_robot_manager.collision_monitor import CollisionMonitor, Verdict, Zone
+from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.path_follower import PathFollower, Phase, wrap
+
+REPLAN_PERIOD_S = 1.0
+BLOCKED_PATIENCE_S = 10.0          # stopped by an obstacle this long: the goal is aborted, not held forever
+SOURCE_PATIENCE_S = 45.0           # no fresh obstacle source this long: aborted (a sensor starts within 40 s)
+NO_PATH_PATIENCE_S = 3.0           # replans that find no path, this long: aborted
+MONITOR_RADIUS = 2.5               # m around the robot of the map's obstacles the monitor checks
+APPROACH = 0.8                     # m: the last stretch, driven straight along the goal's heading
+ON_STRETCH = 0.25                  # m aside of the last stretch that still counts as on it, when replanning
+YAW_LIMIT = math.radians(5.0)      # the issue's heading tolerance: a last turn blocked within it has arrived
+
+Pose = Tuple[float, float, float]
+
+
+class State(enum.Enum):
+    IDLE = 'idle'
+    DRIVING = 'driving'
+    WAITING = 'waiting for a fresh obstacle source'
+    BLOCKED = 'stopped by an obstacle'
+
+
+class Outcome(enum.Enum):
+    SUCCEEDED = 'succeeded'
+    ABORTED = 'aborted'
+    CANCELED = 'canceled'
+
+
+class BadGoal(ValueError):
+    """A goal refused before anything moved: ``field`` is the goal's field at fault."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__('%s: %s' % (field, message))
+        self.field = field
+
+
+@dataclass(frozen=True)
+class Ending:
+    outcome: Outcome
+    text: str
+
+
+@dataclass(frozen=True)
+class Tick:
+    linear: float
+    angular: float
+    state: State
+    remaining: float                   # m left along the plan
+    ending: Optional[Ending] = None    # set once, on the tick the goal ends
+    verdict: Optional[Verdict] = None
+
+
+def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
+    return math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+
+
+class Navigator:
+    def __init__(self, footprint: Footprint, freshness: Freshness,
+                 follower: Optional[PathFollower] = None, monitor: Optional[CollisionMonitor] = None) -> None:
+        self.footprint = footprint
+        self.freshness = freshness
+        self.follower = follower or PathFollower()
+        self.monitor = monitor or CollisionMonitor(footprint)
+        self.costmap: Optional[Costmap] = None
+        self.pose: Optional[Pose] = None
+        self.obstacles_base = np.zeros((0, 2))     # the source's latest frame, in the base's frame
+        self.state = State.IDLE
+        self.goal: Optional[Pose] = None
+        self.path: Optional[np.ndarray] = None
+        self._since: float = 0.0                   # when the current state began
+        self._planned: float = 0.0
+        self._no_path_since: Optional[float] = None
+
+    # -- what the node feeds in -----------------------------------------------------------------------------
+    def set_map(self, costmap: Costmap) -> None:
+        self.costmap = costmap
+
+    def set_pose(self, pose: Pose) -> None:
+        self.pose = pose
+
+    def set_obstacles(self, points_base: np.ndarray, now: float) -> None:
+        """A frame of the obstacle source (N x 2, base frame, at ``self.pose``): marked and fresh."""
+        self.obstacles_base = points_base
+        self.freshness.heard(now)
+        if self.costmap is not None and self.pose is not None:
+            self.costmap.mark(self.to_map(points_base))
+
+    def to_map(self, points_base: np.ndarray) -> np.ndarray:
+        x, y, yaw = self.pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        return np.stack([x + c * points_base[:, 0] - s * points_base[:, 1],
+                         y + s * points_base[:, 0] + c * points_base[:, 1]], axis=1)
+
+    def to_base(self, points_map: np.ndarray) -> np.ndarray:
+        x, y, yaw = self.pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        rel = points_map - (x, y)
+        return np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], axis=1)
+
+    # -- goals ----------------------------------------------------------------------------------------------
+    def check(self, x: float, y: float, quaternion: Tuple[float, float, float, float],
+              field: str = 'target_pose.pose') -> Pose:
+        """The goal as (x, y, yaw) in the map's frame; raises :class:`BadGoal` naming the field at fault."""
+        for name, value in (('position.x', x), ('position.y', y)) + tuple(
+                ('orientation.' + k, v) for k, v in zip('xyzw', quaternion)):
+            if not math.isfinite(value):
+                raise BadGoal('%s.%s' % (field, name), 'must be a finite number, not %r' % value)
+        norm = math.sqrt(sum(v * v for v in quaternion))
+        if abs(norm - 1.0) > 0.01:
+            raise BadGoal('%s.orientation' % field, 'must be a unit quaternion (its norm is %.3f)' % norm)
+        qx, qy, qz, qw = (v / norm for v in quaternion)
+        if abs(qx) > 0.01 or abs(qy) > 0.01:
+            raise BadGoal('%s.orientation' % field, 'must turn about z only: a base stands on the floor')
+        if self.costmap is None:
+            raise BadGoal('target_pose.header.frame_id', 'no map has come yet: no goal can be checked')
+        cm = self.costmap
+        if not cm.inside(x, y):
+            raise BadGoal('%s.position' % field, '(%.2f, %.2f) is outside the map (x %.2f to %.2f, y %.2f to %.2f)'
+                          % (x, y, cm.bounds[0], cm.bounds[2], cm.bounds[1], cm.bounds[3]))
+        i, j = cm.cell(x, y)
+        if cm.static_distance[i, j] == 0 or cm.dynamic_lethal[i, j]:
+            raise BadGoal('%s.position' % field, '(%.2f, %.2f) is inside an obstacle' % (x, y))
+        yaw = yaw_of(qx, qy, qz, qw)
+        gap = self.gap_at((x, y, yaw))
+        margin = self.monitor.settings.stop_margin
+        if gap < margin:
+            raise BadGoal('%s.position' % field, 'the robot at (%.2f, %.2f, %.0f deg) would be %.2f m from an '
+                          'obstacle; its outline needs %.2f m clear' % (x, y, math.degrees(yaw), gap, margin))
+        return x, y, yaw
+
+    def gap_at(self, pose: Pose) -> float:
+        """Metres between the footprint at ``pose`` and the map's nearest obstacle."""
+        near = self.costmap.static_points(pose[0], pose[1], self.footprint.circumscribed + 0.5)
+        if not len(near):
+            return math.inf
+        return float(self.footprint.distance(self._into(near, pose)).min())
+
+    @staticmethod
+    def _into(points: np.ndarray, pose: Pose) -> np.ndarray:
+        x, y, yaw = pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        rel = points - (x, y)
+        return np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], axis=1)
+
+    def route(self, start: Tuple[float, float], goal: Pose) -> np.ndarray:
+        """The plan to ``goal``: to a point ``APPROACH`` behind it, then straight along its heading, when that
+        stretch is free for the whole outline, so the robot arrives facing the goal's way and has little to
+        turn where obstacles are close; else straight to the goal."""
+        gx, gy, yaw = goal
+        c, s = math.cos(yaw), math.sin(yaw)
+        sx, sy = gx - APPROACH * c, gy - APPROACH * s
+        cm = self.costmap
+        along = (start[0] - sx) * c + (start[1] - sy) * s
+        aside = -(start[0] - sx) * s + (start[1] - sy) * c
+        if 0.0 <= along <= APPROACH and abs(aside) <= ON_STRETCH:      # already on the last stretch: finish it
+            steps = np.linspace(along, APPROACH, max(2, int(round((APPROACH - along) / global_planner.SPACING)) + 1))
+            return np.vstack([[start], np.stack([sx + steps * c, sy + steps * s], axis=1)])
+        if cm.inside(sx, sy) and not cm.lethal(sx, sy):
+            near = cm.static_points(sx, sy, self.footprint.circumscribed + APPROACH + 0.5)
+            stretch = self._into(near, (sx, sy, yaw)) if len(near) else np.zeros((0, 2))
+            if not self.monitor.swept_hit(stretch, 1.0, 0.0, APPROACH, self.monitor.settings.stop_margin):
+                head = global_planner.plan(cm, start, (sx, sy))
+                steps = np.linspace(0.0, APPROACH, int(round(APPROACH / global_planner.SPACING)) + 1)[1:]
+                return np.vstack([head, np.stack([sx + steps * c, sy + steps * s], axis=1)])
+        if cm.lethal(gx, gy):
+            raise global_planner.NoPath('the goal (%.2f, %.2f) is %.2f m from an obstacle, and no straight way in '
+                                        'along its heading is free' % (gx, gy, cm.clearance(gx, gy)))
+        return global_planner.plan(cm, start, (gx, gy))
+
+    def start(self, goal: Pose, now: float) -> None:
+        """Drive to a checked ``goal`` (replacing any other); raises NoPath when none is found now."""
+        if self.pose is None:
+            raise BadGoal('target_pose', 'the robot\'s pose is not known yet (no odometry)')
+        self.path = self.route(self.pose[:2], goal)
+        self.goal = goal
+        self.follower.reset()
+        self._planned = now
+        self._no_path_since = None
+        self._enter(State.DRIVING, now)
+
+    def cancel(self) -> None:
+        self._finish()
+
+    def _finish(self) -> None:
+        self.goal, self.path = None, None
+        self.state = State.IDLE
+
+    def _enter(self, state: State, now: float) -> None:
+        if state is not self.state:
+            self.state, self._since = state, now
+
+    def _end(self, outcome: Outcome, text: str) -> Tick:
+        remaining = self.remaining()
+        self._finish()
+        return Tick(0.0, 0.0, State.IDLE, remaining, Ending(outcome, text))
+
+    def remaining(self) -> float:
+        if self.path is None or self.pose is None:
+            return 0.0
+        left, _ = global_planner.remaining(self.path, self.pose[0], self.pose[1])
+        if self.goal is not None:
+            left = max(left, math.hypot(self.goal[0] - self.pose[0], self.goal[1] - self.pose[1]))
+        return left
+
+    # -- the loop ------------------------------------------------------------------------------------------
+    def must_stop(self, now: float) -> bool:
+        """Whether a goal is held and its obstacle source is stale: the command must be zero now."""
+        return self.goal is not None and not self.freshness.fresh(now)
+
+    def tick(self, now: float) -> Tick:
+        if self.goal is None:
+            return Tick(0.0, 0.0, State.IDLE, 0.0)
+        if not self.freshness.fresh(now):
+            if self.state is not State.WAITING:
+                self._enter(State.WAITING, now)
+            elif now - self._since > SOURCE_PATIENCE_S:
+                return self._end(Outcome.ABORTED, 'no fresh obstacle source for %.0f s: the robot will not drive '
+                                 'blind' % SOURCE_PATIENCE_S)
+            return Tick(0.0, 0.0, State.WAITING, self.remaining())
+        if self.state is State.WAITING:
+            self._enter(State.DRIVING, now)
+            self._planned = -math.inf                  # the world may have changed while waiting: plan again
+        if now - self._planned >= REPLAN_PERIOD_S:
+            self._planned = now
+            try:
+                self.path = self.route(self.pose[:2], self.goal)
+                self._no_path_since = None
+            except global_planner.NoPath as err:
+                if self._no_path_since is None:
+                    self._no_path_since = now
+                elif now - self._no_path_since > NO_PATH_PATIENCE_S:
+                    return self._end(Outcome.ABORTED, 'no path any more: %s' % err)
+        linear, angular = self.follower.command(self.pose, self.path, self.goal[2])
+        if self.follower.phase is Phase.ARRIVED:
+            x, y, yaw = self.pose
+            return self._end(Outcome.SUCCEEDED, 'arrived %.3f m and %.1f deg from the goal' % (
+                math.hypot(self.goal[0] - x, self.goal[1] - y), math.degrees(abs(wrap(self.goal[2] - yaw)))))
+        points = self.obstacles_base
+        if self.costmap is not None:
+            near = self.costmap.static_points(self.pose[0], self.pose[1], MONITOR_RADIUS)
+            points = np.vstack([points, self.to_base(near)]) if len(near) else points
+        verdict = self.monitor.check(points, linear, angular)
+        if verdict.zone is Zone.STOP and self.follower.phase is Phase.ALIGN:
+            x, y, yaw = self.pose
+            error = abs(wrap(self.goal[2] - yaw))
+            if error <= YAW_LIMIT:
+                return self._end(Outcome.SUCCEEDED, 'arrived %.3f m and %.1f deg from the goal (turning further would '
+                                 'touch an obstacle %.2f m away)' % (math.hypot(self.goal[0] - x, self.goal[1] - y),
+                                                                      math.degrees(error), verdict.nearest))
+        if verdict.zone is Zone.STOP:
+            if self.state is not State.BLOCKED:
+                self._enter(State.BLOCKED, now)
+            elif now - self._since > BLOCKED_PATIENCE_S:
+                return self._end(Outcome.ABORTED, 'blocked for %.0f s by an obstacle %.2f m from the robot'
+                                 % (BLOCKED_PATIENCE_S, verdict.nearest))
+        else:
+            self._enter(State.DRIVING, now)
+        return Tick(verdict.linear, verdict.angular, self.state, self.remaining(), verdict=verdict)

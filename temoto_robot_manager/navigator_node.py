@@ -1,0 +1,323 @@
+"""The navigator node: move_base's interface over :class:`navigator.Navigator`, for one described robot.
+
+On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base client work unchanged:
+- ``move_base`` (``move_base_msgs/MoveBase`` action): a goal is checked at once and *rejected*,
+  with the field at fault in the status text, when it is bad; a new goal preempts the current one;
+  cancel stops the robot. Feedback is the base's pose; ``~distance_remaining`` says how far is left;
+- ``move_base_simple/goal`` (``PoseStamped``): passed to the action server as move_base does;
+- ``~plan`` (``nav_msgs/Path``): the current plan, for RViz.
+
+In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
+``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
+or, when the Robot Manager fails over, on the latched ``~obstacle_source`` topic. Out: ``cmd_vel``.
+
+Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
+the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
+the next tick. Both hold one lock around deciding and publishing, so a stale zero is never followed
+by a command decided before it.
+
+Private parameters: ``~description`` (a robot description file), ``~robot`` (its robot's name),
+``~obstacle_topic`` (optional), ``~rate`` (Hz, default 20).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Optional
+
+import actionlib
+import numpy as np
+import rospy
+import tf2_ros
+from actionlib_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped, Twist
+from move_base_msgs.msg import MoveBaseAction, MoveBaseActionGoal, MoveBaseFeedback, MoveBaseResult
+from nav_msgs.msg import OccupancyGrid, Odometry, Path
+from sensor_msgs.msg import LaserScan, PointCloud2
+from std_msgs.msg import Float32, String
+
+from temoto_core import params
+from temoto_core.node import init_node, ok
+from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.description import RobotDescription, load_file
+from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.global_planner import NoPath
+from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
+from temoto_robot_manager.obstacle_points import base_points, matrix_of
+
+FEEDBACK_PERIOD_S = 0.2
+
+
+def describe(path: str, name: str) -> RobotDescription:
+    robots, problems = load_file(path)
+    for robot in robots:
+        if robot.name == name and robot.navigation is not None:
+            return robot
+    raise ValueError('%s describes no robot %r with navigation%s' % (
+        path, name, ''.join('; ' + str(p) for p in problems)))
+
+
+class NavigatorNode:
+    def __init__(self) -> None:
+        robot = describe(params.text('description', '', empty=False), params.text('robot', '', empty=False))
+        nav = robot.navigation
+        self.robot = robot
+        self.odom_frame, self.base_frame = nav.odom_frame, nav.base_frame
+        self.map_frame: Optional[str] = None
+        self.lock = threading.Lock()
+        self.wake = threading.Condition(self.lock)
+        self.nav = Navigator(Footprint.of(nav.footprint), Freshness())
+        self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
+        self._tf_listener = tf2_ros.TransformListener(self.tf)
+        self.rate = params.number('rate', 20.0, above=0, maximum=200)
+        self.pub_cmd = rospy.Publisher(nav.cmd_vel_topic, Twist, queue_size=5, tcp_nodelay=True)
+        self.pub_plan = rospy.Publisher('~plan', Path, queue_size=1, latch=True)
+        self.pub_left = rospy.Publisher('~distance_remaining', Float32, queue_size=5)
+        self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
+        self.active = None                      # the goal handle being driven
+        self._source_sub = None
+        self.source_topic = ''
+        self._feedback_at = 0.0
+        self.server = actionlib.ActionServer('move_base', MoveBaseAction, self._on_goal, self._on_cancel,
+                                             auto_start=False)
+        rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
+        rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
+        rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
+        rospy.Subscriber('~obstacle_source', String, lambda msg: self.use_source(msg.data), queue_size=5)
+        initial = params.text('obstacle_topic', '')
+        if initial:
+            self.use_source(initial)
+        self.server.start()
+        threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
+        rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
+                      rospy.resolve_name('move_base'), rospy.resolve_name(nav.cmd_vel_topic))
+
+    # -- inputs ------------------------------------------------------------------------------------------------
+    def use_source(self, topic: str) -> None:
+        """Take obstacles from ``topic`` from now on; until its first frame the robot does not drive."""
+        topic = topic.strip()
+        if not topic or topic == self.source_topic:
+            return
+        if self._source_sub is not None:
+            self._source_sub.unregister()
+        with self.lock:
+            self.nav.freshness.reset()
+            self.source_topic = topic
+        self._source_sub = rospy.Subscriber(topic, rospy.AnyMsg, self._on_obstacles, topic, queue_size=1,
+                                            tcp_nodelay=True, buff_size=2 ** 24)
+        rospy.loginfo('navigator: obstacles from %s', rospy.resolve_name(topic))
+
+    def _on_map(self, msg: OccupancyGrid) -> None:
+        info = msg.info
+        costmap = Costmap.from_grid((info.origin.position.x, info.origin.position.y), info.resolution,
+                                    info.width, info.height, msg.data, self.nav.footprint)
+        with self.lock:
+            self.map_frame = msg.header.frame_id
+            self.nav.set_map(costmap)
+        rospy.loginfo('navigator: map %dx%d at %.2f m in %s', info.width, info.height, info.resolution,
+                      msg.header.frame_id)
+
+    def _map_from(self, frame: str) -> np.ndarray:
+        """The transform from ``frame`` to the map's frame, now; raises LookupError naming the frame."""
+        try:
+            return matrix_of(self.tf.lookup_transform(self.map_frame, frame, rospy.Time(0)).transform)
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
+            raise LookupError('no transform from %r to the map\'s frame %r: %s' % (frame, self.map_frame, err))
+
+    def _on_odom(self, msg: Odometry) -> None:
+        if self.map_frame is None:
+            return
+        try:
+            m = self._map_from(msg.header.frame_id or self.odom_frame)
+        except LookupError as err:
+            rospy.logwarn_throttle(5.0, 'navigator: %s', err)
+            return
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        x, y = (m @ np.array([p.x, p.y, 0.0, 1.0]))[:2]
+        yaw = yaw_of(q.x, q.y, q.z, q.w) + math.atan2(m[1, 0], m[0, 0])
+        with self.lock:
+            self.nav.set_pose((float(x), float(y), math.atan2(math.sin(yaw), math.cos(yaw))))
+
+    def _on_obstacles(self, raw: rospy.AnyMsg, topic: str) -> None:
+        now = time.monotonic()
+        if topic != self.source_topic:
+            return                                  # a frame from the source just left
+        kind = raw._connection_header.get('type', '')
+        msg = {'sensor_msgs/LaserScan': LaserScan, 'sensor_msgs/PointCloud2': PointCloud2}.get(kind)
+        if msg is None:
+            rospy.logerr_throttle(5.0, 'navigator: %s carries %s, not a LaserScan or a PointCloud2: no obstacles '
+                                  'from it' % (topic, kind))
+            return
+        frame = msg().deserialize(raw._buff)
+        try:
+            sensor = matrix_of(self.tf.lookup_transform(self.base_frame, frame.header.frame_id,
+                                                        rospy.Time(0)).transform)
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
+            rospy.logwarn_throttle(5.0, 'navigator: %s: no transform to %s: %s', topic, self.base_frame, err)
+            return
+        points = base_points(frame, sensor, self.nav.footprint)
+        with self.wake:
+            if isinstance(frame, LaserScan) and frame.scan_time > 0:
+                self.nav.freshness.first_period = frame.scan_time
+            self.nav.set_obstacles(points, now)
+            self.wake.notify_all()
+
+    # -- goals -------------------------------------------------------------------------------------------------
+    def _on_simple_goal(self, msg: PoseStamped) -> None:
+        """As move_base does: a simple goal becomes an action goal, so it has a status like any other."""
+        goal = MoveBaseActionGoal()
+        goal.header.stamp = rospy.Time.now()
+        goal.goal_id.stamp = goal.header.stamp
+        goal.goal_id.id = 'move_base_simple-%d' % time.monotonic_ns()
+        goal.goal.target_pose = msg
+        self.pub_goal.publish(goal)
+
+    def _checked(self, target: PoseStamped):
+        if self.map_frame is None:
+            raise BadGoal('target_pose', 'no map has come yet')
+        frame = target.header.frame_id.strip()
+        if not frame:
+            raise BadGoal('target_pose.header.frame_id', 'empty: name the goal\'s frame (%s or %s)'
+                          % (self.map_frame, self.odom_frame))
+        p, q = target.pose.position, target.pose.orientation
+        for name, v in (('position.x', p.x), ('position.y', p.y), ('position.z', p.z)):
+            if not math.isfinite(v):
+                raise BadGoal('target_pose.pose.' + name, 'must be a finite number, not %r' % v)
+        try:
+            m = self._map_from(frame)
+        except LookupError:
+            raise BadGoal('target_pose.header.frame_id', 'unknown frame %r: no transform from it to %r'
+                          % (frame, self.map_frame)) from None
+        x, y = (m @ np.array([p.x, p.y, 0.0, 1.0]))[:2]
+        rot = math.atan2(m[1, 0], m[0, 0])
+        quat = (q.x, q.y, q.z, q.w)
+        checked = self.nav.check(float(x), float(y), quat)
+        return checked[0], checked[1], checked[2] + rot
+
+    def _on_goal(self, handle) -> None:
+        target = handle.get_goal().target_pose
+        now = time.monotonic()
+        try:
+            with self.lock:
+                goal = self._checked(target)
+                self.nav.start(goal, now)
+                previous, self.active = self.active, handle
+                path = self.nav.path
+        except (BadGoal, NoPath) as err:
+            rospy.logwarn('navigator: goal %s refused: %s', handle.get_goal_id().id, err)
+            handle.set_rejected(MoveBaseResult(), str(err))
+            return
+        if previous is not None:
+            previous.set_canceled(MoveBaseResult(), 'preempted by goal %s' % handle.get_goal_id().id)
+        handle.set_accepted('driving to (%.2f, %.2f, %.0f deg) in %s' % (goal[0], goal[1], math.degrees(goal[2]),
+                                                                       self.map_frame))
+        self._publish_plan(path)
+        rospy.loginfo('navigator: goal %s: to (%.2f, %.2f, %.0f deg), %d plan points', handle.get_goal_id().id,
+                      goal[0], goal[1], math.degrees(goal[2]), len(path))
+
+    def _on_cancel(self, handle) -> None:
+        with self.lock:
+            if self.active is None or self.active.get_goal_id().id != handle.get_goal_id().id:
+                return
+            self.nav.cancel()
+            self.pub_cmd.publish(Twist())
+            self.active = None
+        handle.set_canceled(MoveBaseResult(), 'canceled: the robot stops')
+        rospy.loginfo('navigator: goal %s canceled', handle.get_goal_id().id)
+
+    def _publish_plan(self, path: Optional[np.ndarray]) -> None:
+        msg = Path()
+        msg.header.stamp, msg.header.frame_id = rospy.Time.now(), self.map_frame or ''
+        for x, y in (path if path is not None else []):
+            pose = PoseStamped(header=msg.header)
+            pose.pose.position.x, pose.pose.position.y, pose.pose.orientation.w = x, y, 1.0
+            msg.poses.append(pose)
+        self.pub_plan.publish(msg)
+
+    # -- commanding the base -----------------------------------------------------------------------------------
+    def _command(self, linear: float, angular: float) -> None:
+        cmd = Twist()
+        cmd.linear.x, cmd.angular.z = linear, angular
+        self.pub_cmd.publish(cmd)
+
+    def _watch_staleness(self) -> None:
+        """Zero at the obstacle source's deadline, not at the next tick (the issue's 3 periods + 20 ms)."""
+        stopped_for = None                          # the deadline already acted on
+        with self.wake:
+            while ok():
+                deadline = self.nav.freshness.deadline()
+                now = time.monotonic()
+                if self.nav.goal is None or deadline is None or (deadline <= now and stopped_for == deadline):
+                    self.wake.wait(0.5)
+                    continue
+                if now < deadline:
+                    self.wake.wait(deadline - now)
+                    continue
+                stopped_for = deadline
+                self._command(0.0, 0.0)
+                rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped', self.source_topic,
+                              (now - self.nav.freshness.last) * 1e3, self.nav.freshness.periods)
+
+    def spin(self) -> None:
+        period = 1.0 / self.rate
+        next_at = time.monotonic()
+        while ok():
+            now = time.monotonic()
+            with self.lock:
+                handle, was = self.active, self.nav.state
+                tick = self.nav.tick(now)
+                if handle is not None:
+                    self._command(tick.linear, tick.angular)
+                if tick.ending is not None:
+                    self.active = None
+                replanned = handle is not None and tick.ending is None and tick.state is State.DRIVING
+                path = self.nav.path
+                pose = self.nav.pose
+            if handle is not None and tick.ending is None and tick.state is not was:
+                rospy.loginfo('navigator: goal %s: %s', handle.get_goal_id().id, tick.state.value)
+            if tick.ending is not None:
+                self._end(handle, tick)
+            elif handle is not None and now - self._feedback_at >= FEEDBACK_PERIOD_S:
+                self._feedback_at = now
+                self._feedback(handle, pose, tick.remaining)
+                if replanned:
+                    self._publish_plan(path)
+            next_at += period
+            delay = next_at - time.monotonic()
+            if delay < 0:
+                next_at = time.monotonic()
+            else:
+                time.sleep(delay)
+
+    def _feedback(self, handle, pose, remaining: float) -> None:
+        fb = MoveBaseFeedback()
+        fb.base_position.header.stamp, fb.base_position.header.frame_id = rospy.Time.now(), self.map_frame
+        if pose is not None:
+            fb.base_position.pose.position.x, fb.base_position.pose.position.y = pose[0], pose[1]
+            fb.base_position.pose.orientation.z = math.sin(pose[2] / 2)
+            fb.base_position.pose.orientation.w = math.cos(pose[2] / 2)
+        handle.publish_feedback(fb)
+        self.pub_left.publish(Float32(remaining))
+
+    def _end(self, handle, tick) -> None:
+        text = tick.ending.text
+        if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
+            return
+        if tick.ending.outcome is Outcome.SUCCEEDED:
+            handle.set_succeeded(MoveBaseResult(), text)
+            rospy.loginfo('navigator: goal %s: %s', handle.get_goal_id().id, text)
+        else:
+            handle.set_aborted(MoveBaseResult(), text)
+            rospy.logwarn('navigator: goal %s aborted: %s', handle.get_goal_id().id, text)
+        self._publish_plan(None)
+
+
+def main() -> None:
+    init_node('navigator')
+    try:
+        node = NavigatorNode()
+    except ValueError as err:                     # a bad parameter or description: say which
+        rospy.logerr('navigator: %s', err)
+        raise SystemExit(2)
+    node.spin()

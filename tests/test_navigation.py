@@ -1,0 +1,258 @@
+"""The navigator: its rules alone (costmap, planner, follower, collision monitor, freshness, goal checks), then the
+node as a process between the sim's base and the SICK, judged by the sim's ground truth
+(``/vaultbot_sim/base_state``, ``~contacts``), never by the navigator's word."""
+import math
+import time
+
+import actionlib
+import numpy as np
+import pytest
+from actionlib_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
+from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+from sensor_msgs.msg import LaserScan
+
+from temoto_robot_manager import global_planner
+from temoto_robot_manager.collision_monitor import CollisionMonitor, Zone
+from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
+from temoto_robot_manager.description import load_file
+from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
+from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
+from temoto_testing import wait_for, wait_receiving
+from temoto_testing.sensor_manager import set_cable
+from vaultbot_sim.base import advance
+from vaultbot_sim.kinematics import WORLDS, TreeModel
+from vaultbot_sim.msg import BaseState, Contact as ContactMsg
+from vaultbot_sim.world_map import world_map
+
+HANG = 60.0
+VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
+HUSKY = Footprint.of(VAULTBOT.navigation.footprint)      # the base with its arms held
+PLACES = VAULTBOT.navigation.places
+
+
+@pytest.fixture(scope='module')
+def lab():
+    grid = world_map(TreeModel(WORLDS['lab']))
+    return grid
+
+
+def lab_costmap(lab):
+    return Costmap(lab.origin, lab.resolution, lab.cells > 0, HUSKY)
+
+
+def quat(yaw):
+    return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+
+
+# ----------------------------------------------------------------------------------------------- the rules
+def test_the_lab_map_has_the_tables_shelves_and_walls_and_the_places_are_free(lab):
+    cm = lab_costmap(lab)
+    assert cm.lethal(2.2, 2.2) and cm.lethal(1.0, 3.5), 'a table and the wall are obstacles'
+    for name, (x, y, _) in PLACES.items():
+        assert not cm.lethal(x, y), 'the place %s is free' % name
+
+
+def test_the_distance_field_counts_cells_to_the_nearest_obstacle():
+    occupied = np.zeros((9, 9), dtype=bool)
+    occupied[4, 4] = True
+    d = distance_field(occupied, 3.0)
+    assert d[4, 4] == 0 and d[4, 7] == 3 and d[1, 1] == np.inf and d[3, 3] == pytest.approx(math.sqrt(2))
+
+
+def test_the_planner_goes_round_an_obstacle_and_says_when_there_is_no_way(lab):
+    cm = lab_costmap(lab)
+    path = global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])
+    assert tuple(path[0]) == (0.0, 0.0) and tuple(path[-1]) == PLACES['drums'][:2]
+    assert all(not cm.lethal(x, y) for x, y in path), 'the path keeps the robot out of every obstacle'
+    wall = np.array([[1.5, y] for y in np.arange(-3.5, 3.6, 0.05)])
+    cm.mark(wall)
+    with pytest.raises(global_planner.NoPath, match='obstacles close every path'):
+        global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])
+    cm.mark(np.zeros((0, 2)))
+    assert len(global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])), 'the next frame clears the wall'
+
+
+def test_the_collision_monitor_looks_where_the_robot_goes():
+    monitor = CollisionMonitor(Footprint.centred(0.99, 0.67))
+    ahead = np.array([[0.7, 0.0]])
+    assert monitor.check(ahead, 0.5, 0.0).zone is Zone.STOP
+    assert monitor.check(ahead, 0.5, 0.0).linear == 0.0
+    beside = np.array([[0.0, 0.6]])          # a wall passed alongside, 0.27 m from the side
+    assert monitor.check(beside, 0.8, 0.0).zone is Zone.CLEAR
+    far = np.array([[1.6, 0.0]])
+    slow = monitor.check(far, 0.8, 0.0)
+    assert slow.zone is Zone.SLOW and slow.linear == pytest.approx(0.24)
+    corner = np.array([[0.49, 0.411]])       # just off the front left corner: a left turn sweeps the corner into it
+    assert monitor.check(corner, 0.0, 0.0).zone is Zone.CLEAR
+    assert monitor.check(corner, 0.0, 1.0).zone is Zone.STOP
+    assert monitor.check(corner, 0.0, -1.0).zone is not Zone.STOP, 'a right turn swings the corner away'
+
+
+def test_freshness_learns_the_period_and_goes_stale_after_three_of_them():
+    f = Freshness(first_period=0.04)
+    assert not f.fresh(0.0), 'nothing heard: not fresh'
+    f.heard(10.0)
+    assert f.fresh(10.1) and not f.fresh(10.12)
+    for k in range(1, 11):
+        f.heard(10.0 + 0.5 * k)              # a slow source: 2 Hz
+    assert f.period == pytest.approx(0.5)
+    assert f.fresh(15.0 + 1.4) and not f.fresh(15.0 + 1.5)
+
+
+def drive(nav, pose, now, limit=4000):
+    """The navigator closing the loop on a kinematic base; (final pose, ending, ticks)."""
+    for k in range(limit):
+        nav.set_pose(pose)
+        nav.set_obstacles(np.zeros((0, 2)), now)
+        tick = nav.tick(now)
+        if tick.ending is not None:
+            return pose, tick.ending, k
+        pose = advance(pose, tick.linear, tick.angular, 0.05)
+        now += 0.05
+    raise AssertionError('no ending in %d ticks' % limit)
+
+
+@pytest.mark.parametrize('place', sorted(PLACES))
+def test_the_navigator_reaches_every_place_from_home_on_a_kinematic_base(lab, place):
+    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav.set_map(lab_costmap(lab))
+    start = (0.3, -0.5, 2.0) if place == 'home' else (0.0, 0.0, 0.0)
+    nav.set_pose(start)
+    x, y, yaw = PLACES[place]
+    goal = nav.check(x, y, quat(yaw))
+    nav.set_obstacles(np.zeros((0, 2)), 0.0)
+    nav.start(goal, 0.0)
+    pose, ending, _ = drive(nav, start, 0.0)
+    assert ending.outcome is Outcome.SUCCEEDED, ending.text
+    assert math.hypot(pose[0] - x, pose[1] - y) <= 0.10
+    assert abs(math.atan2(math.sin(pose[2] - yaw), math.cos(pose[2] - yaw))) <= math.radians(5)
+
+
+@pytest.mark.parametrize('x, y, q, field, words', [
+    (float('nan'), 0.0, quat(0), 'position.x', 'finite'),
+    (1.0, float('inf'), quat(0), 'position.y', 'finite'),
+    (1.0, 0.0, (0.0, 0.0, 0.0, 0.0), 'orientation', 'unit quaternion'),
+    (1.0, 0.0, (0.7071, 0.0, 0.0, 0.7071), 'orientation', 'about z only'),
+    (40.0, 0.0, quat(0), 'position', 'outside the map'),
+    (2.2, 2.2, quat(0), 'position', 'inside an obstacle'),
+    (2.2, 0.95, quat(math.pi / 2), 'position', 'would be 0.00 m from an obstacle'),
+])
+def test_a_bad_goal_is_refused_naming_its_field_and_nothing_starts(lab, x, y, q, field, words):
+    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav.set_map(lab_costmap(lab))
+    nav.set_pose((0.0, 0.0, 0.0))
+    with pytest.raises(BadGoal, match=words) as err:
+        nav.check(x, y, q)
+    assert err.value.field.endswith(field)
+    assert nav.state is State.IDLE and nav.goal is None
+
+
+def test_a_stale_source_zeroes_the_command_and_a_fresh_one_resumes(lab):
+    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav.set_map(lab_costmap(lab))
+    nav.set_pose((0.0, 0.0, 0.0))
+    nav.set_obstacles(np.zeros((0, 2)), 0.0)
+    nav.start(nav.check(*PLACES['drums'][:2], quat(0)), 0.0)
+    assert nav.tick(0.05).linear > 0
+    assert nav.must_stop(0.121) and not nav.must_stop(0.119), 'stale after 3 periods of 40 ms'
+    stale = nav.tick(0.13)
+    assert (stale.linear, stale.angular, stale.state) == (0.0, 0.0, State.WAITING)
+    nav.set_obstacles(np.zeros((0, 2)), 0.2)
+    assert nav.tick(0.2).state is State.DRIVING
+
+
+# ----------------------------------------------------------------------------------------- across processes
+SIM_PARAMS = {'world': 'lab', 'sweep': False, 'hand_motion': False}
+
+
+@pytest.fixture
+def navigation(procs, rospy_client, collect):
+    """The sim in the lab, the base controller, the SICK, the navigator, and the ground truth."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    contacts = collect('/vaultbot_sim/contacts', ContactMsg)
+    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
+    procs.node('vaultbot_sim', 'base_controller')
+    sick = procs.node('vaultbot_sim', 'sick_driver')
+    navigator = procs.node('temoto_robot_manager', 'navigator',
+                           params={'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot',
+                                   'obstacle_topic': 'sick/scan'})
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator\'s move_base action'
+    wait_receiving([truth.sub, contacts.sub], HANG, 'the sim\'s ground truth')
+    yield dict(truth=truth, contacts=contacts, client=client, navigator=navigator, sick=sick)
+
+
+def target(rospy, x, y, yaw, frame='world'):
+    pose = PoseStamped()
+    pose.header.frame_id, pose.header.stamp = frame, rospy.Time.now()
+    pose.pose.position.x, pose.pose.position.y = x, y
+    pose.pose.orientation.z, pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    return pose
+
+
+def send(client, pose):
+    client.send_goal(MoveBaseGoal(target_pose=pose))
+
+
+def finished(client, bound=HANG):
+    wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), bound,
+             'the goal to end')
+    return client.get_state(), client.get_goal_status_text()
+
+
+def test_a_goal_through_move_base_drives_the_base_there_without_a_contact(navigation, rospy_client):
+    truth, client = navigation['truth'], navigation['client']
+    x, y, yaw = PLACES['table']
+    wait_for(lambda: truth.last() is not None, HANG, 'the base state')
+    send(client, target(rospy_client, x, y, yaw))
+    state, text = finished(client, 120.0)
+    assert state == GoalStatus.SUCCEEDED, text
+    wait_for(lambda: truth.last().linear == 0.0 and truth.last().angular == 0.0, HANG, 'the base at rest')
+    end = truth.last()
+    assert math.hypot(end.x - x, end.y - y) <= 0.10, 'the sim has the base at (%.3f, %.3f)' % (end.x, end.y)
+    assert abs(math.atan2(math.sin(end.yaw - yaw), math.cos(end.yaw - yaw))) <= math.radians(5)
+    assert end.contacts == 0 and not navigation['contacts'].msgs
+
+
+@pytest.mark.parametrize('pose_args, words', [
+    ((1.0, 0.0, 0.0, 'nowhere'), 'target_pose.header.frame_id: unknown frame'),
+    ((float('nan'), 0.0, 0.0, 'world'), 'target_pose.pose.position.x: must be a finite number'),
+    ((40.0, 0.0, 0.0, 'world'), 'outside the map'),
+    ((2.2, 2.2, 0.0, 'world'), 'inside an obstacle'),
+])
+def test_a_bad_goal_is_rejected_at_once_naming_the_field_and_the_base_never_moves(navigation, rospy_client,
+                                                                                   pose_args, words):
+    truth, client = navigation['truth'], navigation['client']
+    sent = time.monotonic()
+    send(client, target(rospy_client, *pose_args))
+    state, text = finished(client)
+    assert state == GoalStatus.REJECTED and words in text, text
+    assert time.monotonic() - sent < 10.0
+    assert all(s.commanded_linear == 0.0 and s.commanded_angular == 0.0 for s in truth.msgs)
+
+
+def test_the_base_stops_when_the_obstacle_source_goes_stale_and_drives_on_when_one_is_back(navigation, procs,
+                                                                                          rospy_client, collect):
+    truth, client = navigation['truth'], navigation['client']
+    scans = collect('/sick/scan', LaserScan)
+    x, y, yaw = PLACES['shelf']
+    send(client, target(rospy_client, x, y, yaw))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.2, HANG, 'the base driving')
+    set_cable('sick', 'unplugged', 'stall')            # the driver lives on and says nothing: only silence tells
+    zero = wait_for(lambda: next((s for s in truth.msgs[-5:] if s.commanded_linear == 0.0
+                                  and s.commanded_angular == 0.0), None), HANG, 'the base commanded to zero')
+    last_scan = scans.msgs[-1].header.stamp.to_sec()
+    assert zero.header.stamp.to_sec() - last_scan < 1.0, 'zero %.3f s after the last scan: 3 periods are 0.12 s' % (
+        zero.header.stamp.to_sec() - last_scan)
+    wait_for(lambda: truth.last().linear == 0.0 and truth.last().angular == 0.0, HANG, 'the base at rest')
+    assert client.get_state() == GoalStatus.ACTIVE, 'the goal waits for a fresh source; it is not over'
+    rest = truth.last()
+    navigation['sick'].stop()
+    set_cable('sick', 'plugged')
+    procs.node('vaultbot_sim', 'sick_driver')
+    state, text = finished(client, 120.0)
+    assert state == GoalStatus.SUCCEEDED, text
+    assert math.hypot(truth.last().x - rest.x, truth.last().y - rest.y) > 0.5, 'it drove on once a scan was back'
+    assert truth.last().contacts == 0
