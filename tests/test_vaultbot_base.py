@@ -147,6 +147,7 @@ def base(procs, rospy_client, collect):
     cmd = CmdVel(rospy_client)
     wait_receiving([truth.sub, contacts.sub, odom.sub], HANG, 'the sim\'s and the controller\'s topics')
     wait_for(lambda: cmd.pub.get_num_connections() > 0, HANG, 'the controller to subscribe to cmd_vel')
+    wait_for(lambda: truth.last() is not None, HANG, 'the base\'s first ground truth')
     yield dict(truth=truth, contacts=contacts, odom=odom, sim=sim, controller=controller, cmd=cmd)
     cmd.close()
 
