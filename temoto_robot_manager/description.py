@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -135,6 +136,11 @@ class RobotDescription:
     manipulation: Dict[str, Arm] = field(default_factory=dict)
     gripper: Optional[Gripper] = None
     source: str = ''               # file:line
+
+    @property
+    def path(self) -> str:
+        """The description file this robot was read from."""
+        return os.path.abspath(self.source.rsplit(':', 1)[0])
 
     @property
     def features(self) -> List[str]:

@@ -7,7 +7,9 @@ to the resource being loaded):
   description says it runs with the robot already (``running: true``), which is then checked:
   its topic must have a publisher;
 - for navigation, the best obstacle source that works, asked of the Sensor Manager down the
-  description's ranking (``temoto_core.fallback.first_that_works``).
+  description's ranking and held on this manager's own account, failed over when it fails
+  (``obstacle_failover.py``), and the navigator (``navigator_node.py``), told the description,
+  the robot and the source's topic.
 
 So a part that fails (a controller that crashes, an obstacle sensor that stalls) reaches the
 holder of the robot as FAILED through the registrar, with the part named on the error stack, and
@@ -22,6 +24,7 @@ passed a failure on to its client.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 import time
@@ -30,16 +33,17 @@ from typing import Dict, List, Optional, Sequence
 import rosgraph
 import rospy
 from diagnostic_msgs.msg import KeyValue
+from std_msgs.msg import String
 
 from temoto_core.errors import ErrorCode, Subsystem, TemotoError
-from temoto_core.fallback import first_that_works
 from temoto_core.reliability import Reliability
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.rr.settings import journal_param
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, ROBOTS, RR_NAME as NAME
-from temoto_robot_manager.description import FEATURES, Part, RobotDescription
+from temoto_robot_manager.description import FEATURES, ObstacleSource, Part, RobotDescription
+from temoto_robot_manager.obstacle_failover import ObstacleFailover
 from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
 
 SUB = Subsystem.ROBOT_MANAGER
@@ -60,6 +64,9 @@ class RobotManager:
         self._loaded: Dict[int, dict] = {}           # load_robot internal id -> what it holds
         self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB, journal=journal_param())
         self.namespace = self.rr.namespace
+        self._source_topics: Dict[str, rospy.Publisher] = {}
+        self.obstacles = ObstacleFailover(self._start_source, self.rr.unload, self._tell, self._announce_source,
+                                          SUB, lambda text: rospy.logwarn('%s: %s', NAME, text))
         self.rr.register_status_callback(self._on_part_status)
         self.rr.add_server(LOAD_ROBOT, LOAD_ROBOT_TYPE, self._load, self._unload, recover=lambda q, s: None)
         self._info_srv = rospy.Service('/%s/%s/%s' % (self.namespace, NAME, ROBOTS), GetRegistry,
@@ -96,10 +103,11 @@ class RobotManager:
         features = [f.strip() for f in req.features if f.strip()]
         robot = self.choose(req.robot_name.strip(), features)
         features = features or robot.features
+        load_id = res.trr.resource_id
         parts: List[KeyValue] = []
         try:
             if 'navigation' in features:
-                parts += self._navigation(robot)
+                parts += self._navigation(robot, load_id)
             if 'manipulation' in features:
                 for arm in robot.manipulation.values():
                     parts.append(self._part(robot, 'manipulation.%s.controller' % arm.name, arm.controller,
@@ -108,38 +116,64 @@ class RobotManager:
                 parts.append(self._part(robot, 'gripper.controller', robot.gripper.controller,
                                         robot.gripper.action + '/status'))
         except TemotoError:
+            self.obstacles.release(load_id)       # held on this manager's account: the registrar's rollback skips it
             self.reliability[robot.name].failure()
             raise
         self.reliability[robot.name].success()
         res.robot_name, res.features, res.parts = robot.name, features, parts
         with self._lock:
-            self._loaded[res.trr.resource_id] = {'robot': robot.name, 'features': features,
-                                                 'parts': {kv.key: kv.value for kv in parts}}
+            self._loaded[load_id] = {'robot': robot.name, 'features': features,
+                                     'parts': {kv.key: kv.value for kv in parts}}
         rospy.loginfo('%s: loaded %s with %s: %s', NAME, robot.name, ', '.join(features),
                       '; '.join('%s = %s' % (kv.key, kv.value) for kv in parts))
 
     def _unload(self, req, res) -> None:
-        """The registrar releases the linked parts; only the bookkeeping is left."""
+        """The registrar releases the linked parts; the obstacle source is this manager's to release."""
+        self.obstacles.release(res.trr.resource_id)
         with self._lock:
             self._loaded.pop(res.trr.resource_id, None)
 
-    def _navigation(self, robot: RobotDescription) -> List[KeyValue]:
+    def source_topic(self, robot: str) -> str:
+        """The latched topic on which the navigator of ``robot`` hears which obstacle topic to read."""
+        return '/%s/%s/%s/obstacle_source' % (self.namespace, NAME, robot)
+
+    def _announce_source(self, robot: str, topic: str) -> None:
+        with self._lock:
+            pub = self._source_topics.get(robot)
+            if pub is None:
+                pub = self._source_topics[robot] = rospy.Publisher(self.source_topic(robot), String, queue_size=1,
+                                                                   latch=True)
+        pub.publish(String(topic))
+
+    def _tell(self, load_id: int, code: int, message: str) -> None:
+        """A status of a loaded robot to its holders (the obstacle failover's steps)."""
+        rospy.loginfo('%s: robot %d: %s', NAME, load_id, message)
+        try:
+            self.rr.send_status(load_id, code, message)
+        except (KeyError, TemotoError) as err:       # unloaded meanwhile: nobody to tell
+            rospy.logwarn('%s: robot %d is gone; not told: %s (%s)', NAME, load_id, message, err)
+
+    def _start_source(self, source: ObstacleSource) -> tuple:
+        resp = self.rr.call(SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE._request_class(
+            sensor_type=source.sensor_type, package_name=source.package, executable=source.executable,
+            output_topics=[KeyValue(source.output_topic, '')]), link=False)
+        topic = dict((kv.key, kv.value) for kv in resp.output_topics).get(source.output_topic, '')
+        return resp.trr.resource_id, resp.sensor_name, topic
+
+    def _navigation(self, robot: RobotDescription, load_id: int) -> List[KeyValue]:
         nav = robot.navigation
         parts = [self._part(robot, 'navigation.driver', nav.driver, nav.odom_topic)]
+        served = self.obstacles.take(load_id, robot.name, nav.obstacle_sources)
+        with self._lock:
+            self._robot_of_part[served.local_id] = robot.name
+        parts.append(KeyValue('navigation.obstacles', served.summary))
         if nav.controller is not None:
-            parts.append(self._part(robot, 'navigation.controller', nav.controller, ''))
-
-        def attempt(source):
-            resp = self.rr.call(SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE._request_class(
-                sensor_type=source.sensor_type, package_name=source.package, executable=source.executable,
-                output_topics=[KeyValue(source.output_topic, '')]))
-            with self._lock:
-                self._robot_of_part[resp.trr.resource_id] = robot.name
-            topic = dict((kv.key, kv.value) for kv in resp.output_topics).get(source.output_topic, '')
-            return '%s (%s) on %s' % (source.label, resp.sensor_name, topic)
-        _, served = first_that_works(nav.obstacle_sources, attempt, what='an obstacle source for %s' % robot.name,
-                                     subsystem=SUB, name=lambda s: s.label)
-        return parts + [KeyValue('navigation.obstacles', served)]
+            args = ' '.join(a for a in (nav.controller.args, '_description:=%s' % robot.path, '_robot:=%s' % robot.name,
+                                        '_obstacle_topic:=%s' % served.topic,
+                                        '_obstacle_source_topic:=%s' % self.source_topic(robot.name)) if a)
+            parts.append(self._part(robot, 'navigation.controller', dataclasses.replace(nav.controller, args=args),
+                                    'move_base/status'))
+        return parts
 
     def _part(self, robot: RobotDescription, label: str, part: Part, topic: str) -> KeyValue:
         """Start ``part`` through the ER Manager (linked), or check that it runs; raises naming the part."""
@@ -182,7 +216,8 @@ class RobotManager:
 
     # -- status ----------------------------------------------------------------------------------------------
     def _on_part_status(self, event: StatusEvent) -> None:
-        """A part's FAILED: its robot is less reliable. The registrar has already forwarded it to the holders."""
+        """A part's FAILED: its robot is less reliable. A linked part's has reached the holders already
+        (the registrar forwards it); an obstacle source's is failed over instead (``obstacle_failover.py``)."""
         if not event.failed:
             return
         with self._lock:
@@ -190,6 +225,7 @@ class RobotManager:
         if robot is not None:
             self.reliability[robot].failure()
             rospy.logwarn('%s: a part of %s failed: %s', NAME, robot, event.message)
+        self.obstacles.failed(event.resource_id, event.message)
 
     # -- introspection -----------------------------------------------------------------------------------------
     def info_json(self) -> str:

@@ -9,7 +9,8 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
 
 In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
 ``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
-or, when the Robot Manager fails over, on the latched ``~obstacle_source`` topic. Out: ``cmd_vel``.
+or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic`` (default
+``~obstacle_source``). Out: ``cmd_vel``.
 
 Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
 the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
@@ -17,7 +18,7 @@ the next tick. Both hold one lock around deciding and publishing, so a stale zer
 by a command decided before it.
 
 Private parameters: ``~description`` (a robot description file), ``~robot`` (its robot's name),
-``~obstacle_topic`` (optional), ``~rate`` (Hz, default 20).
+``~obstacle_topic`` (optional), ``~obstacle_source_topic``, ``~rate`` (Hz, default 20).
 """
 from __future__ import annotations
 
@@ -84,7 +85,8 @@ class NavigatorNode:
         rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
         rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
-        rospy.Subscriber('~obstacle_source', String, lambda msg: self.use_source(msg.data), queue_size=5)
+        rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
+                         lambda msg: self.use_source(msg.data), queue_size=5)
         initial = params.text('obstacle_topic', '')
         if initial:
             self.use_source(initial)

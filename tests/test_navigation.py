@@ -93,12 +93,26 @@ def test_the_collision_monitor_looks_where_the_robot_goes():
 def test_freshness_learns_the_period_and_goes_stale_after_three_of_them():
     f = Freshness(first_period=0.04)
     assert not f.fresh(0.0), 'nothing heard: not fresh'
+    for k in range(4):
+        f.heard(9.84 + 0.04 * k)
+    assert not f.fresh(9.97), 'four frames: not proven yet'
     f.heard(10.0)
-    assert f.fresh(10.1) and not f.fresh(10.12)
+    assert f.fresh(10.1) and not f.fresh(10.121)
     for k in range(1, 11):
         f.heard(10.0 + 0.5 * k)              # a slow source: 2 Hz
     assert f.period == pytest.approx(0.5)
     assert f.fresh(15.0 + 1.4) and not f.fresh(15.0 + 1.5)
+
+
+def test_a_source_that_jitters_is_judged_by_its_slow_frames_not_its_median():
+    f = Freshness()
+    t = 0.0
+    for k in range(20):
+        t += 0.06 if k % 3 else 0.12          # a rendered camera: most frames at 60 ms, every third at 120 ms
+        f.heard(t)
+    assert f.period == pytest.approx(0.12)
+    assert f.fresh(t + 0.35), 'three slow periods have not passed: no false stop'
+    assert not f.fresh(t + 0.37), 'silent for three of its slow periods: stale'
 
 
 def drive(nav, pose, now, limit=4000):
@@ -107,6 +121,7 @@ def drive(nav, pose, now, limit=4000):
         nav.set_pose(pose)
         nav.set_obstacles(np.zeros((0, 2)), now)
         tick = nav.tick(now)
+        assert tick.state is not State.WAITING or k < 5, 'a source at every tick is never stale'
         if tick.ending is not None:
             return pose, tick.ending, k
         pose = advance(pose, tick.linear, tick.angular, 0.05)
@@ -153,14 +168,19 @@ def test_a_stale_source_zeroes_the_command_and_a_fresh_one_resumes(lab):
     nav = Navigator(HUSKY, Freshness(first_period=0.04))
     nav.set_map(lab_costmap(lab))
     nav.set_pose((0.0, 0.0, 0.0))
-    nav.set_obstacles(np.zeros((0, 2)), 0.0)
+    for k in range(5):
+        nav.set_obstacles(np.zeros((0, 2)), -0.16 + 0.04 * k)
     nav.start(nav.check(*PLACES['drums'][:2], quat(0)), 0.0)
     assert nav.tick(0.05).linear > 0
     assert nav.must_stop(0.121) and not nav.must_stop(0.119), 'stale after 3 periods of 40 ms'
     stale = nav.tick(0.13)
     assert (stale.linear, stale.angular, stale.state) == (0.0, 0.0, State.WAITING)
-    nav.set_obstacles(np.zeros((0, 2)), 0.2)
-    assert nav.tick(0.2).state is State.DRIVING
+    nav.freshness.reset()                       # the Robot Manager fails over: a new source
+    for k in range(4):
+        nav.set_obstacles(np.zeros((0, 2)), 0.2 + 0.04 * k)
+        assert nav.tick(0.2 + 0.04 * k).state is State.WAITING, 'a new source proves itself first'
+    nav.set_obstacles(np.zeros((0, 2)), 0.36)
+    assert nav.tick(0.36).state is State.DRIVING
 
 
 # ----------------------------------------------------------------------------------------- across processes

@@ -1,0 +1,89 @@
+"""Navigation through the Robot Manager: load_robot starts the navigator with the best obstacle source; when that
+source fails on the way, the robot stops, the next source takes over, the holder hears each step, and the robot
+arrives. Judged by the sim's ground truth. Shared by the module: roscore, the sim in the lab with its base
+controller, and the three managers."""
+import math
+import threading
+
+import actionlib
+import pytest
+from actionlib_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
+from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+
+from temoto_core.msg import ResourceStatus
+from temoto_robot_manager.description import load_file
+from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
+from temoto_testing import made_interfaces, wait_for, wait_receiving
+from temoto_testing.sensor_manager import (er_processes, managers_idle, set_cable, start_er_manager,
+                                           start_robot_manager, start_sensor_manager, start_sim)
+from vaultbot_sim.msg import BaseState
+
+HANG = 90.0
+RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
+PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot').navigation.places
+
+
+@pytest.fixture(scope='module')
+def stack(rospy_client, module_procs, tmp_path_factory):
+    start_sim(module_procs, hand_motion=False)
+    module_procs.node('vaultbot_sim', 'base_controller')
+    start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
+    start_sensor_manager(module_procs, first_data_timeout=20.0, extra='')
+    start_robot_manager(module_procs)
+    return module_procs
+
+
+@pytest.fixture
+def rmi(stack):
+    with made_interfaces(RobotManagerInterface) as make:
+        yield make
+    managers_idle(RRS, timeout=30)
+
+
+def navigator_running():
+    return any('navigator' in str(p['command']) for p in er_processes())
+
+
+def goal_to(rospy, place):
+    x, y, yaw = PLACES[place]
+    pose = PoseStamped()
+    pose.header.frame_id, pose.header.stamp = 'world', rospy.Time.now()
+    pose.pose.position.x, pose.pose.position.y = x, y
+    pose.pose.orientation.z, pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    return MoveBaseGoal(target_pose=pose)
+
+
+def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_step(rmi, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    heard, lock = [], threading.Lock()
+
+    def on_status(event):
+        with lock:
+            heard.append(event)
+    rm = rmi()
+    robot = rm.load_robot(['navigation'], on_status=on_status)
+    assert robot.parts['navigation.obstacles'].startswith('base LIDAR scan')
+    assert robot.parts['navigation.controller'].startswith('process ')
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator the Robot Manager started'
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, 'drums'))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    set_cable('sick', 'unplugged', 'stall')
+    wait_for(lambda: truth.last().commanded_linear == 0.0 and truth.last().commanded_angular == 0.0, HANG,
+             'the base stopped: its obstacle source is silent')
+    wait_for(lambda: any('obstacles from' in e.message for e in heard), HANG, 'the next obstacle source to serve')
+    wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG * 2, 'the goal to end')
+    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    with lock:
+        steps = [(e.code, e.message) for e in heard]
+    assert steps[0][0] == ResourceStatus.UPDATE and 'obstacle source base LIDAR scan failed' in steps[0][1], steps
+    assert any(code == ResourceStatus.UPDATE and 'obstacles from' in text for code, text in steps), steps
+    assert not any(code == ResourceStatus.FAILED for code, _ in steps), 'a source took over: the robot did not fail'
+    end, (x, y, _) = truth.last(), PLACES['drums']
+    assert math.hypot(end.x - x, end.y - y) <= 0.10 and end.contacts == 0
+    rm.release(robot.resource_id)
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
+    set_cable('sick', 'plugged')
