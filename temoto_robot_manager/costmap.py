@@ -6,13 +6,13 @@ Two layers, as move_base's costmap has them:
 - the **obstacle layer**, from the active obstacle source's latest frame only: a frame replaces the
   last, so an obstacle that has gone clears with the next frame, as a scan clears its rays.
 
-A cell is *lethal* when the robot's centre there would put an obstacle within its corridor: the
-robot drives forward (``path_follower.py``), so what must clear an obstacle beside its path is its
-half-width, the larger side of its outline (``Footprint.corridor``), plus ``PADDING``. The planner
-never enters a lethal cell. Beyond it, a cost that falls off with distance keeps paths away from
-obstacles, up to the circumscribed radius plus ``COST_REACH``, so the corners keep clear when it
-turns. The last stretch to a goal beside an obstacle (a table, a shelf) is not planned on the grid
-but driven straight, checked for the whole outline (``navigator.py``).
+A cell is *lethal* when the robot's centre there would leave it no room to turn in place: an
+obstacle within its circumscribed radius plus ``PADDING``. The planner never enters one, so
+wherever a plan takes the robot it can turn to follow it, its arms included. Beyond, a cost that
+falls off with distance keeps paths away from obstacles, up to ``COST_REACH`` further. Places
+close to furniture (a table to work at) are lethal by this rule: the robot reaches them on a
+straight last stretch, checked for its whole outline, and leaves them backing out along it
+(``navigator.py``).
 """
 from __future__ import annotations
 
@@ -22,7 +22,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-PADDING = 0.05                 # m beyond the inscribed radius that is still lethal
+PADDING = 0.15                 # m beyond the circumscribed radius that is still lethal: the monitor's stop margin at a
+                               # corner (0.07) and a cell's rounding (0.035), with some to spare
 COST_REACH = 0.35              # m beyond the circumscribed radius over which the cost falls to nothing
 COST_SCALE = 40.0              # the cost just outside the lethal zone, in cells' worth of travel
 OCCUPIED_THRESHOLD = 50        # an OccupancyGrid value at or above this is an obstacle (map_server's 0.65 x 100)
@@ -51,11 +52,6 @@ class Footprint:
     def inscribed(self) -> float:
         """From the base's origin to the outline's nearest side."""
         return min(-self.x_min, self.x_max, -self.y_min, self.y_max)
-
-    @property
-    def corridor(self) -> float:
-        """Half the width of the lane the robot sweeps driving forward: its outline's wider side."""
-        return max(-self.y_min, self.y_max)
 
     @property
     def circumscribed(self) -> float:
@@ -109,12 +105,14 @@ class Costmap:
         self.resolution = float(resolution)
         self.footprint = footprint
         self.shape = occupied.shape
-        self.lethal_cells = (footprint.corridor + PADDING) / resolution
+        self.lethal_cells = (footprint.circumscribed + PADDING) / resolution
         self.reach_cells = (footprint.circumscribed + COST_REACH) / resolution
         self.static_distance = distance_field(occupied.astype(bool), self.reach_cells)
         self.static_occupied = np.argwhere(occupied)          # (i, j) of the map's obstacles
         self._disk, _ = disk_offsets(self.lethal_cells)
         self.dynamic_lethal = np.zeros(self.shape, dtype=bool)
+        self.dynamic_occupied = np.zeros(self.shape, dtype=bool)
+        self.dynamic_points = np.zeros((0, 2))
         self._static_weights = self._weights(self.static_distance)
 
     @classmethod
@@ -166,15 +164,19 @@ class Costmap:
     def mark(self, points: np.ndarray) -> None:
         """Replace the obstacle layer with ``points`` (N x 2, map frame), each inflated to the lethal radius."""
         lethal = np.zeros(self.shape, dtype=bool)
+        occupied = np.zeros(self.shape, dtype=bool)
+        self.dynamic_points = points
         if len(points):
             ij = np.floor((points[:, ::-1] - (self.origin[1], self.origin[0])) / self.resolution).astype(np.int64)
             ij = np.unique(ij, axis=0)
+            inside = (ij[:, 0] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] >= 0) & (ij[:, 1] < self.shape[1])
+            occupied[ij[inside, 0], ij[inside, 1]] = True
             stamped = (ij[:, None, :] + self._disk[None, :, :]).reshape(-1, 2)
             ok = ((stamped[:, 0] >= 0) & (stamped[:, 0] < self.shape[0]) & (stamped[:, 1] >= 0)
                   & (stamped[:, 1] < self.shape[1]))
             stamped = stamped[ok]
             lethal[stamped[:, 0], stamped[:, 1]] = True
-        self.dynamic_lethal = lethal
+        self.dynamic_lethal, self.dynamic_occupied = lethal, occupied
 
     def weights(self, free_around: Optional[Tuple[float, float]] = None) -> np.ndarray:
         """The planner's weights, both layers. ``free_around``: the robot's place, whose lethal cells become
@@ -197,3 +199,16 @@ class Costmap:
         centres = (self.static_occupied[:, ::-1] + 0.5) * self.resolution + self.origin
         near = np.hypot(centres[:, 0] - x, centres[:, 1] - y) <= radius
         return centres[near]
+
+    def points_near(self, x: float, y: float, radius: float) -> np.ndarray:
+        """Both layers' obstacles within ``radius`` of (x, y): the map's cells and the source's latest points."""
+        dyn = self.dynamic_points
+        if len(dyn):
+            dyn = dyn[np.hypot(dyn[:, 0] - x, dyn[:, 1] - y) <= radius]
+        static = self.static_points(x, y, radius)
+        return np.vstack([static, dyn]) if len(dyn) else static
+
+    def occupied(self, x: float, y: float) -> bool:
+        """Whether an obstacle of either layer is in the cell of (x, y)."""
+        i, j = self.cell(x, y)
+        return bool(self.static_distance[i, j] == 0 or self.dynamic_occupied[i, j])

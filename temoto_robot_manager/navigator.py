@@ -37,7 +37,11 @@ SOURCE_PATIENCE_S = 45.0           # no fresh obstacle source this long: aborted
 NO_PATH_PATIENCE_S = 3.0           # replans that find no path, this long: aborted
 MONITOR_RADIUS = 2.5               # m around the robot of the map's obstacles the monitor checks
 APPROACH = 0.8                     # m: the last stretch, driven straight along the goal's heading
-ON_STRETCH = 0.25                  # m aside of the last stretch that still counts as on it, when replanning
+ON_STRETCH = 0.15                  # m aside of the last stretch that still counts as on it, when replanning
+ON_STRETCH_YAW = math.radians(15.0)  # and how far off its heading
+DEPART_SPEED = 0.15                # m/s, backing out of a place with no room to turn
+DEPART_LIMIT = 1.2                 # m backed out at most before following a plan regardless
+CREEP = (0.3, 0.1)                 # a command the stop zone refuses is tried again at these fractions
 YAW_LIMIT = math.radians(5.0)      # the issue's heading tolerance: a last turn blocked within it has arrived
 
 Pose = Tuple[float, float, float]
@@ -96,10 +100,14 @@ class Navigator:
         self.obstacles_base = np.zeros((0, 2))     # the source's latest frame, in the base's frame
         self.state = State.IDLE
         self.goal: Optional[Pose] = None
+        self.target: Optional[Pose] = None         # where the current plan ends: the goal, or its staging pose
         self.path: Optional[np.ndarray] = None
         self._since: float = 0.0                   # when the current state began
         self._planned: float = 0.0
         self._no_path_since: Optional[float] = None
+        self._departing = False                    # backing out of a place with no room to turn
+        self._backed = 0.0                         # m backed out so far
+        self._last_tick: Optional[float] = None
 
     # -- what the node feeds in -----------------------------------------------------------------------------
     def set_map(self, costmap: Costmap) -> None:
@@ -147,8 +155,7 @@ class Navigator:
         if not cm.inside(x, y):
             raise BadGoal('%s.position' % field, '(%.2f, %.2f) is outside the map (x %.2f to %.2f, y %.2f to %.2f)'
                           % (x, y, cm.bounds[0], cm.bounds[2], cm.bounds[1], cm.bounds[3]))
-        i, j = cm.cell(x, y)
-        if cm.static_distance[i, j] == 0 or cm.dynamic_lethal[i, j]:
+        if cm.occupied(x, y):
             raise BadGoal('%s.position' % field, '(%.2f, %.2f) is inside an obstacle' % (x, y))
         yaw = yaw_of(qx, qy, qz, qw)
         gap = self.gap_at((x, y, yaw))
@@ -159,8 +166,8 @@ class Navigator:
         return x, y, yaw
 
     def gap_at(self, pose: Pose) -> float:
-        """Metres between the footprint at ``pose`` and the map's nearest obstacle."""
-        near = self.costmap.static_points(pose[0], pose[1], self.footprint.circumscribed + 0.5)
+        """Metres between the footprint at ``pose`` and the nearest obstacle, the map's or the source's."""
+        near = self.costmap.points_near(pose[0], pose[1], self.footprint.circumscribed + 0.5)
         if not len(near):
             return math.inf
         return float(self.footprint.distance(self._into(near, pose)).min())
@@ -172,38 +179,59 @@ class Navigator:
         rel = points - (x, y)
         return np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], axis=1)
 
-    def route(self, start: Tuple[float, float], goal: Pose) -> np.ndarray:
-        """The plan to ``goal``: to a point ``APPROACH`` behind it, then straight along its heading, when that
-        stretch is free for the whole outline, so the robot arrives facing the goal's way and has little to
-        turn where obstacles are close; else straight to the goal."""
+    @staticmethod
+    def _on_stretch(pose: Pose, goal: Pose) -> bool:
+        """Whether the robot at ``pose`` is on the goal's last stretch (``APPROACH`` long, ending at the goal),
+        facing the goal's way."""
+        gx, gy, yaw = goal
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy = pose[0] - gx, pose[1] - gy
+        along, aside = dx * c + dy * s, -dx * s + dy * c
+        return (-APPROACH - ON_STRETCH <= along <= 0.0 and abs(aside) <= ON_STRETCH
+                and abs(wrap(pose[2] - yaw)) <= ON_STRETCH_YAW)
+
+    @staticmethod
+    def _stretch(start: Tuple[float, float], goal: Pose) -> np.ndarray:
+        """The straight way in from ``start`` (on the goal's line) to the goal."""
+        gx, gy, yaw = goal
+        c, s = math.cos(yaw), math.sin(yaw)
+        along = max(0.0, -((start[0] - gx) * c + (start[1] - gy) * s))
+        steps = np.linspace(along, 0.0, max(2, int(round(along / global_planner.SPACING)) + 1))
+        return np.vstack([[start], np.stack([gx - steps * c, gy - steps * s], axis=1)])
+
+    def route(self, start: Pose, goal: Pose) -> Tuple[np.ndarray, Pose]:
+        """(the plan, the pose it ends at) toward ``goal``. When the goal is too close to something to turn
+        there (at a table, say), the plan ends at a *staging* pose ``APPROACH`` behind it, facing its way,
+        and the robot then drives the last stretch straight in; the stretch must be free for the whole
+        outline. A robot already on that stretch just finishes it."""
         gx, gy, yaw = goal
         c, s = math.cos(yaw), math.sin(yaw)
         sx, sy = gx - APPROACH * c, gy - APPROACH * s
         cm = self.costmap
-        along = (start[0] - sx) * c + (start[1] - sy) * s
-        aside = -(start[0] - sx) * s + (start[1] - sy) * c
-        if 0.0 <= along <= APPROACH and abs(aside) <= ON_STRETCH:      # already on the last stretch: finish it
-            steps = np.linspace(along, APPROACH, max(2, int(round((APPROACH - along) / global_planner.SPACING)) + 1))
-            return np.vstack([[start], np.stack([sx + steps * c, sy + steps * s], axis=1)])
+        if self._on_stretch(start, goal):
+            return self._stretch(start[:2], goal), goal
+        if not cm.lethal(gx, gy):
+            return global_planner.plan(cm, start[:2], (gx, gy)), goal
         if cm.inside(sx, sy) and not cm.lethal(sx, sy):
-            near = cm.static_points(sx, sy, self.footprint.circumscribed + APPROACH + 0.5)
+            near = cm.points_near(sx, sy, self.footprint.circumscribed + APPROACH + 0.5)
             stretch = self._into(near, (sx, sy, yaw)) if len(near) else np.zeros((0, 2))
             if not self.monitor.swept_hit(stretch, 1.0, 0.0, APPROACH, self.monitor.settings.stop_margin):
-                head = global_planner.plan(cm, start, (sx, sy))
-                steps = np.linspace(0.0, APPROACH, int(round(APPROACH / global_planner.SPACING)) + 1)[1:]
-                return np.vstack([head, np.stack([sx + steps * c, sy + steps * s], axis=1)])
-        if cm.lethal(gx, gy):
-            raise global_planner.NoPath('the goal (%.2f, %.2f) is %.2f m from an obstacle, and no straight way in '
-                                        'along its heading is free' % (gx, gy, cm.clearance(gx, gy)))
-        return global_planner.plan(cm, start, (gx, gy))
+                return global_planner.plan(cm, start[:2], (sx, sy)), (sx, sy, yaw)
+        raise global_planner.NoPath('the goal (%.2f, %.2f) is %.2f m from an obstacle, too close to turn there, '
+                                    'and no straight way in along its heading is free' % (gx, gy,
+                                                                                        cm.clearance(gx, gy)))
 
     def start(self, goal: Pose, now: float) -> None:
         """Drive to a checked ``goal`` (replacing any other); raises NoPath when none is found now."""
         if self.pose is None:
             raise BadGoal('target_pose', 'the robot\'s pose is not known yet (no odometry)')
-        self.path = self.route(self.pose[:2], goal)
+        self.path, self.target = self.route(self.pose, goal)
         self.goal = goal
         self.follower.reset()
+        # no room to turn where it stands (it is at a table, say) and not already on the way in: back out
+        # first, straight, as it came in, until it has room (``DEPART_LIMIT`` at most)
+        self._departing = self.costmap.lethal(*self.pose[:2]) and not self._on_stretch(self.pose, goal)
+        self._backed, self._last_tick = 0.0, None
         self._planned = now
         self._no_path_since = None
         self._enter(State.DRIVING, now)
@@ -212,7 +240,7 @@ class Navigator:
         self._finish()
 
     def _finish(self) -> None:
-        self.goal, self.path = None, None
+        self.goal, self.path, self.target = None, None, None
         self.state = State.IDLE
 
     def _enter(self, state: State, now: float) -> None:
@@ -253,14 +281,31 @@ class Navigator:
         if now - self._planned >= REPLAN_PERIOD_S:
             self._planned = now
             try:
-                self.path = self.route(self.pose[:2], self.goal)
+                path, target = self.route(self.pose, self.goal)
+                if target != self.target:
+                    self.follower.reset()
+                self.path, self.target = path, target
                 self._no_path_since = None
             except global_planner.NoPath as err:
                 if self._no_path_since is None:
                     self._no_path_since = now
                 elif now - self._no_path_since > NO_PATH_PATIENCE_S:
                     return self._end(Outcome.ABORTED, 'no path any more: %s' % err)
-        linear, angular = self.follower.command(self.pose, self.path, self.goal[2])
+        if self._departing and (not self.costmap.lethal(*self.pose[:2]) or self._backed >= DEPART_LIMIT):
+            self._departing = False                    # room to turn: follow a plan from here
+            self._planned = -math.inf
+            return Tick(0.0, 0.0, self.state, self.remaining())
+        if self._departing:
+            linear, angular = -DEPART_SPEED, 0.0
+            self._backed += DEPART_SPEED * (now - self._last_tick if self._last_tick is not None else 0.0)
+        else:
+            linear, angular = self.follower.command(self.pose, self.path, self.target[2])
+        self._last_tick = now
+        if self.follower.phase is Phase.ARRIVED and self.target != self.goal:
+            # at the staging pose, facing the goal's way: the last stretch, straight in
+            self.path, self.target = self._stretch(self.pose[:2], self.goal), self.goal
+            self.follower.reset()
+            return Tick(0.0, 0.0, self.state, self.remaining())
         if self.follower.phase is Phase.ARRIVED:
             x, y, yaw = self.pose
             return self._end(Outcome.SUCCEEDED, 'arrived %.3f m and %.1f deg from the goal' % (
@@ -270,6 +315,10 @@ class Navigator:
             near = self.costmap.static_points(self.pose[0], self.pose[1], MONITOR_RADIUS)
             points = np.vstack([points, self.to_base(near)]) if len(near) else points
         verdict = self.monitor.check(points, linear, angular)
+        for scale in CREEP:                            # too fast for where it is: slower may be safe (a creep)
+            if verdict.zone is not Zone.STOP:
+                break
+            verdict = self.monitor.check(points, linear * scale, angular * scale)
         if verdict.zone is Zone.STOP and self.follower.phase is Phase.ALIGN:
             x, y, yaw = self.pose
             error = abs(wrap(self.goal[2] - yaw))

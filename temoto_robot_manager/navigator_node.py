@@ -12,7 +12,8 @@ In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source a
 or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic`` (default
 ``~obstacle_source``). Out: ``cmd_vel``.
 
-Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
+A goal whose holder is gone ends at once, the robot stopped (:meth:`NavigatorNode._holder_gone`): a
+robot must not drive for nobody. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
 the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
 the next tick. Both hold one lock around deciding and publishing, so a stale zero is never followed
 by a command decided before it.
@@ -85,8 +86,11 @@ class NavigatorNode:
         rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
         rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
-        rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
-                         lambda msg: self.use_source(msg.data), queue_size=5)
+        # the Robot Manager's latched topic: its connection is also how the navigator knows the manager lives
+        self._owner = rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
+                                       lambda msg: self.use_source(msg.data), queue_size=5)
+        self._owner_seen = False
+        self._client_seen = False
         initial = params.text('obstacle_topic', '')
         if initial:
             self.use_source(initial)
@@ -205,6 +209,7 @@ class NavigatorNode:
                 goal = self._checked(target)
                 self.nav.start(goal, now)
                 previous, self.active = self.active, handle
+                self._client_seen = False
                 path = self.nav.path
         except (BadGoal, NoPath) as err:
             rospy.logwarn('navigator: goal %s refused: %s', handle.get_goal_id().id, err)
@@ -261,11 +266,44 @@ class NavigatorNode:
                 rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped', self.source_topic,
                               (now - self.nav.freshness.last) * 1e3, self.nav.freshness.periods)
 
+    def _holder_gone(self) -> Optional[str]:
+        """Why the active goal has nobody left to want it, or None. Two holders are watched through their
+        connections, which the kernel closes the moment a process dies: the goal's action client (its
+        subscription to the status this server publishes), and the Robot Manager that started this
+        navigator (its latched obstacle_source topic), once it has been seen."""
+        connected = self._owner.get_num_connections() > 0
+        if connected:
+            self._owner_seen = True
+        elif self._owner_seen:
+            return 'the Robot Manager that started this navigator is gone'
+        goal_id = self.active.get_goal_id().id
+        if goal_id.startswith('move_base_simple-'):
+            return None                              # RViz's tool sends and forgets: nobody to watch
+        client = goal_id.split('-', 1)[0]
+        listening = client in {info[1] for info in self.server.status_pub.impl.get_stats_info()}
+        if listening:
+            self._client_seen = True
+        elif self._client_seen:                      # a goal sent with no client (rostopic pub) is never watched
+            return 'its client %s is gone' % client
+        return None
+
     def spin(self) -> None:
         period = 1.0 / self.rate
         next_at = time.monotonic()
         while ok():
             now = time.monotonic()
+            gone = None
+            with self.lock:
+                if self.active is not None:
+                    gone = self._holder_gone()
+                    if gone is not None:
+                        self.nav.cancel()
+                        self._command(0.0, 0.0)
+                        orphan, self.active = self.active, None
+            if gone is not None:
+                rospy.logwarn('navigator: goal %s: %s: the robot stops', orphan.get_goal_id().id, gone)
+                orphan.set_aborted(MoveBaseResult(), '%s: the robot stopped' % gone)
+                self._publish_plan(None)
             with self.lock:
                 handle, was = self.active, self.nav.state
                 tick = self.nav.tick(now)

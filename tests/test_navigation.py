@@ -2,12 +2,15 @@
 node as a process between the sim's base and the SICK, judged by the sim's ground truth
 (``/vaultbot_sim/base_state``, ``~contacts``), never by the navigator's word."""
 import math
+import os
+import signal
+import sys
 import time
 
 import actionlib
 import numpy as np
 import pytest
-from actionlib_msgs.msg import GoalStatus
+from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from sensor_msgs.msg import LaserScan
@@ -47,11 +50,14 @@ def quat(yaw):
 
 
 # ----------------------------------------------------------------------------------------------- the rules
-def test_the_lab_map_has_the_tables_shelves_and_walls_and_the_places_are_free(lab):
+def test_the_lab_map_has_the_tables_shelves_and_walls_and_every_place_is_a_valid_goal(lab):
     cm = lab_costmap(lab)
     assert cm.lethal(2.2, 2.2) and cm.lethal(1.0, 3.5), 'a table and the wall are obstacles'
-    for name, (x, y, _) in PLACES.items():
-        assert not cm.lethal(x, y), 'the place %s is free' % name
+    nav = Navigator(HUSKY, Freshness())
+    nav.set_map(cm)
+    for name, (x, y, yaw) in PLACES.items():
+        assert nav.check(x, y, quat(yaw)) == pytest.approx((x, y, yaw)), 'the place %s is a valid goal' % name
+        assert nav.gap_at((x, y, yaw)) >= 0.1, 'the place %s leaves the outline 0.1 m clear' % name
 
 
 def test_the_distance_field_counts_cells_to_the_nearest_obstacle():
@@ -63,15 +69,17 @@ def test_the_distance_field_counts_cells_to_the_nearest_obstacle():
 
 def test_the_planner_goes_round_an_obstacle_and_says_when_there_is_no_way(lab):
     cm = lab_costmap(lab)
-    path = global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])
-    assert tuple(path[0]) == (0.0, 0.0) and tuple(path[-1]) == PLACES['drums'][:2]
+    x, y, yaw = PLACES['drums']
+    there = (x - 0.8 * math.cos(yaw), y - 0.8 * math.sin(yaw))       # where the robot turns toward the drums
+    path = global_planner.plan(cm, (0.0, 0.0), there)
+    assert tuple(path[0]) == (0.0, 0.0) and tuple(path[-1]) == there
     assert all(not cm.lethal(x, y) for x, y in path), 'the path keeps the robot out of every obstacle'
-    wall = np.array([[1.5, y] for y in np.arange(-3.5, 3.6, 0.05)])
-    cm.mark(wall)
+    ring = np.array([[there[0] + 1.3 * math.cos(a), there[1] + 1.3 * math.sin(a)] for a in np.arange(0, 6.3, 0.02)])
+    cm.mark(ring)                                      # someone fenced the place in
     with pytest.raises(global_planner.NoPath, match='obstacles close every path'):
-        global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])
+        global_planner.plan(cm, (0.0, 0.0), there)
     cm.mark(np.zeros((0, 2)))
-    assert len(global_planner.plan(cm, (0.0, 0.0), PLACES['drums'][:2])), 'the next frame clears the wall'
+    assert len(global_planner.plan(cm, (0.0, 0.0), there)), 'the next frame clears the fence'
 
 
 def test_the_collision_monitor_looks_where_the_robot_goes():
@@ -116,33 +124,62 @@ def test_a_source_that_jitters_is_judged_by_its_slow_frames_not_its_median():
 
 
 def drive(nav, pose, now, limit=4000):
-    """The navigator closing the loop on a kinematic base; (final pose, ending, ticks)."""
+    """The navigator closing the loop on a kinematic base; (final pose, ending, ticks). Every pose on the way
+    keeps the robot's whole outline off the map's obstacles."""
     for k in range(limit):
         nav.set_pose(pose)
         nav.set_obstacles(np.zeros((0, 2)), now)
         tick = nav.tick(now)
-        assert tick.state is not State.WAITING or k < 5, 'a source at every tick is never stale'
         if tick.ending is not None:
             return pose, tick.ending, k
         pose = advance(pose, tick.linear, tick.angular, 0.05)
+        assert nav.gap_at(pose) > 0.0, 'the outline touched an obstacle at %s' % (pose,)
         now += 0.05
     raise AssertionError('no ending in %d ticks' % limit)
 
 
-@pytest.mark.parametrize('place', sorted(PLACES))
-def test_the_navigator_reaches_every_place_from_home_on_a_kinematic_base(lab, place):
+def proven(nav, until=0.0):
+    """Five frames of an obstacle source, the last at ``until``: the source is fresh."""
+    for k in range(5):
+        nav.set_obstacles(np.zeros((0, 2)), until - 0.04 * (4 - k))
+
+
+@pytest.mark.parametrize('origin, place', [(a, b) for a in sorted(PLACES) for b in sorted(PLACES) if a != b])
+def test_the_navigator_drives_from_each_place_to_every_other_on_a_kinematic_base(lab, origin, place):
     nav = Navigator(HUSKY, Freshness(first_period=0.04))
     nav.set_map(lab_costmap(lab))
-    start = (0.3, -0.5, 2.0) if place == 'home' else (0.0, 0.0, 0.0)
+    start = PLACES[origin]
     nav.set_pose(start)
     x, y, yaw = PLACES[place]
     goal = nav.check(x, y, quat(yaw))
-    nav.set_obstacles(np.zeros((0, 2)), 0.0)
+    proven(nav)
     nav.start(goal, 0.0)
     pose, ending, _ = drive(nav, start, 0.0)
     assert ending.outcome is Outcome.SUCCEEDED, ending.text
     assert math.hypot(pose[0] - x, pose[1] - y) <= 0.10
     assert abs(math.atan2(math.sin(pose[2] - yaw), math.cos(pose[2] - yaw))) <= math.radians(5)
+
+
+def test_seeded_goals_anywhere_in_the_lab_end_arrived_or_refused_and_never_touch(lab):
+    rng = np.random.default_rng(40)
+    cm = lab_costmap(lab)
+    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav.set_map(cm)
+    pose, arrived, refused = (0.0, 0.0, 0.0), 0, 0
+    x0, y0, x1, y1 = cm.bounds
+    for _ in range(25):
+        x, y, yaw = rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)
+        nav.set_pose(pose)
+        proven(nav)
+        try:
+            nav.start(nav.check(x, y, quat(yaw)), 0.0)
+        except (BadGoal, global_planner.NoPath):
+            refused += 1
+            continue
+        pose, ending, _ = drive(nav, pose, 0.0)
+        assert ending.outcome is Outcome.SUCCEEDED, '(%.2f, %.2f, %.2f): %s' % (x, y, yaw, ending.text)
+        arrived += 1
+    assert arrived >= 5 and refused >= 5, 'the seed gives both kinds: %d arrived, %d refused' % (arrived, refused)
 
 
 @pytest.mark.parametrize('x, y, q, field, words', [
@@ -168,9 +205,8 @@ def test_a_stale_source_zeroes_the_command_and_a_fresh_one_resumes(lab):
     nav = Navigator(HUSKY, Freshness(first_period=0.04))
     nav.set_map(lab_costmap(lab))
     nav.set_pose((0.0, 0.0, 0.0))
-    for k in range(5):
-        nav.set_obstacles(np.zeros((0, 2)), -0.16 + 0.04 * k)
-    nav.start(nav.check(*PLACES['drums'][:2], quat(0)), 0.0)
+    proven(nav)
+    nav.start(nav.check(*PLACES['drums'][:2], quat(PLACES['drums'][2])), 0.0)
     assert nav.tick(0.05).linear > 0
     assert nav.must_stop(0.121) and not nav.must_stop(0.119), 'stale after 3 periods of 40 ms'
     stale = nav.tick(0.13)
@@ -276,3 +312,39 @@ def test_the_base_stops_when_the_obstacle_source_goes_stale_and_drives_on_when_o
     assert state == GoalStatus.SUCCEEDED, text
     assert math.hypot(truth.last().x - rest.x, truth.last().y - rest.y) > 0.5, 'it drove on once a scan was back'
     assert truth.last().contacts == 0
+
+
+GOAL_CLIENT = """
+import math, sys, rospy, actionlib
+from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+rospy.init_node('goal_client')
+client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+client.wait_for_server(rospy.Duration(60))
+goal = MoveBaseGoal()
+goal.target_pose.header.frame_id = 'world'
+goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = float(sys.argv[1]), float(sys.argv[2])
+goal.target_pose.pose.orientation.z, goal.target_pose.pose.orientation.w = math.sin(float(sys.argv[3]) / 2), math.cos(float(sys.argv[3]) / 2)
+client.send_goal(goal)
+print('sent', flush=True)
+rospy.spin()
+"""
+
+
+def test_the_base_stops_when_the_goal_s_client_dies_mid_drive(navigation, procs, collect):
+    truth = navigation['truth']
+    statuses = collect('/move_base/status', GoalStatusArray)
+    x, y, yaw = PLACES['drums']
+    client = procs.command([sys.executable, '-c', GOAL_CLIENT, str(x), str(y), str(yaw)], 'goal_client')
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    os.kill(client.pid, signal.SIGKILL)
+    killed = time.time()
+    zero = wait_for(lambda: next((s for s in truth.msgs[-5:] if s.header.stamp.to_sec() > killed
+                                  and s.commanded_linear == 0.0 and s.commanded_angular == 0.0), None), HANG,
+                    'the base commanded to zero once the goal\'s client died')
+    assert zero.header.stamp.to_sec() - killed < 5.0
+    ended = wait_for(lambda: next((st for m in statuses.msgs[-3:] for st in m.status_list
+                                   if st.status == GoalStatus.ABORTED), None), HANG, 'the goal aborted')
+    assert 'client /goal_client is gone' in ended.text, ended.text
+    wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
+    rest = truth.last()
+    assert rest.contacts == 0

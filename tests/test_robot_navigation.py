@@ -3,11 +3,14 @@ source fails on the way, the robot stops, the next source takes over, the holder
 arrives. Judged by the sim's ground truth. Shared by the module: roscore, the sim in the lab with its base
 controller, and the three managers."""
 import math
+import os
+import signal
 import threading
+import time
 
 import actionlib
 import pytest
-from actionlib_msgs.msg import GoalStatus
+from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 
@@ -31,7 +34,7 @@ def stack(rospy_client, module_procs, tmp_path_factory):
     module_procs.node('vaultbot_sim', 'base_controller')
     start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
     start_sensor_manager(module_procs, first_data_timeout=20.0, extra='')
-    start_robot_manager(module_procs)
+    module_procs.robot_manager = start_robot_manager(module_procs)
     return module_procs
 
 
@@ -87,3 +90,28 @@ def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_ste
     rm.release(robot.resource_id)
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
     set_cable('sick', 'plugged')
+
+
+def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    statuses = collect('/move_base/status', GoalStatusArray)
+    rm = rmi()
+    rm.load_robot(['navigation'], on_status=lambda event: None)
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, 'home'))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    os.kill(stack.robot_manager.pid, signal.SIGKILL)
+    killed = time.time()
+    zero = wait_for(lambda: next((s for s in truth.msgs[-5:] if s.header.stamp.to_sec() > killed
+                                  and s.commanded_linear == 0.0 and s.commanded_angular == 0.0), None), HANG,
+                    'the base commanded to zero once the Robot Manager died')
+    assert zero.header.stamp.to_sec() - killed < 5.0
+    ended = wait_for(lambda: next((st for m in statuses.msgs[-3:] for st in m.status_list
+                                   if st.status == GoalStatus.ABORTED), None), HANG, 'the goal aborted')
+    assert 'Robot Manager that started this navigator is gone' in ended.text, ended.text
+    # the manager's parts go with it (the ER Manager sees its consumer die); a new manager starts clean
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator to be released with its dead manager')
+    stack.robot_manager = start_robot_manager(stack)
+    assert truth.last().contacts == 0
