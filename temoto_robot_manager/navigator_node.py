@@ -41,6 +41,7 @@ from std_msgs.msg import Float32, String
 
 from temoto_core import params
 from temoto_core.node import init_node, ok
+from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import RobotDescription, load_file
 from temoto_robot_manager.freshness import Freshness
@@ -94,6 +95,14 @@ class NavigatorNode:
         initial = params.text('obstacle_topic', '')
         if initial:
             self.use_source(initial)
+        # move_base's server appears once a goal can be checked (the map) and planned (the pose); a client that
+        # waits for the server then never sees a refusal that only says "not yet"
+        try:
+            wait_for(lambda: self.nav.costmap is not None and self.nav.pose is not None,
+                     params.number('startup_timeout', 30.0, above=0), 'the map and the odometry')
+        except TimeoutError:
+            rospy.logwarn('navigator: no %s after %.0f s; serving goals anyway (each is refused until both come)',
+                          'map' if self.nav.costmap is None else 'odometry', params.number('startup_timeout', 30.0))
         self.server.start()
         threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
@@ -165,7 +174,7 @@ class NavigatorNode:
         points = base_points(frame, sensor, self.nav.footprint)
         with self.wake:
             if isinstance(frame, LaserScan) and frame.scan_time > 0:
-                self.nav.freshness.first_period = frame.scan_time
+                self.nav.freshness.declared = frame.scan_time
             self.nav.set_obstacles(points, now)
             self.wake.notify_all()
 

@@ -99,7 +99,7 @@ def test_the_collision_monitor_looks_where_the_robot_goes():
 
 
 def test_freshness_learns_the_period_and_goes_stale_after_three_of_them():
-    f = Freshness(first_period=0.04)
+    f = Freshness(declared=0.04)
     assert not f.fresh(0.0), 'nothing heard: not fresh'
     for k in range(4):
         f.heard(9.84 + 0.04 * k)
@@ -146,7 +146,7 @@ def proven(nav, until=0.0):
 
 @pytest.mark.parametrize('origin, place', [(a, b) for a in sorted(PLACES) for b in sorted(PLACES) if a != b])
 def test_the_navigator_drives_from_each_place_to_every_other_on_a_kinematic_base(lab, origin, place):
-    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav = Navigator(HUSKY, Freshness(declared=0.04))
     nav.set_map(lab_costmap(lab))
     start = PLACES[origin]
     nav.set_pose(start)
@@ -163,7 +163,7 @@ def test_the_navigator_drives_from_each_place_to_every_other_on_a_kinematic_base
 def test_seeded_goals_anywhere_in_the_lab_end_arrived_or_refused_and_never_touch(lab):
     rng = np.random.default_rng(40)
     cm = lab_costmap(lab)
-    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav = Navigator(HUSKY, Freshness(declared=0.04))
     nav.set_map(cm)
     pose, arrived, refused = (0.0, 0.0, 0.0), 0, 0
     x0, y0, x1, y1 = cm.bounds
@@ -192,7 +192,7 @@ def test_seeded_goals_anywhere_in_the_lab_end_arrived_or_refused_and_never_touch
     (2.2, 0.95, quat(math.pi / 2), 'position', 'would be 0.00 m from an obstacle'),
 ])
 def test_a_bad_goal_is_refused_naming_its_field_and_nothing_starts(lab, x, y, q, field, words):
-    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav = Navigator(HUSKY, Freshness(declared=0.04))
     nav.set_map(lab_costmap(lab))
     nav.set_pose((0.0, 0.0, 0.0))
     with pytest.raises(BadGoal, match=words) as err:
@@ -202,7 +202,7 @@ def test_a_bad_goal_is_refused_naming_its_field_and_nothing_starts(lab, x, y, q,
 
 
 def test_a_stale_source_zeroes_the_command_and_a_fresh_one_resumes(lab):
-    nav = Navigator(HUSKY, Freshness(first_period=0.04))
+    nav = Navigator(HUSKY, Freshness(declared=0.04))
     nav.set_map(lab_costmap(lab))
     nav.set_pose((0.0, 0.0, 0.0))
     proven(nav)

@@ -1,0 +1,382 @@
+#!/usr/bin/env python3
+"""Navigation benchmark: the planners, seeded drives, and the navigator's stops from the sim's ground truth.
+
+1. **planners** (in process): A* (pyastar2d, the navigator's) and, when it is importable, OMPL's
+   RRT-Connect on the same costmaps: 20 x 20 m at 5 cm, seeded boxes, seeded start and goal
+   pairs in free space. Plan time p50 / p95, and the path's length against A*'s;
+2. **seeded drives** (in process): the navigator closing the loop on a kinematic base in the lab,
+   from a seeded pose to seeded goals: arrived within 0.10 m and 5 degrees, refused at once
+   (and why), and every pose checked for the outline touching the map;
+3. **across processes**, the sim in the lab with its base controller, the SICK and the navigator:
+   - the obstacle source goes stale while driving (its cable pulled in stall mode): the last
+     scan's stamp -> the first ground-truth state with zero commanded;
+   - a bad goal -> the client hears REJECTED (the four kinds in turn), and nothing moves;
+   - the goal's client SIGKILLed while driving -> zero commanded;
+   - drives to the described places in turn, some with the SICK stalled on the way: contacts,
+     arrival within 0.10 m and 5 degrees.
+
+Prints a markdown table and writes bench/results/navigation.json.
+Usage: python bench/bench_navigation.py [--pairs N] [--drives N] [--trials N] [--hogs N] [--only planners|drives|stops]
+"""
+import argparse
+import json
+import math
+import os
+import signal
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs  # noqa: E402
+from temoto_robot_manager import global_planner  # noqa: E402
+from temoto_robot_manager.costmap import Costmap, Footprint  # noqa: E402
+from temoto_robot_manager.description import load_file  # noqa: E402
+from temoto_robot_manager.freshness import Freshness  # noqa: E402
+from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome  # noqa: E402
+from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402
+from vaultbot_sim.base import advance  # noqa: E402
+from vaultbot_sim.kinematics import WORLDS, TreeModel  # noqa: E402
+from vaultbot_sim.world_map import world_map  # noqa: E402
+
+HANG = 60.0
+VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
+FOOTPRINT = Footprint.of(VAULTBOT.navigation.footprint)
+PLACES = VAULTBOT.navigation.places
+
+
+def quat(yaw):
+    return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+
+
+# ------------------------------------------------------------------------------------------------ planners
+def random_grid(rng, size=400, boxes=25):
+    occupied = np.zeros((size, size), dtype=bool)
+    occupied[[0, -1], :] = occupied[:, [0, -1]] = True
+    for _ in range(boxes):
+        i, j = rng.integers(0, size, 2)
+        h, w = rng.integers(4, 30, 2)
+        occupied[i:i + h, j:j + w] = True
+    return occupied
+
+
+def free_pairs(rng, cm, n):
+    pairs, tries = [], 0
+    x0, y0, x1, y1 = cm.bounds
+    while len(pairs) < n and tries < 100 * n:
+        tries += 1
+        a, b = rng.uniform((x0, y0), (x1, y1)), rng.uniform((x0, y0), (x1, y1))
+        if cm.lethal(*a) or cm.lethal(*b) or math.dist(a, b) < 5.0:
+            continue
+        pairs.append((tuple(a), tuple(b)))
+    return pairs
+
+
+def ompl_plan(cm, start, goal, budget=1.0):
+    """RRT-Connect in the plane (OMPL 2's Python bindings), each state checked against the costmap's lethal
+    cells, the solution simplified; None if none is found within ``budget`` seconds."""
+    from ompl import base as ob, geometric as og, util as ou       # optional: measured where it is installed
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    space = ob.RealVectorStateSpace(2)
+    bounds = ob.RealVectorBounds(2)
+    x0, y0, x1, y1 = cm.bounds
+    bounds.setLow(0, x0)
+    bounds.setHigh(0, x1 - 1e-6)
+    bounds.setLow(1, y0)
+    bounds.setHigh(1, y1 - 1e-6)
+    space.setBounds(bounds)
+    space.setLongestValidSegmentFraction(cm.resolution / max(x1 - x0, y1 - y0))
+    setup = og.SimpleSetup(space)
+    setup.setStateValidityChecker(lambda s: not cm.lethal(s[0], s[1]))
+    a, b = space.allocState(), space.allocState()
+    a[0], a[1], b[0], b[1] = start[0], start[1], goal[0], goal[1]
+    setup.setStartAndGoalStates(a, b)
+    setup.setPlanner(og.RRTConnect(setup.getSpaceInformation()))
+    if not setup.solve(budget) or not setup.haveExactSolutionPath():
+        return None
+    setup.simplifySolution()
+    path = setup.getSolutionPath()
+    return np.array([[path.getState(k)[0], path.getState(k)[1]] for k in range(path.getStateCount())])
+
+
+def bench_planners(pairs_n, seed=39):
+    rng = np.random.default_rng(seed)
+    results = {'astar': [], 'ompl': [], 'ratio': [], 'ompl_failed': 0}
+    try:
+        import ompl  # noqa: F401
+        have_ompl = True
+    except ImportError:
+        have_ompl = False
+    for grid_k in range(5):
+        cm = Costmap((-10.0, -10.0), 0.05, random_grid(rng), FOOTPRINT)
+        for start, goal in free_pairs(rng, cm, pairs_n // 5):
+            t = time.perf_counter()
+            try:
+                path = global_planner.plan(cm, start, goal)
+            except global_planner.NoPath:
+                continue
+            results['astar'].append(time.perf_counter() - t)
+            if have_ompl:
+                t = time.perf_counter()
+                other = ompl_plan(cm, start, goal)
+                if other is None:
+                    results['ompl_failed'] += 1
+                    continue
+                results['ompl'].append(time.perf_counter() - t)
+                results['ratio'].append(global_planner.length(other) / global_planner.length(path))
+    results['have_ompl'] = have_ompl
+    return results
+
+
+# ------------------------------------------------------------------------------------------------ seeded drives
+def bench_drives(n, seed=40):
+    rng = np.random.default_rng(seed)
+    grid = world_map(TreeModel(WORLDS['lab']))
+    cm = Costmap(grid.origin, grid.resolution, grid.cells > 0, FOOTPRINT)
+    nav = Navigator(FOOTPRINT, Freshness(declared=0.04))
+    nav.set_map(cm)
+    pose = (0.0, 0.0, 0.0)
+    out = {'arrived': 0, 'failed': [], 'refused': {}, 'touches': 0, 'errors': [], 'seconds': []}
+    x0, y0, x1, y1 = cm.bounds
+    for _ in range(20 * n):                          # seeded goals until n are driven (most points are refused)
+        if out['arrived'] + len(out['failed']) >= n:
+            break
+        x, y, yaw = rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi)
+        nav.set_pose(pose)
+        for k in range(5):
+            nav.set_obstacles(np.zeros((0, 2)), -0.04 * (4 - k))
+        try:
+            nav.start(nav.check(x, y, quat(yaw)), 0.0)
+        except (BadGoal, global_planner.NoPath) as err:
+            kind = 'no way in' if isinstance(err, global_planner.NoPath) else str(err).split(': ', 1)[1][:40]
+            out['refused'][kind] = out['refused'].get(kind, 0) + 1
+            continue
+        now = 0.0
+        for _ in range(6000):
+            nav.set_pose(pose)
+            nav.set_obstacles(np.zeros((0, 2)), now)
+            tick = nav.tick(now)
+            if tick.ending is not None:
+                break
+            pose = advance(pose, tick.linear, tick.angular, 0.05)
+            out['touches'] += nav.gap_at(pose) <= 0.0
+            now += 0.05
+        if tick.ending is not None and tick.ending.outcome is Outcome.SUCCEEDED:
+            out['arrived'] += 1
+            out['seconds'].append(now)
+            out['errors'].append((math.hypot(pose[0] - x, pose[1] - y),
+                                  abs(math.atan2(math.sin(pose[2] - yaw), math.cos(pose[2] - yaw)))))
+        else:
+            out['failed'].append(tick.ending.text if tick.ending else 'no ending in 300 s')
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ across processes
+def bench_stops(trials, drives, hogs):
+    import actionlib
+    import rospy
+    from actionlib_msgs.msg import GoalStatus
+    from geometry_msgs.msg import PoseStamped
+    from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+    from sensor_msgs.msg import LaserScan
+    from temoto_core.wait import wait_for
+    from temoto_testing.sensor_manager import set_cable
+    from vaultbot_sim.msg import BaseState
+
+    master, launcher = loopback_master('bench_navigation_')
+    hog_procs = cpu_hogs(hogs)
+    out = {'stale': [], 'refusal': [], 'refusal_moved': 0, 'client_killed': [], 'drives': []}
+    try:
+        launcher.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
+        launcher.node('vaultbot_sim', 'base_controller')
+        sick = launcher.node('vaultbot_sim', 'sick_driver')
+        launcher.node('temoto_robot_manager', 'navigator', params={
+            'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
+        rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
+        states, scans = [], []
+        rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+        rospy.Subscriber('/sick/scan', LaserScan, lambda m: scans.append(m.header.stamp.to_sec()), queue_size=50)
+        from actionlib_msgs.msg import GoalStatusArray
+        seen = []
+        rospy.Subscriber('/move_base/status', GoalStatusArray, lambda m: seen.append(
+            [(st.goal_id.id, st.status, st.text) for st in m.status_list]), queue_size=5)
+        client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+        assert client.wait_for_server(rospy.Duration(HANG)), 'the navigator'
+        wait_for(lambda: states, HANG, 'the base state')
+
+        def goal(x, y, yaw, frame='world'):
+            p = PoseStamped()
+            p.header.frame_id, p.header.stamp = frame, rospy.Time.now()
+            p.pose.position.x, p.pose.position.y = x, y
+            p.pose.orientation.z, p.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+            return MoveBaseGoal(target_pose=p)
+
+        def ended(bound=240.0):
+            wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), bound, 'the goal')
+            return client.get_state()
+
+        def driving(ours=True):
+            def moving():
+                if ours and client.get_state() in (GoalStatus.REJECTED, GoalStatus.ABORTED):
+                    raise RuntimeError('goal ended: %s' % client.get_goal_status_text())
+                return states[-1].commanded_linear > 0.3
+            try:
+                wait_for(moving, HANG, 'the base driving')
+            except TimeoutError:
+                raise TimeoutError('the base did not drive: goals %s; base %s' % (seen[-1] if seen else None,
+                                                                                 states[-1])) from None
+
+        def zero_after(t0):
+            return wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-20:]
+                                          if s.header.stamp.to_sec() > t0 and s.commanded_linear == 0.0
+                                          and s.commanded_angular == 0.0), None), HANG, 'zero commanded')
+
+        def fresh_sick():
+            nonlocal sick
+            sick.stop()
+            set_cable('sick', 'plugged')
+            sick = launcher.node('vaultbot_sim', 'sick_driver')
+
+        order = ['shelf', 'home', 'drums', 'home', 'table', 'home']
+        where = {'at': 'home'}
+
+        def next_place(k):
+            """The k-th place of the tour, or the one after it if the robot is there already."""
+            name = order[k % len(order)]
+            if name == where['at']:
+                name = order[(k + 1) % len(order)]
+            where['at'] = name
+            return name
+        print('bench_navigation: stale source x %d ...' % trials, file=sys.stderr, flush=True)
+        for k in range(trials):
+            client.send_goal(goal(*PLACES[next_place(k)]))
+            driving()
+            set_cable('sick', 'unplugged', 'stall')
+            cut = time.time()
+            z = zero_after(cut - 1.0)
+            last = max(t for t in scans if t <= z)
+            out['stale'].append(z - last)
+            fresh_sick()
+            if ended() != GoalStatus.SUCCEEDED:
+                print('  trial %d: %s' % (k, client.get_goal_status_text()), file=sys.stderr)
+        print('bench_navigation: bad goals x %d ...' % (4 * trials), file=sys.stderr, flush=True)
+        bad = [(1.0, 0.0, 0.0, 'nowhere'), (float('nan'), 0.0, 0.0, 'world'), (40.0, 0.0, 0.0, 'world'),
+               (2.2, 2.2, 0.0, 'world')]
+        for k in range(4 * trials):
+            before = len(states)
+            t = time.perf_counter()
+            client.send_goal(goal(*bad[k % 4]))
+            ended(HANG)
+            out['refusal'].append(time.perf_counter() - t)
+            out['refusal_moved'] += any(s.commanded_linear or s.commanded_angular for s in states[before:])
+        print('bench_navigation: client killed x %d ...' % trials, file=sys.stderr, flush=True)
+        script = os.path.join(ROOT, 'bench', 'goal_client.py')
+        for k in range(trials):
+            if where['at'] != 'home':                   # each trial drives from home to a place
+                client.send_goal(goal(*PLACES['home']))
+                ended()
+                where['at'] = 'home'
+            x, y, yaw = PLACES[('shelf', 'drums', 'table')[k % 3]]
+            proc = launcher.command([sys.executable, script, str(x), str(y), str(yaw)], 'goal_client')
+            try:
+                driving(ours=False)
+            except TimeoutError as err:
+                raise TimeoutError('%s; the client\'s log:\n%s' % (err, proc.log())) from None
+            os.kill(proc.pid, signal.SIGKILL)
+            killed = time.time()
+            out['client_killed'].append(zero_after(killed) - killed)
+            wait_for(lambda: states[-1].linear == 0.0 and states[-1].angular == 0.0, HANG, 'at rest')
+            where['at'] = None                         # stopped on the way: at no place
+        print('bench_navigation: drives x %d ...' % drives, file=sys.stderr, flush=True)
+        for k in range(drives):
+            name = next_place(k)
+            x, y, yaw = PLACES[name]
+            contacts = states[-1].contacts
+            started = time.time()
+            client.send_goal(goal(x, y, yaw))
+            stalled = k % 5 == 4                       # one in five: the SICK goes silent on the way
+            if stalled:
+                driving()
+                set_cable('sick', 'unplugged', 'stall')
+                wait_for(lambda: states[-1].commanded_linear == 0.0, HANG, 'stopped')
+                fresh_sick()
+            state = ended()
+            wait_for(lambda: states[-1].linear == 0.0 and states[-1].angular == 0.0, HANG, 'at rest')
+            end = states[-1]
+            out['drives'].append({'place': name, 'stalled': stalled, 'state': state,
+                                  'text': client.get_goal_status_text(), 'seconds': time.time() - started,
+                                  'error_m': math.hypot(end.x - x, end.y - y),
+                                  'error_deg': math.degrees(abs(math.atan2(math.sin(end.yaw - yaw),
+                                                                           math.cos(end.yaw - yaw)))),
+                                  'contacts': end.contacts - contacts})
+    finally:
+        stop_hogs(hog_procs)
+        launcher.stop_all()
+        master.stop()
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--pairs', type=int, default=100, help='planner start/goal pairs')
+    p.add_argument('--drives', type=int, default=100, help='seeded kinematic drives; a tenth of them across processes')
+    p.add_argument('--trials', type=int, default=20, help='trials of each stop case across processes')
+    p.add_argument('--hogs', type=int, default=0)
+    p.add_argument('--only', choices=('planners', 'drives', 'stops'))
+    args = p.parse_args()
+    results = {'hogs': args.hogs}
+    rows = []
+    ms = lambda v: '%.1f ms' % (v * 1e3)  # noqa: E731
+    if args.only in (None, 'planners'):
+        print('bench_navigation: planners x %d ...' % args.pairs, file=sys.stderr, flush=True)
+        r = results['planners'] = bench_planners(args.pairs)
+        rows.append(('A* (pyastar2d) on 20 x 20 m at 5 cm, with the costmap, p50 / p95 (n=%d)' % len(r['astar']),
+                     '%s / %s' % (ms(pct(r['astar'], 50)), ms(pct(r['astar'], 95))), '≤ 50 ms p95'))
+        if r['have_ompl']:
+            rows.append(('OMPL RRT-Connect, simplified, same pairs, p50 / p95 (n=%d; %d not found in 1 s)'
+                         % (len(r['ompl']), r['ompl_failed']),
+                         '%s / %s' % (ms(pct(r['ompl'], 50)), ms(pct(r['ompl'], 95))), 'for comparison'))
+            rows.append(('… its path against A*\'s, length ratio p50 / max', '%.2f / %.2f' % (
+                pct(r['ratio'], 50), max(r['ratio'])), 'A* is cheapest by its costs'))
+        else:
+            rows.append(('OMPL RRT-Connect', 'not installed here', 'BENCHMARKS.md has a run with it'))
+    if args.only in (None, 'drives'):
+        print('bench_navigation: seeded drives x %d ...' % args.drives, file=sys.stderr, flush=True)
+        d = results['drives'] = bench_drives(args.drives)
+        tried = d['arrived'] + len(d['failed'])
+        rows.append(('seeded goals in the lab, kinematic base: arrived / driven (refused at once: %d)'
+                     % sum(d['refused'].values()), '%d / %d' % (d['arrived'], tried), '≥ 95 %'))
+        if d['errors']:
+            rows.append(('… arrival error, max (position / heading)', '%.3f m / %.1f°' % (
+                max(e for e, _ in d['errors']), math.degrees(max(a for _, a in d['errors']))), '≤ 0.10 m / 5°'))
+        rows.append(('… poses with the outline touching the map', str(d['touches']), '0'))
+    if args.only in (None, 'stops'):
+        s = results['stops'] = bench_stops(args.trials, max(1, args.drives // 10), args.hogs)
+        rows.append(('obstacle source stale (SICK 25 Hz stalled) → commanded zero, from its last scan, p50 / p99'
+                     ' (n=%d)' % len(s['stale']), '%s / %s (max %s)' % (ms(pct(s['stale'], 50)),
+                                                                      ms(pct(s['stale'], 99)), ms(max(s['stale']))),
+                     '≤ 3 × 40 + 20 = 140 ms'))
+        rows.append(('a bad goal → REJECTED at the client, p50 / p99 (n=%d; moved: %d)' % (
+            len(s['refusal']), s['refusal_moved']), '%s / %s' % (ms(pct(s['refusal'], 50)),
+                                                                ms(pct(s['refusal'], 99))), '≤ 20 ms, nothing moves'))
+        rows.append(('the goal\'s client SIGKILLed while driving → commanded zero, p50 / max (n=%d)'
+                     % len(s['client_killed']), '%s / %s' % (ms(pct(s['client_killed'], 50)),
+                                                            ms(max(s['client_killed']))), 'no goal: ≤ 0.5 s'))
+        dv = s['drives']
+        ok = [x for x in dv if x['state'] == 3 and x['error_m'] <= 0.10 and x['error_deg'] <= 5.0]
+        rows.append(('drives to the places across processes (%d with the SICK stalled on the way): reached /'
+                     ' driven; contacts' % sum(x['stalled'] for x in dv),
+                     '%d / %d; %d' % (len(ok), len(dv), sum(x['contacts'] for x in dv)), '≥ 95 %; 0'))
+    print_table('Navigation (%d CPU hogs)' % args.hogs, rows)
+    os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
+    with open(os.path.join(ROOT, 'bench', 'results', 'navigation%s.json' % ('_' + args.only if args.only else '')),
+              'w') as f:
+        json.dump(results, f, indent=1, default=str)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

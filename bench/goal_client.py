@@ -1,0 +1,26 @@
+#!/usr/bin/env python3
+"""A move_base client that sends one goal and waits: the holder that bench_navigation.py kills mid-drive.
+Usage: goal_client.py X Y YAW (world frame)."""
+import math
+import sys
+
+import actionlib
+import rospy
+from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+
+
+def main() -> None:
+    x, y, yaw = (float(v) for v in sys.argv[1:4])
+    rospy.init_node('goal_client', anonymous=True)
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client.wait_for_server(rospy.Duration(60))
+    goal = MoveBaseGoal()
+    goal.target_pose.header.frame_id = 'world'
+    goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = x, y
+    goal.target_pose.pose.orientation.z, goal.target_pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    client.send_goal(goal)
+    rospy.spin()
+
+
+if __name__ == '__main__':
+    main()
