@@ -183,6 +183,7 @@ def bench_stops(trials, drives, hogs):
     from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
     from sensor_msgs.msg import LaserScan
     from temoto_core.wait import wait_for
+    from temoto_testing.motion import GOAL_CLIENT
     from temoto_testing.sensor_manager import set_cable
     from vaultbot_sim.msg import BaseState
 
@@ -273,14 +274,13 @@ def bench_stops(trials, drives, hogs):
             out['refusal'].append(time.perf_counter() - t)
             out['refusal_moved'] += any(s.commanded_linear or s.commanded_angular for s in states[before:])
         print('bench_navigation: client killed x %d ...' % trials, file=sys.stderr, flush=True)
-        script = os.path.join(ROOT, 'bench', 'goal_client.py')
         for k in range(trials):
             if where['at'] != 'home':                   # each trial drives from home to a place
                 client.send_goal(goal(*PLACES['home']))
                 ended()
                 where['at'] = 'home'
             x, y, yaw = PLACES[('shelf', 'drums', 'table')[k % 3]]
-            proc = launcher.command([sys.executable, script, str(x), str(y), str(yaw)], 'goal_client')
+            proc = launcher.command(GOAL_CLIENT + [str(x), str(y), str(yaw)], 'goal_client')
             try:
                 driving(ours=False)
             except TimeoutError as err:

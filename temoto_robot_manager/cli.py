@@ -2,20 +2,30 @@
 
     temoto robots [--ns NS]              the running manager's robots: features, reliability, what is loaded
     temoto robots check FILE [FILE...]   validate description files offline (problems with file:line)
+    temoto robots go PLACE | X Y YAW     load a robot's navigation, drive it there, release it
+                                         (Ctrl-C cancels the goal: the robot stops)
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
-from typing import List
+import time
+from typing import List, Optional
 
+import actionlib
 import rospy
+from actionlib_msgs.msg import GoalStatus
+from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+from std_msgs.msg import Float32
 
+from temoto_core.errors import TemotoError
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
 from temoto_robot_manager.contract import ROBOTS, RR_NAME
 from temoto_robot_manager.description import load_file
+from temoto_robot_manager.interface import RobotManagerInterface
 
 TIMEOUT = 5.0
 
@@ -27,6 +37,11 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser('list', help='the running manager\'s robots (the default)')
     c = sub.add_parser('check', help='validate robot description files without ROS')
     c.add_argument('files', nargs='+')
+    g = sub.add_parser('go', help='drive a robot to a named place or to X Y YAW (m, m, rad) in --frame')
+    g.add_argument('target', nargs='+', help='a place of the robot\'s description, or X Y YAW')
+    g.add_argument('--robot', default='', help='the robot (default: the most reliable one with navigation)')
+    g.add_argument('--frame', default='world', help='the frame of X Y YAW (default world)')
+    g.add_argument('--timeout', type=float, default=300.0, help='seconds before the goal is cancelled (300)')
     return ap
 
 
@@ -68,8 +83,93 @@ def _list(ns: str) -> int:
     return 0
 
 
+def _target(words: List[str], places: dict) -> Optional[tuple]:
+    if len(words) == 1:
+        return tuple(places[words[0]]) if words[0] in places else None
+    try:
+        values = tuple(float(w) for w in words)
+    except ValueError:
+        return None
+    return values if len(values) == 3 and all(math.isfinite(v) for v in values) else None
+
+
+def _go(opts) -> int:
+    """Hold the robot's navigation for the goal's length, as an action would: the robot drives for a holder."""
+    service = '/%s/%s/%s' % (opts.ns.strip('/'), RR_NAME, ROBOTS)
+    try:
+        data = json.loads(call_once(service, GetRegistry, GetRegistry._request_class(), TIMEOUT).json)
+    except (rospy.ServiceException, rospy.ROSException, OSError, ValueError) as err:
+        print('error: the Robot Manager does not answer (%s: %s)' % (service, err), file=sys.stderr)
+        return 1
+    robots = {r['name']: r for r in data['robots'] if 'navigation' in r['features']}
+    robot = robots.get(opts.robot) if opts.robot else next(iter(robots.values()), None)
+    if robot is None:
+        print('error: no robot %s with navigation (described: %s)' % (opts.robot or '', ', '.join(robots) or 'none'),
+              file=sys.stderr)
+        return 2
+    target = _target(opts.target, robot.get('place_poses', {}))
+    if target is None:
+        print('error: target %s: give a place of %s (%s) or X Y YAW' % (' '.join(opts.target), robot['name'],
+                                                                       ', '.join(robot['places']) or 'none'),
+              file=sys.stderr)
+        return 2
+    rospy.init_node('temoto_robots_go', anonymous=True, disable_signals=True)
+    rmi = RobotManagerInterface(namespace=opts.ns)
+    print('loading %s with navigation ...' % robot['name'], flush=True)
+    try:
+        loaded = rmi.load_robot(['navigation'], robot_name=robot['name'],
+                                on_status=lambda e: print('robot: %s' % e.message, flush=True))
+    except TemotoError as err:
+        print('error: %s' % err, file=sys.stderr)
+        rmi.shutdown()
+        return 1
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    left = {'m': float('nan')}
+    sub = rospy.Subscriber('/move_base/distance_remaining', Float32,
+                           lambda m: left.update(m=m.data), queue_size=1)
+    code = 1
+    try:
+        if not client.wait_for_server(rospy.Duration(30.0)):
+            print('error: no move_base server after 30 s', file=sys.stderr)
+            return 1
+        goal = MoveBaseGoal()
+        goal.target_pose.header.frame_id, goal.target_pose.header.stamp = opts.frame, rospy.Time.now()
+        goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = target[0], target[1]
+        goal.target_pose.pose.orientation.z = math.sin(target[2] / 2)
+        goal.target_pose.pose.orientation.w = math.cos(target[2] / 2)
+        print('driving to (%.2f, %.2f, %.0f deg) in %s' % (target[0], target[1], math.degrees(target[2]), opts.frame),
+              flush=True)
+        client.send_goal(goal)
+        deadline, shown = time.monotonic() + opts.timeout, 0.0
+        while client.get_state() in (GoalStatus.PENDING, GoalStatus.ACTIVE) and time.monotonic() < deadline:
+            if time.monotonic() - shown >= 2.0 and math.isfinite(left['m']):
+                shown = time.monotonic()
+                print('  %.1f m to go' % left['m'], flush=True)
+            time.sleep(0.1)
+        if client.get_state() in (GoalStatus.PENDING, GoalStatus.ACTIVE):
+            client.cancel_goal()
+            print('error: not there after %.0f s: cancelled, the robot stops' % opts.timeout, file=sys.stderr)
+            return 1
+        state, text = client.get_state(), client.get_goal_status_text()
+        print('%s: %s' % ({GoalStatus.SUCCEEDED: 'arrived', GoalStatus.REJECTED: 'refused'}.get(state, 'failed'),
+                          text), flush=True)
+        code = 0 if state == GoalStatus.SUCCEEDED else 1
+    except KeyboardInterrupt:
+        client.cancel_goal()
+        print('cancelled: the robot stops', flush=True)
+        code = 130
+    finally:
+        sub.unregister()
+        rmi.release(loaded.resource_id)
+        rmi.shutdown()
+        rospy.signal_shutdown('temoto robots go: done')
+    return code
+
+
 def main(argv: List[str]) -> int:
     opts = _parser().parse_args(argv)
     if opts.cmd == 'check':
         return _check(opts.files)
+    if opts.cmd == 'go':
+        return _go(opts)
     return _list(opts.ns)

@@ -235,6 +235,7 @@ class RobotManager:
             'name': r.name, 'description': r.description, 'features': r.features,
             'reliability': round(self.reliability[r.name].value, 3),
             'places': sorted(r.navigation.places) if r.navigation else [],
+            'place_poses': {k: list(v) for k, v in r.navigation.places.items()} if r.navigation else {},
             'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
             'loaded': [dict(entry, features=list(entry['features'])) for entry in loaded if entry['robot'] == r.name],
         } for r in self.robots.values()], 'problems': self.problems}, sort_keys=True)

@@ -295,12 +295,12 @@ class Navigator:
             self._departing = False                    # room to turn: follow a plan from here
             self._planned = -math.inf
             return Tick(0.0, 0.0, self.state, self.remaining())
+        dt = now - self._last_tick if self._last_tick is not None else 0.0
+        self._last_tick = now
         if self._departing:
             linear, angular = -DEPART_SPEED, 0.0
-            self._backed += DEPART_SPEED * (now - self._last_tick if self._last_tick is not None else 0.0)
         else:
             linear, angular = self.follower.command(self.pose, self.path, self.target[2])
-        self._last_tick = now
         if self.follower.phase is Phase.ARRIVED and self.target != self.goal:
             # at the staging pose, facing the goal's way: the last stretch, straight in
             self.path, self.target = self._stretch(self.pose[:2], self.goal), self.goal
@@ -319,6 +319,14 @@ class Navigator:
             if verdict.zone is not Zone.STOP:
                 break
             verdict = self.monitor.check(points, linear * scale, angular * scale)
+        if self._departing:
+            self._backed += abs(verdict.linear) * dt          # what it was told, slowed or not
+        if verdict.zone is Zone.STOP and self._departing:
+            # backing out is blocked (it did not come in this way): follow the plan from here instead, still
+            # under the monitor; the planner lets a plan start where the robot stands
+            self._departing = False
+            self._planned = -math.inf
+            return Tick(0.0, 0.0, self.state, self.remaining(), verdict=verdict)
         if verdict.zone is Zone.STOP and self.follower.phase is Phase.ALIGN:
             x, y, yaw = self.pose
             error = abs(wrap(self.goal[2] - yaw))

@@ -3,7 +3,8 @@
 On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base client work unchanged:
 - ``move_base`` (``move_base_msgs/MoveBase`` action): a goal is checked at once and *rejected*,
   with the field at fault in the status text, when it is bad; a new goal preempts the current one;
-  cancel stops the robot. Feedback is the base's pose; ``~distance_remaining`` says how far is left;
+  cancel stops the robot. Feedback is the base's pose; ``move_base/distance_remaining`` says how far
+  is left;
 - ``move_base_simple/goal`` (``PoseStamped``): passed to the action server as move_base does;
 - ``~plan`` (``nav_msgs/Path``): the current plan, for RViz.
 
@@ -76,7 +77,7 @@ class NavigatorNode:
         self.rate = params.number('rate', 20.0, above=0, maximum=200)
         self.pub_cmd = rospy.Publisher(nav.cmd_vel_topic, Twist, queue_size=5, tcp_nodelay=True)
         self.pub_plan = rospy.Publisher('~plan', Path, queue_size=1, latch=True)
-        self.pub_left = rospy.Publisher('~distance_remaining', Float32, queue_size=5)
+        self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
         self.active = None                      # the goal handle being driven
         self._source_sub = None

@@ -124,6 +124,16 @@ def start_robot_manager(launcher, descriptions=''):
     return proc
 
 
+def start_robot_stack(launcher, er_logs, **sim):
+    """The sim (``sim`` overrides its parameters) with its base controller, and the ER, Sensor and Robot
+    Managers, as a module of tests shares them; returns the Robot Manager's process."""
+    start_sim(launcher, **sim)
+    launcher.node('vaultbot_sim', 'base_controller')
+    start_er_manager(launcher, er_logs)
+    start_sensor_manager(launcher, first_data_timeout=20.0, extra='')      # the VaultBot's sensors only
+    return start_robot_manager(launcher)
+
+
 def robot_info():
     return _json('/%s/temoto_robot_manager/robots' % NS)
 

@@ -4,7 +4,6 @@ node as a process between the sim's base and the SICK, judged by the sim's groun
 import math
 import os
 import signal
-import sys
 import time
 
 import actionlib
@@ -23,6 +22,7 @@ from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_testing import wait_for, wait_receiving
+from temoto_testing.motion import GOAL_CLIENT, aborted_goal, commanded_zero_after
 from temoto_testing.sensor_manager import set_cable
 from vaultbot_sim.base import advance
 from vaultbot_sim.kinematics import WORLDS, TreeModel
@@ -182,6 +182,40 @@ def test_seeded_goals_anywhere_in_the_lab_end_arrived_or_refused_and_never_touch
     assert arrived >= 5 and refused >= 5, 'the seed gives both kinds: %d arrived, %d refused' % (arrived, refused)
 
 
+def test_a_drive_cut_short_anywhere_then_sent_elsewhere_still_arrives(lab):
+    """A goal cancelled (or its holder gone) mid-way leaves the robot anywhere, even half backed out of a
+    place with no room to turn; the next goal must still get it out and there."""
+    rng = np.random.default_rng(7)
+    names, driven = sorted(PLACES), 0
+    for _ in range(40):
+        a, b, c = rng.choice(names, 3)
+        if a == b:
+            continue
+        nav = Navigator(HUSKY, Freshness(declared=0.04))
+        nav.set_map(lab_costmap(lab))
+        pose, now = PLACES[a], 0.0
+        nav.set_pose(pose)
+        proven(nav)
+        nav.start(nav.check(*PLACES[b][:2], quat(PLACES[b][2])), 0.0)
+        for _ in range(int(rng.integers(10, 400))):
+            nav.set_pose(pose)
+            nav.set_obstacles(np.zeros((0, 2)), now)
+            tick = nav.tick(now)
+            if tick.ending is not None:
+                break
+            pose, now = advance(pose, tick.linear, tick.angular, 0.05), now + 0.05
+        nav.cancel()
+        if c == b and tick.ending is not None:
+            continue
+        nav.set_pose(pose)
+        proven(nav, now)
+        nav.start(nav.check(*PLACES[c][:2], quat(PLACES[c][2])), now)
+        _, ending, _ = drive(nav, pose, now)
+        assert ending.outcome is Outcome.SUCCEEDED, '%s to %s cut at %s, then to %s: %s' % (a, b, pose, c, ending.text)
+        driven += 1
+    assert driven >= 25
+
+
 @pytest.mark.parametrize('x, y, q, field, words', [
     (float('nan'), 0.0, quat(0), 'position.x', 'finite'),
     (1.0, float('inf'), quat(0), 'position.y', 'finite'),
@@ -314,37 +348,18 @@ def test_the_base_stops_when_the_obstacle_source_goes_stale_and_drives_on_when_o
     assert truth.last().contacts == 0
 
 
-GOAL_CLIENT = """
-import math, sys, rospy, actionlib
-from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
-rospy.init_node('goal_client')
-client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
-client.wait_for_server(rospy.Duration(60))
-goal = MoveBaseGoal()
-goal.target_pose.header.frame_id = 'world'
-goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = float(sys.argv[1]), float(sys.argv[2])
-goal.target_pose.pose.orientation.z, goal.target_pose.pose.orientation.w = math.sin(float(sys.argv[3]) / 2), math.cos(float(sys.argv[3]) / 2)
-client.send_goal(goal)
-print('sent', flush=True)
-rospy.spin()
-"""
-
-
 def test_the_base_stops_when_the_goal_s_client_dies_mid_drive(navigation, procs, collect):
     truth = navigation['truth']
     statuses = collect('/move_base/status', GoalStatusArray)
     x, y, yaw = PLACES['drums']
-    client = procs.command([sys.executable, '-c', GOAL_CLIENT, str(x), str(y), str(yaw)], 'goal_client')
+    client = procs.command(GOAL_CLIENT + [str(x), str(y), str(yaw)], 'goal_client')
     wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
     os.kill(client.pid, signal.SIGKILL)
     killed = time.time()
-    zero = wait_for(lambda: next((s for s in truth.msgs[-5:] if s.header.stamp.to_sec() > killed
-                                  and s.commanded_linear == 0.0 and s.commanded_angular == 0.0), None), HANG,
-                    'the base commanded to zero once the goal\'s client died')
+    zero = commanded_zero_after(truth.msgs, killed, HANG)
     assert zero.header.stamp.to_sec() - killed < 5.0
-    ended = wait_for(lambda: next((st for m in statuses.msgs[-3:] for st in m.status_list
-                                   if st.status == GoalStatus.ABORTED), None), HANG, 'the goal aborted')
-    assert 'client /goal_client is gone' in ended.text, ended.text
+    ended = aborted_goal(statuses.msgs, HANG)
+    assert 'client /goal_client' in ended.text and 'is gone' in ended.text, ended.text
     wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
     rest = truth.last()
     assert rest.contacts == 0

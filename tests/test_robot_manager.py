@@ -13,8 +13,7 @@ from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_testing import made_interfaces, wait_for
-from temoto_testing.sensor_manager import (ROOT, er_processes, managers_idle, robot_info, start_er_manager,
-                                           start_robot_manager, start_sensor_manager, start_sim)
+from temoto_testing.sensor_manager import ROOT, er_processes, managers_idle, robot_info, start_robot_stack
 
 HANG = 60.0
 RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
@@ -23,11 +22,7 @@ ARM_CONTROLLERS = {'left_arm_controller', 'right_arm_controller'}
 
 @pytest.fixture(scope='module')
 def stack(rospy_client, module_procs, tmp_path_factory):
-    start_sim(module_procs)
-    module_procs.node('vaultbot_sim', 'base_controller')
-    start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
-    start_sensor_manager(module_procs, first_data_timeout=20.0, extra='')      # the VaultBot's sensors only
-    start_robot_manager(module_procs)
+    module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'))
     return module_procs
 
 

@@ -5,6 +5,8 @@ controller, and the three managers."""
 import math
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -19,8 +21,9 @@ from temoto_robot_manager.description import load_file
 from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_testing import made_interfaces, wait_for, wait_receiving
-from temoto_testing.sensor_manager import (er_processes, managers_idle, set_cable, start_er_manager,
-                                           start_robot_manager, start_sensor_manager, start_sim)
+from temoto_testing.motion import aborted_goal, commanded_zero_after
+from temoto_testing.sensor_manager import (er_processes, managers_idle, set_cable, start_robot_manager,
+                                           start_robot_stack)
 from vaultbot_sim.msg import BaseState
 
 HANG = 90.0
@@ -30,11 +33,7 @@ PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbo
 
 @pytest.fixture(scope='module')
 def stack(rospy_client, module_procs, tmp_path_factory):
-    start_sim(module_procs, hand_motion=False)
-    module_procs.node('vaultbot_sim', 'base_controller')
-    start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
-    start_sensor_manager(module_procs, first_data_timeout=20.0, extra='')
-    module_procs.robot_manager = start_robot_manager(module_procs)
+    module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), hand_motion=False)
     return module_procs
 
 
@@ -104,14 +103,31 @@ def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi
     wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
     os.kill(stack.robot_manager.pid, signal.SIGKILL)
     killed = time.time()
-    zero = wait_for(lambda: next((s for s in truth.msgs[-5:] if s.header.stamp.to_sec() > killed
-                                  and s.commanded_linear == 0.0 and s.commanded_angular == 0.0), None), HANG,
-                    'the base commanded to zero once the Robot Manager died')
+    zero = commanded_zero_after(truth.msgs, killed, HANG)
     assert zero.header.stamp.to_sec() - killed < 5.0
-    ended = wait_for(lambda: next((st for m in statuses.msgs[-3:] for st in m.status_list
-                                   if st.status == GoalStatus.ABORTED), None), HANG, 'the goal aborted')
+    ended = aborted_goal(statuses.msgs, HANG)
     assert 'Robot Manager that started this navigator is gone' in ended.text, ended.text
     # the manager's parts go with it (the ER Manager sees its consumer die); a new manager starts clean
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to be released with its dead manager')
     stack.robot_manager = start_robot_manager(stack)
     assert truth.last().contacts == 0
+
+
+def temoto(*args, timeout=240):
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'] + list(args), capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_temoto_robots_go_holds_the_robot_for_the_drive_and_refuses_what_cannot_be(stack, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    unknown = temoto('go', 'nowhere')
+    assert unknown.returncode == 2 and 'give a place of vaultbot (drums, home, shelf, table)' in unknown.stderr, \
+        unknown.stdout + unknown.stderr
+    refused = temoto('go', '2.2', '2.2', '0')
+    assert refused.returncode == 1 and 'refused: target_pose.pose.position: (2.20, 2.20) is inside an obstacle' \
+        in refused.stdout, refused.stdout + refused.stderr
+    went = temoto('go', 'home')
+    assert went.returncode == 0 and 'arrived' in went.stdout, went.stdout + went.stderr
+    end = truth.last()
+    assert math.hypot(end.x, end.y) <= 0.10 and end.contacts == 0
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator released with the command\'s hold')

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""A move_base client that sends one goal and waits: the holder that bench_navigation.py kills mid-drive.
-Usage: goal_client.py X Y YAW (world frame)."""
+"""A move_base client that sends one goal and waits: the holder a test or a benchmark kills mid-drive.
+Usage: python -m temoto_testing.goal_client X Y YAW (world frame)."""
 import math
 import sys
 
