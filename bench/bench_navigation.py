@@ -24,6 +24,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -268,10 +269,12 @@ def bench_stops(trials, drives, hogs):
                (2.2, 2.2, 0.0, 'world')]
         for k in range(4 * trials):
             before = len(states)
+            heard = threading.Event()
             t = time.perf_counter()
-            client.send_goal(goal(*bad[k % 4]))
-            ended(HANG)
+            client.send_goal(goal(*bad[k % 4]), done_cb=lambda state, result: heard.set())
+            assert heard.wait(HANG), 'no answer to a bad goal'
             out['refusal'].append(time.perf_counter() - t)
+            ended(HANG)
             out['refusal_moved'] += any(s.commanded_linear or s.commanded_angular for s in states[before:])
         print('bench_navigation: client killed x %d ...' % trials, file=sys.stderr, flush=True)
         for k in range(trials):

@@ -16,7 +16,10 @@ What is taken, and why:
   with a bounded handshake (``rr/deadlines.py``, the RViz host's client);
 - ``rospy.impl.tcpros_base``: the TCPROS server's handshake read, bounded (below);
 - a received message's ``_connection_header``: who published it (the Sensor Manager's driver reports and
-  stall detector).
+  stall detector), and what type it is (the navigator's obstacle sources);
+- a publisher's open connections (``Publisher.impl.connections``, each with its socket and the
+  subscriber's name): which subscribers are alive now, not after rospy's next failed write
+  (the navigator watches a goal's client so).
 
 The bounded handshake. A node's TCPROS server no longer waits for ever on one peer's handshake.
 
@@ -46,8 +49,9 @@ node gets it from ``temoto_core.node.init_node``.
 """
 from __future__ import annotations
 
+import socket
 import threading
-from typing import Callable, Dict, Tuple
+from typing import Callable, Dict, Set, Tuple
 
 import rospy
 import rospy.core
@@ -107,6 +111,29 @@ def connection_header(msg) -> Dict[str, str]:
 def sender_of(msg) -> str:
     """The name of the node that published ``msg``; '' if unknown."""
     return connection_header(msg).get('callerid', '')
+
+
+def live_subscribers(publisher: rospy.Publisher) -> Set[str]:
+    """The names of ``publisher``'s subscribers whose connection is open now.
+
+    A subscriber that dies has its socket closed by its kernel at once; here that reads as an end of
+    file (a TCPROS subscriber sends nothing after its handshake, so a peek takes nothing from the
+    stream). rospy itself drops the connection only when a later write to it fails: the second write
+    after the death, 0.4 s for an action's 5 Hz status."""
+    alive = set()
+    for conn in list(publisher.impl.connections):
+        sock = getattr(conn, 'socket', None)
+        if sock is None:
+            continue
+        try:
+            if sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b'':
+                continue                        # the peer closed its end
+        except BlockingIOError:
+            pass                                # nothing to read: open
+        except OSError:                         # reset, or closed at this end
+            continue
+        alive.add(conn.endpoint_id)
+    return alive
 
 
 # generous beside a handshake (a header is a few hundred bytes, sent right after the connect), short beside

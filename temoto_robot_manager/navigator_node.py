@@ -42,6 +42,7 @@ from std_msgs.msg import Float32, String
 
 from temoto_core import params
 from temoto_core.node import init_node, ok
+from temoto_core.rospy_internals import connection_header, live_subscribers
 from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import RobotDescription, load_file
@@ -159,7 +160,7 @@ class NavigatorNode:
         now = time.monotonic()
         if topic != self.source_topic:
             return                                  # a frame from the source just left
-        kind = raw._connection_header.get('type', '')
+        kind = connection_header(raw).get('type', '')
         msg = {'sensor_msgs/LaserScan': LaserScan, 'sensor_msgs/PointCloud2': PointCloud2}.get(kind)
         if msg is None:
             rospy.logerr_throttle(5.0, 'navigator: %s carries %s, not a LaserScan or a PointCloud2: no obstacles '
@@ -279,8 +280,9 @@ class NavigatorNode:
     def _holder_gone(self) -> Optional[str]:
         """Why the active goal has nobody left to want it, or None. Two holders are watched through their
         connections, which the kernel closes the moment a process dies: the goal's action client (its
-        subscription to the status this server publishes), and the Robot Manager that started this
-        navigator (its latched obstacle_source topic), once it has been seen."""
+        subscription to the status this server publishes, read for an end of file each tick:
+        ``rospy_internals.live_subscribers``), and the Robot Manager that started this navigator (its
+        latched obstacle_source topic), once it has been seen."""
         connected = self._owner.get_num_connections() > 0
         if connected:
             self._owner_seen = True
@@ -290,7 +292,7 @@ class NavigatorNode:
         if goal_id.startswith('move_base_simple-'):
             return None                              # RViz's tool sends and forgets: nobody to watch
         client = goal_id.split('-', 1)[0]
-        listening = client in {info[1] for info in self.server.status_pub.impl.get_stats_info()}
+        listening = client in live_subscribers(self.server.status_pub)
         if listening:
             self._client_seen = True
         elif self._client_seen:                      # a goal sent with no client (rostopic pub) is never watched

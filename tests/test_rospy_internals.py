@@ -42,6 +42,8 @@ def _reaches_in(path):
         elif (isinstance(node, ast.Attribute) and node.attr == '_connection_header') or \
                 (isinstance(node, ast.Constant) and node.value == '_connection_header'):
             found.append('_connection_header')
+        elif isinstance(node, ast.Attribute) and node.attr == 'impl':     # a topic's rospy internals
+            found.append('.impl')
     return found
 
 
@@ -60,3 +62,18 @@ def test_no_other_runtime_module_reaches_into_rospy():
                     if reached:
                         offenders[rel] = reached
     assert offenders == {}
+
+
+def test_a_dead_subscriber_is_no_longer_live_before_any_write_tells_rospy(rospy_client, procs):
+    """The navigator ends a goal whose client died; rospy would notice the death only on its second write."""
+    from std_msgs.msg import String
+    from temoto_core.wait import wait_for
+    topic = '/test_live_subscribers'
+    pub = rospy_client.Publisher(topic, String, queue_size=1)
+    listener = procs.command(['rostopic', 'echo', topic], 'listener')
+    name = wait_for(lambda: next(iter(rospy_internals.live_subscribers(pub)), None), 30.0, 'the listener')
+    assert name.startswith('/rostopic_')
+    os.kill(listener.pid, 9)
+    wait_for(lambda: name not in rospy_internals.live_subscribers(pub), 5.0, 'the dead listener to be seen')
+    assert any(c.endpoint_id == name for c in pub.impl.connections), 'rospy, with nothing written, still has it'
+    pub.unregister()
