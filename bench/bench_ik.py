@@ -89,7 +89,7 @@ def bench_kdl(model, targets, start):
         solver.CartToJnt(q0, kdl_frame(m), out)
         times.append(time.perf_counter() - t)
         dp, da = pose_error(fk(model, [out[k] for k in range(6)]), m)
-        solved += dp < 1e-3 and da < 1e-3
+        solved += int(dp < 1e-3 and da < 1e-3)
     return times, solved
 
 
@@ -117,7 +117,7 @@ def bench_pinocchio(model, targets, start):
             q = pin.integrate(arm, q, jac.T @ np.linalg.solve(jac @ jac.T + 1e-6 * np.eye(6), err))
         times.append(time.perf_counter() - t)
         dp, da = pose_error(fk(model, q[order]), m)
-        solved += dp < 1e-3 and da < 1e-3
+        solved += int(dp < 1e-3 and da < 1e-3)
     return times, solved
 
 
