@@ -11,12 +11,10 @@ import pytest
 
 from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
-from temoto_robot_manager.interface import RobotManagerInterface
-from temoto_testing import made_interfaces, wait_for
-from temoto_testing.sensor_manager import ROOT, er_processes, managers_idle, robot_info, start_robot_stack
+from temoto_testing import wait_for
+from temoto_testing.sensor_manager import er_processes, robot_info, start_robot_stack
 
 HANG = 60.0
-RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
 ARM_CONTROLLERS = {'left_arm_controller', 'right_arm_controller'}
 
 
@@ -24,13 +22,6 @@ ARM_CONTROLLERS = {'left_arm_controller', 'right_arm_controller'}
 def stack(rospy_client, module_procs, tmp_path_factory):
     module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'))
     return module_procs
-
-
-@pytest.fixture
-def rmi(stack):
-    with made_interfaces(RobotManagerInterface) as make:
-        yield make
-    managers_idle(RRS, timeout=30)
 
 
 def running_labels():

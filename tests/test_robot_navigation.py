@@ -18,16 +18,14 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.description import load_file
-from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_testing import made_interfaces, wait_for, wait_receiving
+from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import aborted_goal, commanded_zero_after
-from temoto_testing.sensor_manager import (er_processes, managers_idle, set_cable, start_robot_manager,
+from temoto_testing.sensor_manager import (er_processes, set_cable, start_robot_manager,
                                            start_robot_stack)
 from vaultbot_sim.msg import BaseState
 
 HANG = 90.0
-RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
 PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot').navigation.places
 
 
@@ -35,13 +33,6 @@ PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbo
 def stack(rospy_client, module_procs, tmp_path_factory):
     module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), hand_motion=False)
     return module_procs
-
-
-@pytest.fixture
-def rmi(stack):
-    with made_interfaces(RobotManagerInterface) as make:
-        yield make
-    managers_idle(RRS, timeout=30)
 
 
 def navigator_running():
