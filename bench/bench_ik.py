@@ -94,7 +94,7 @@ def bench_kdl(model, targets, start):
 
 
 def bench_pinocchio(model, targets, start):
-    import pinocchio as pin          # optional: measured where it is installed (bench/README: a scratch venv)
+    import pinocchio as pin          # optional: measured where it is installed (BENCHMARKS.md, "bench_ik.py": a scratch venv)
     full = pin.buildModelFromUrdf(ROBOT_URDF)
     locked = [full.getJointId(n) for n in full.names[1:] if n not in JOINTS]
     arm = pin.buildReducedModel(full, locked, pin.neutral(full))
