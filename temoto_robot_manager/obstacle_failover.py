@@ -60,7 +60,9 @@ class ObstacleFailover:
     def _first(self, robot: str, ranked: Sequence[ObstacleSource], skip: Sequence[ObstacleSource] = ()):
         candidates = [s for s in ranked if s not in skip]
         return first_that_works(candidates, self._start, what='an obstacle source for %s' % robot,
-                                subsystem=self._subsystem, name=lambda s: s.label)
+                                subsystem=self._subsystem, name=lambda s: s.label,
+                                on_failure=lambda tried: self._log('%s: obstacle source %s did not start: %s'
+                                                                   % (robot, tried.name, tried.reason)))
 
     def take(self, load_id: int, robot: str, ranked: Sequence[ObstacleSource]) -> Served:
         """The best source that works, for a load in progress; raises naming every source tried."""

@@ -11,7 +11,12 @@
 
 At the end of the session every process that carries this session's token is
 a leak: it is killed and the session fails, naming it.
+
+A failed test's report carries the last lines of every log under the work folders of the launchers
+it used (the nodes', and what the ER Manager started there): a failure on CI is then read from the
+report alone, without the machine that ran it.
 """
+import glob
 import os
 import uuid
 
@@ -19,12 +24,38 @@ import pytest
 
 from temoto_core import hosts
 from temoto_core.master import RosMaster
-from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers
+from temoto_core.processes import SESSION_ENV, ProcessGroupLauncher, kill_leftovers, tail
 from temoto_testing.bag import BagRecorder
 from temoto_testing.topics import TopicLog
 
 # A test that runs an inner pytest session passes this so it knows the inner token.
 FORCED_TOKEN_ENV = 'TEMOTO_TEST_SESSION_FORCE'
+LOG_TAIL_LINES = 25          # per log, in a failed test's report
+LOG_TAIL_FILES = 30          # logs per report at most: the newest
+
+_live_workdirs = []          # the launchers' work folders in use now (a module's, a test's)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if report.failed and _live_workdirs:
+        for path in newest_logs(_live_workdirs, LOG_TAIL_FILES):
+            report.sections.append(('log %s' % os.path.basename(path), tail(path, LOG_TAIL_LINES)))
+
+
+def newest_logs(workdirs, count):
+    """The ``count`` most recently written ``*.log`` files under ``workdirs``, oldest first."""
+    paths = {p for d in workdirs for p in glob.glob(os.path.join(d, '**', '*.log'), recursive=True)}
+    dated = sorted((os.path.getmtime(p), p) for p in paths if os.path.isfile(p))
+    return [p for _, p in dated[-count:]]
+
+
+def _tracked(workdir):
+    """Report this work folder's logs while the fixture lives."""
+    _live_workdirs.append(workdir)
+    return workdir
 
 
 @pytest.fixture(scope='session')
@@ -71,17 +102,19 @@ def collect(rospy_client):
 
 @pytest.fixture
 def procs(ros_master, tmp_path):
-    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path))
+    launcher = ProcessGroupLauncher(ros_master.env, _tracked(str(tmp_path)))
     yield launcher
     launcher.stop_all()
+    _live_workdirs.remove(launcher.workdir)
 
 
 @pytest.fixture(scope='module')
 def module_procs(ros_master, tmp_path_factory):
     """Like ``procs``, for processes that a whole test module shares (they are slow to start)."""
-    launcher = ProcessGroupLauncher(ros_master.env, str(tmp_path_factory.mktemp('module_procs')))
+    launcher = ProcessGroupLauncher(ros_master.env, _tracked(str(tmp_path_factory.mktemp('module_procs'))))
     yield launcher
     launcher.stop_all()
+    _live_workdirs.remove(launcher.workdir)
 
 
 @pytest.fixture
