@@ -209,7 +209,9 @@ def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy
     assert client.get_result().error_code == 0, client.get_result().error_string
     wrist, since = positions(joints, [SWEEP_JOINT])[0], time.time()
     wait_for(lambda: joints.last().header.stamp.to_sec() > since + 0.5, HANG, 'half a second')
-    assert positions(joints, [SWEEP_JOINT])[0] == pytest.approx(wrist, abs=1e-6), 'the sweep went on while held'
+    # the sweep would turn the wrist 0.8 rad in that time; the motors may still settle within the goal's 0.01 rad
+    # tolerance after the goal succeeds (1.3e-4 rad seen on a loaded machine)
+    assert positions(joints, [SWEEP_JOINT])[0] == pytest.approx(wrist, abs=0.01), 'the sweep went on while held'
     assert rospy_client.ServiceProxy('/vaultbot_sim/set_sweep', SetSweep)(True, 0.0).success
     wait_for(lambda: abs(positions(joints, [SWEEP_JOINT])[0] - wrist) > 0.1, HANG, 'the sweep to go on')
     wait_for(lambda: arm_state(states, 'right_arm') and not arm_state(states, 'right_arm').held, HANG,

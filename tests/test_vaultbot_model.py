@@ -87,7 +87,8 @@ def test_arm_matches_ur5_dh_table(model):
 def test_sensor_frames_fk_yourdfpy_vs_pybullet(urdf, model, scene):
     rng = np.random.default_rng(7)
     names = urdf.actuated_joint_names
-    configs = [spec.HOLD_POSE] + [dict(zip(names, rng.uniform(-math.pi, math.pi, len(names)))) for _ in range(4)]
+    held = dict(spec.HOLD_POSE, **{j: 0.02 for j in spec.GRIPPER_JOINTS})
+    configs = [held] + [dict(zip(names, rng.uniform(-math.pi, math.pi, len(names)))) for _ in range(4)]
     for cfg in configs:
         urdf.update_cfg(np.array([cfg[n] for n in names]))
         scene.set_robot(cfg)

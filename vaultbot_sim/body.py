@@ -5,6 +5,7 @@ Contacts are checked in a private pybullet copy of the robot and the world (``sc
 stepped. A base pose that touches the world is not entered (``base.BasePlant``). An arm that touches it is
 put back where it was and its setpoint dropped, as a UR arm's protective stop does. Either way one touch is one
 contact, however long it is pushed: a touch lasts until the robot is ``CONTACT_MARGIN`` clear of the object.
+The gripper's fingers meeting an object are a grasp, not a contact: they stop there (``gripper.GripperPlant``).
 """
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 from vaultbot_sim.arm import ArmPlant
 from vaultbot_sim.base import BISECTIONS, BasePlant, Contact, wheel_speeds
+from vaultbot_sim.gripper import GripperPlant
 from vaultbot_sim.scene import Scene
-from vaultbot_sim.spec import BASE_JOINTS, WHEEL_JOINTS
+from vaultbot_sim.spec import BASE_JOINTS, GRIPPER_JOINTS, WHEEL_JOINTS
 
 CONTACT_MARGIN = 0.01
 IDLE_WAIT_S = 0.5
@@ -32,10 +34,13 @@ class Step:
 
 
 class Body:
-    def __init__(self, collider: Scene, base: BasePlant, arms: Mapping[str, ArmPlant]) -> None:
+    def __init__(self, collider: Scene, base: BasePlant, arms: Mapping[str, ArmPlant],
+                 gripper: Optional[GripperPlant] = None) -> None:
         self.collider = collider
         self.base = base
         self.arms = dict(arms)              # 'left_arm', 'right_arm'
+        self.gripper = gripper if gripper is not None else GripperPlant()
+        self._finger_links = {j.replace('_joint', '_link') for j in GRIPPER_JOINTS}
         self.lock = threading.Condition()   # held by every call; notified by every command (the watchdog waits)
         self.contacts = 0
         self.touching: set = set()          # (robot link, world link) pairs within CONTACT_MARGIN now
@@ -60,12 +65,23 @@ class Body:
             self.arms[arm].stop(now)
             self.lock.notify()
 
+    def command_gripper(self, gap: float, speed: float, now: float) -> None:
+        with self.lock:
+            self.gripper.command(gap, speed, now)
+            self.lock.notify()
+
+    def stop_gripper(self, now: float) -> None:
+        with self.lock:
+            self.gripper.stop(now)
+            self.lock.notify()
+
     # --- the motors' watchdog (its own thread) -----------------------------------------------------
     def watchdog(self, now: float) -> List[str]:
-        """The parts whose stale command was dropped now: 'base' and arm names."""
+        """The parts whose stale command was dropped now: 'base', arm names and 'gripper'."""
         with self.lock:
             tripped = ['base'] if self.base.watchdog(now) else []
-            return tripped + [name for name, arm in self.arms.items() if arm.watchdog(now)]
+            tripped += [name for name, arm in self.arms.items() if arm.watchdog(now)]
+            return tripped + (['gripper'] if self.gripper.watchdog(now) else [])
 
     def wait_for_deadline(self, now: float) -> None:
         """Sleep until the earliest command could go stale, or until a command arrives."""
@@ -73,7 +89,7 @@ class Body:
             deadlines = []
             if self.base.command_at is not None and self.base.commanded != (0.0, 0.0):
                 deadlines.append(self.base.command_at + self.base.motor_timeout)
-            deadlines += [a.command_at + a.motor_timeout for a in self.arms.values()
+            deadlines += [a.command_at + a.motor_timeout for a in list(self.arms.values()) + [self.gripper]
                           if a.setpoint is not None and a.command_at is not None]
             wait = IDLE_WAIT_S if not deadlines else max(0.0, min(deadlines) - now) + 0.0005
             self.lock.wait(min(wait, IDLE_WAIT_S))
@@ -97,6 +113,7 @@ class Body:
             if contact is not None:
                 out.contacts.append((contact, speed))
             cfg.update(zip(BASE_JOINTS, self.base.pose))
+            cfg.update(self._fingers(self.gripper.gap))
             for name, arm in self.arms.items():
                 if not arm.held:
                     continue
@@ -112,6 +129,7 @@ class Body:
                     arm.setpoint = None
                     out.contacts.append((hit, max(abs(v) for v in before[1].values())))
                 cfg.update(arm.position)
+            self.gripper.step(now, lambda gap: self._fingers_blocked(dict(cfg, **self._fingers(gap))))
             checked = bool(self._checks)
             self._checks = 0
             # A touch begins at an overlap while no touch lasts, and lasts until whatever moved is clear of
@@ -150,6 +168,16 @@ class Body:
         overlap = [(a, b) for a, b, d in near if d <= 0.0]
         return Contact(overlap[0][0], overlap[0][1], pose[0], pose[1]) if overlap else None
 
+    @staticmethod
+    def _fingers(gap: float) -> Dict[str, float]:
+        """The finger joints for a gap between the pads: each finger moves half of it."""
+        return {j: gap / 2 for j in GRIPPER_JOINTS}
+
+    def _fingers_blocked(self, cfg: Dict[str, float]) -> bool:
+        """Whether a finger overlaps the world in ``cfg`` (a grasp: not recorded as a touch)."""
+        self.collider.set_robot(cfg)
+        return any(d <= 0.0 and a in self._finger_links for a, _, d in self.collider.contacts())
+
     def _joints(self) -> Tuple[List[str], List[float], List[float]]:
         """The base's virtual joints, the wheels and the held arms' joints: names, positions, velocities."""
         base = self.base
@@ -165,6 +193,9 @@ class Body:
                 names += arm.joints
                 pos += [arm.position[j] for j in arm.joints]
                 vel += [arm.velocity[j] for j in arm.joints]
+        names += list(GRIPPER_JOINTS)
+        pos += [self.gripper.gap / 2] * len(GRIPPER_JOINTS)
+        vel += [self.gripper.velocity / 2] * len(GRIPPER_JOINTS)
         return names, pos, vel
 
     def arm_speeds(self, arm: str) -> Tuple[float, float]:

@@ -40,12 +40,13 @@ from vaultbot_sim.arm import ArmPlant, JointRange
 from vaultbot_sim.base import MOTOR_TIMEOUT_S, BasePlant
 from vaultbot_sim.body import Body, joint_names
 from vaultbot_sim.devices import DeviceError, DeviceTable
+from vaultbot_sim.gripper import STROKE, GripperPlant
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, planar_matrix, resolve_world
 from vaultbot_sim.motion import HandWave, SimState, WristSweep
-from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceState, DeviceStates
+from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceState, DeviceStates, GripperState
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.scene import Scene
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
+from vaultbot_sim.spec import ARM_JOINTS, GRIPPER_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
 from vaultbot_sim.world_map import world_map
 from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
 
@@ -132,11 +133,13 @@ class SimNode:
         self.pub_base = rospy.Publisher('~base_state', BaseState, queue_size=50, tcp_nodelay=True)
         self.pub_contacts = rospy.Publisher('~contacts', ContactMsg, queue_size=50, tcp_nodelay=True)
         self.pub_arms = rospy.Publisher('~arm_states', ArmState, queue_size=50, tcp_nodelay=True)
+        self.pub_gripper = rospy.Publisher('~gripper_state', GripperState, queue_size=50, tcp_nodelay=True)
         # the collision world: the robot and the world in a private pybullet copy, posed, never stepped
         ranges = {j.name: JointRange(j.lower, j.upper) for j in self.robot.joints}
         arms = {arm: ArmPlant(joints, HOLD_POSE, ranges, motor_timeout)
                 for arm, joints in joint_names(('left', 'right'), ARM_JOINTS).items()}
-        self.body = Body(Scene(self.robot_urdf, self.world_urdf), base, arms)
+        gripper = GripperPlant(params.number('gripper_gap', STROKE, minimum=0, maximum=STROKE), motor_timeout)
+        self.body = Body(Scene(self.robot_urdf, self.world_urdf), base, arms, gripper)
         self._publish_static()
         self.pub_map = rospy.Publisher('map', OccupancyGrid, queue_size=1, latch=True)
         self._publish_map()
@@ -147,6 +150,8 @@ class SimNode:
         for arm in self.body.arms:
             rospy.Subscriber('%s/joint_command' % arm, JointState, self._on_arm_command, arm, queue_size=10,
                              tcp_nodelay=True)
+        rospy.Subscriber('gripper/joint_command', JointState, self._on_gripper_command, queue_size=10,
+                         tcp_nodelay=True)
         threading.Thread(target=self._watch_motors, name='motor watchdog', daemon=True).start()
         rospy.loginfo('vaultbot_sim: world %s, joint states at %.0f Hz', self.world_urdf, self.rate)
 
@@ -237,13 +242,39 @@ class SimNode:
         except ValueError as e:
             rospy.logerr_throttle(1.0, 'vaultbot_sim: %s command refused: %s' % (arm, e))
 
+    def _on_gripper_command(self, msg: JointState) -> None:
+        """A setpoint for the fingers, as for an arm's joints: each finger's joint (half the gap) and the speed
+        to move it with; or a stop (velocities only, all zero)."""
+        if not msg.position and msg.velocity and all(v == 0.0 for v in msg.velocity):
+            self.body.stop_gripper(time.monotonic())
+            self._publish_gripper(rospy.Time.now())
+            return
+        try:
+            if len(msg.name) != len(msg.position) or len(msg.name) != len(msg.velocity) or not msg.name:
+                raise ValueError('%d names, %d positions and %d velocities' % (len(msg.name), len(msg.position),
+                                                                               len(msg.velocity)))
+            unknown = sorted(set(msg.name) - set(GRIPPER_JOINTS))
+            if unknown:
+                raise ValueError('not joints of the gripper: %s (use %s)' % (', '.join(unknown),
+                                                                           ', '.join(GRIPPER_JOINTS)))
+            if len(set(msg.position)) != 1 or len(set(msg.velocity)) != 1:
+                raise ValueError('the fingers move together: one position and one velocity for both')
+            self.body.command_gripper(2 * msg.position[0], 2 * abs(msg.velocity[0]), time.monotonic())
+        except ValueError as e:
+            rospy.logerr_throttle(1.0, 'vaultbot_sim: gripper command refused: %s' % e)
+
     def _watch_motors(self) -> None:
         """The motors' own watchdog, on its own thread: a stale command is dropped within the timeout, whatever
         the sim's step rate, and the moment is published at once (the ground truth of the stop)."""
         while ok():
             for part in self.body.watchdog(time.monotonic()):
                 stamp = rospy.Time.now()
-                self._publish_base(stamp) if part == 'base' else self._publish_arm(part, stamp)
+                if part == 'base':
+                    self._publish_base(stamp)
+                elif part == 'gripper':
+                    self._publish_gripper(stamp)
+                else:
+                    self._publish_arm(part, stamp)
             self.body.wait_for_deadline(time.monotonic())
 
     def _publish_base(self, stamp: rospy.Time) -> None:
@@ -264,6 +295,15 @@ class SimNode:
         msg.header.stamp = stamp
         self.pub_arms.publish(msg)
 
+    def _publish_gripper(self, stamp: rospy.Time) -> None:
+        with self.body.lock:
+            plant = self.body.gripper
+            msg = GripperState(gap=plant.gap, speed=plant.velocity, has_setpoint=plant.setpoint is not None,
+                               setpoint_gap=plant.setpoint[0] if plant.setpoint else 0.0,
+                               command_stale=plant.tripped_at is not None, blocked=plant.blocked_at is not None)
+        msg.header.stamp = stamp
+        self.pub_gripper.publish(msg)
+
     def _step_body(self, hold: dict, stamp: rospy.Time):
         with self.lock:
             right = self.body.arms['right_arm']
@@ -281,6 +321,7 @@ class SimNode:
         self._publish_base(stamp)
         for arm in self.body.arms:
             self._publish_arm(arm, stamp)
+        self._publish_gripper(stamp)
         return step
 
     def step(self) -> None:

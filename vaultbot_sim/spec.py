@@ -26,10 +26,12 @@ HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
 BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 
 SWEEP_JOINT = 'right_wrist_3_joint'
+# the camera arm's gripper: each finger's joint is half the gap between the pads (urdf_gen.py)
+GRIPPER_JOINTS = ('gripper_left_finger_joint', 'gripper_right_finger_joint')
 PERSON_JOINT = 'person_shoulder_joint'
 
 # sensors, and the base's and the arms' controllers: each has a cable that `temoto sim unplug` pulls
-DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base', 'left_arm', 'right_arm')
+DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base', 'left_arm', 'right_arm', 'gripper')
 STATES = ('plugged', 'unplugged')
 MODES = ('crash', 'stall')
 

@@ -16,6 +16,8 @@ import math
 import os
 from typing import Iterable
 
+from vaultbot_sim.spec import GRIPPER_JOINTS
+
 PI = math.pi
 
 # --- datasheet figures (the devices' public datasheets) -------------------------
@@ -46,6 +48,13 @@ SICK_XYZ = (0.58, 0.0, 0.30)  # front window of the LMS511, 0.3 m above ground
 # Robot joints: the camera rides on the left arm, the Hokuyo on the right arm.
 CAMERA_ARM = 'left'
 LIDAR_ARM = 'right'
+
+# A parallel gripper on the camera arm (a Robotiq 2F-85's figures): its fingers close along the flange's
+# y axis; each finger's joint is half the gap between the pads.
+GRIPPER_STROKE = 0.085        # m between the pads, fully open
+GRIPPER_BODY = (0.05, 0.09, 0.10)   # x, y, z (along the flange normal) of the housing
+FINGER = (0.02, 0.012, 0.05)  # a finger's x, y (its thickness) and z (its length past the housing)
+D435_RISE = 0.055             # m from the housing's top face to the camera's centre
 
 
 def fmt(*v: float) -> str:
@@ -172,6 +181,22 @@ def _ur5_arm(w: UrdfWriter, side: str, parent: str, xyz: tuple, rpy: tuple) -> N
     w.joint(f'{side}_tool0_joint', 'fixed', prev, tool, origin[0], origin[1])
 
 
+def _gripper(w: UrdfWriter, flange: str) -> None:
+    """The housing on the flange, and two fingers on prismatic joints (0: closed, STROKE / 2: open)."""
+    bx, by, bz = GRIPPER_BODY
+    w.link('gripper_link', [('box', GRIPPER_BODY, (0, 0, bz / 2), (0, 0, 0), 'sensor_dark')],
+           mass=0.9, inertia=box_inertia(0.9, bx, by, bz), com=(0, 0, bz / 2))
+    w.joint('gripper_joint', 'fixed', flange, 'gripper_link')
+    fx, fy, fz = FINGER
+    for joint, sgn in zip(GRIPPER_JOINTS, (1, -1)):
+        link = joint.replace('_joint', '_link')
+        # the pad (inner face) is at y = sgn * q: the finger's box lies outside it
+        w.link(link, [('box', FINGER, (0, sgn * fy / 2, fz / 2), (0, 0, 0), 'ur_grey')],
+               mass=0.05, inertia=box_inertia(0.05, fx, fy, fz), com=(0, sgn * fy / 2, fz / 2))
+        w.joint(joint, 'prismatic', 'gripper_link', link, (0, 0, bz), axis=(0, sgn, 0), lower=0.0,
+                upper=GRIPPER_STROKE / 2, velocity=0.075, effort=235.0)
+
+
 def robot_urdf() -> str:
     w = UrdfWriter('vaultbot')
     w.material('husky_yellow', (0.95, 0.75, 0.05, 1))
@@ -214,11 +239,19 @@ def robot_urdf() -> str:
         _ur5_arm(w, side, 'arm_mount_link', (0, sgn * ARM_MOUNT_Y, MOUNT_HEIGHT),
                  (-sgn * ARM_TILT, 0, sgn * ARM_YAW))
 
-    # RealSense D435 (90 x 25 x 25 mm) on the camera arm's flange. d435_link: x forward (ROS body
-    # convention) along the flange normal, origin at the front glass so the optics see past the case.
+    _gripper(w, f'{CAMERA_ARM}_tool0')
+    # RealSense D435 (90 x 25 x 25 mm) on a bracket over the gripper, looking along the flange normal past
+    # the fingertips: its frustum (42 degrees high) clears the fingers, so the gripper is never in its cloud.
+    # d435_link: x forward (ROS body convention), origin at the front glass; its z ("up" in the image) is
+    # the flange's -x, so the bracket rises along -x.
+    w.link('d435_bracket_link', [('box', (D435_RISE, 0.03, 0.01), (-D435_RISE / 2, 0, 0), (0, 0, 0), 'mount_grey')],
+           mass=0.05, inertia=box_inertia(0.05, D435_RISE, 0.03, 0.01))
+    w.joint('d435_bracket_joint', 'fixed', f'{CAMERA_ARM}_tool0', 'd435_bracket_link',
+            (-GRIPPER_BODY[0] / 2, 0, GRIPPER_BODY[2] - 0.005))
     w.link('d435_link', [('box', (0.025, 0.09, 0.025), (-0.0125, 0, 0), (0, 0, 0), 'sensor_dark')],
            mass=0.072, inertia=box_inertia(0.072, 0.025, 0.09, 0.025), com=(-0.0125, 0, 0))
-    w.joint('d435_joint', 'fixed', f'{CAMERA_ARM}_tool0', 'd435_link', (0, 0, 0.03), (0, -PI / 2, 0))
+    w.joint('d435_joint', 'fixed', f'{CAMERA_ARM}_tool0', 'd435_link',
+            (-GRIPPER_BODY[0] / 2 - D435_RISE, 0, GRIPPER_BODY[2]), (0, -PI / 2, 0))
     w.link('d435_optical_frame', [], mass=0.001, inertia=(1e-8, 1e-8, 1e-8))
     w.joint('d435_optical_joint', 'fixed', 'd435_link', 'd435_optical_frame', (0, 0, 0),
             (-PI / 2, 0, -PI / 2))
@@ -324,6 +357,8 @@ def lab_world_urdf() -> str:
 
 
 TEST_WALL_X = 3.0
+TEST_POLE_XY = (0.0, -6.0)
+TEST_POLE_RADIUS = 0.025
 
 
 def test_world_urdf() -> str:
@@ -333,6 +368,8 @@ def test_world_urdf() -> str:
     w.link('world', [], mass=0.0, inertia=(0, 0, 0))
     _static(w, 'floor', [('box', (20, 20, 0.05), (0, 0, -0.025), (0, 0, 0), 'floor')], (0, 0, 0))
     _static(w, 'wall', [('box', (0.2, 20, 6), (0.1, 0, 3), (0, 0, 0), 'wall')], (TEST_WALL_X, 0, 0))
+    # a pole for the gripper to close on (tests put the robot where the fingers straddle it: ``~base_pose``)
+    _static(w, 'pole', [('cylinder', (TEST_POLE_RADIUS, 1.6), (0, 0, 0.8), (0, 0, 0), 'metal')], TEST_POLE_XY + (0,))
     # the person must exist in every world: the sim and drivers animate person_shoulder_joint.
     _person(w, (-6.0, 0, 0), 0.0)
     return w.text()
