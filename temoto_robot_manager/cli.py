@@ -4,6 +4,8 @@
     temoto robots check FILE [FILE...]   validate description files offline (problems with file:line)
     temoto robots go PLACE | X Y YAW     load a robot's navigation, drive it there, release it
                                          (Ctrl-C cancels the goal: the robot stops)
+    temoto robots gripper open | close | GAP   load a robot's gripper, open, close or set the gap
+                                         between its pads (m), print how it ended, release it
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from typing import List, Optional
 import actionlib
 import rospy
 from actionlib_msgs.msg import GoalStatus
+from control_msgs.msg import GripperCommand, GripperCommandAction, GripperCommandGoal
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from std_msgs.msg import Float32
 
@@ -42,6 +45,11 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument('--robot', default='', help='the robot (default: the most reliable one with navigation)')
     g.add_argument('--frame', default='world', help='the frame of X Y YAW (default world)')
     g.add_argument('--timeout', type=float, default=300.0, help='seconds before the goal is cancelled (300)')
+    h = sub.add_parser('gripper', help='open or close a robot\'s gripper, or set the gap between its pads (m)')
+    h.add_argument('target', help='a position of the robot\'s description (open, closed; close = closed), or a gap in m')
+    h.add_argument('--robot', default='', help='the robot (default: the most reliable one with a gripper)')
+    h.add_argument('--effort', type=float, default=0.0, help='the most force, N (default: the gripper\'s own)')
+    h.add_argument('--timeout', type=float, default=30.0, help='seconds before the goal is cancelled (30)')
     return ap
 
 
@@ -93,19 +101,48 @@ def _target(words: List[str], places: dict) -> Optional[tuple]:
     return values if len(values) == 3 and all(math.isfinite(v) for v in values) else None
 
 
-def _go(opts) -> int:
-    """Hold the robot's navigation for the goal's length, as an action would: the robot drives for a holder."""
-    service = '/%s/%s/%s' % (opts.ns.strip('/'), RR_NAME, ROBOTS)
+def _robot_with(ns: str, feature: str, name: str) -> Optional[dict]:
+    """The running manager's robot ``name`` (or its first) that has ``feature``; prints why there is none."""
+    service = '/%s/%s/%s' % (ns.strip('/'), RR_NAME, ROBOTS)
     try:
         data = json.loads(call_once(service, GetRegistry, GetRegistry._request_class(), TIMEOUT).json)
     except (rospy.ServiceException, rospy.ROSException, OSError, ValueError) as err:
         print('error: the Robot Manager does not answer (%s: %s)' % (service, err), file=sys.stderr)
-        return 1
-    robots = {r['name']: r for r in data['robots'] if 'navigation' in r['features']}
-    robot = robots.get(opts.robot) if opts.robot else next(iter(robots.values()), None)
+        return None
+    robots = {r['name']: r for r in data['robots'] if feature in r['features']}
+    robot = robots.get(name) if name else next(iter(robots.values()), None)
     if robot is None:
-        print('error: no robot %s with navigation (described: %s)' % (opts.robot or '', ', '.join(robots) or 'none'),
+        print('error: no robot %s with %s (described: %s)' % (name, feature, ', '.join(robots) or 'none'),
               file=sys.stderr)
+    return robot
+
+
+def _hold(ns: str, robot: dict, feature: str, node: str):
+    """Load ``robot`` with ``feature`` through the Robot Manager, as an action would: the robot moves for a
+    holder. Returns (interface, loaded) or None, having printed why."""
+    rospy.init_node(node, anonymous=True, disable_signals=True)
+    rmi = RobotManagerInterface(namespace=ns)
+    print('loading %s with %s ...' % (robot['name'], feature), flush=True)
+    try:
+        return rmi, rmi.load_robot([feature], robot_name=robot['name'],
+                                   on_status=lambda e: print('robot: %s' % e.message, flush=True))
+    except TemotoError as err:
+        print('error: %s' % err, file=sys.stderr)
+        rmi.shutdown()
+        return None
+
+
+def _let_go(held, node: str) -> None:
+    rmi, loaded = held
+    rmi.release(loaded.resource_id)
+    rmi.shutdown()
+    rospy.signal_shutdown('%s: done' % node)
+
+
+def _go(opts) -> int:
+    """Hold the robot's navigation for the goal's length, as an action would: the robot drives for a holder."""
+    robot = _robot_with(opts.ns, 'navigation', opts.robot)
+    if robot is None:
         return 2
     target = _target(opts.target, robot.get('place_poses', {}))
     if target is None:
@@ -113,15 +150,8 @@ def _go(opts) -> int:
                                                                        ', '.join(robot['places']) or 'none'),
               file=sys.stderr)
         return 2
-    rospy.init_node('temoto_robots_go', anonymous=True, disable_signals=True)
-    rmi = RobotManagerInterface(namespace=opts.ns)
-    print('loading %s with navigation ...' % robot['name'], flush=True)
-    try:
-        loaded = rmi.load_robot(['navigation'], robot_name=robot['name'],
-                                on_status=lambda e: print('robot: %s' % e.message, flush=True))
-    except TemotoError as err:
-        print('error: %s' % err, file=sys.stderr)
-        rmi.shutdown()
+    held = _hold(opts.ns, robot, 'navigation', 'temoto_robots_go')
+    if held is None:
         return 1
     client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
     left = {'m': float('nan')}
@@ -160,9 +190,59 @@ def _go(opts) -> int:
         code = 130
     finally:
         sub.unregister()
-        rmi.release(loaded.resource_id)
-        rmi.shutdown()
-        rospy.signal_shutdown('temoto robots go: done')
+        _let_go(held, 'temoto robots go')
+    return code
+
+
+def _gap(word: str, positions: dict) -> Optional[float]:
+    word = {'close': 'closed'}.get(word, word)
+    if word in positions:
+        return positions[word]
+    try:
+        gap = float(word)
+    except ValueError:
+        return None
+    return gap if math.isfinite(gap) else None
+
+
+def _gripper(opts) -> int:
+    """Hold the robot's gripper for one command: open, close, or a gap between the pads."""
+    robot = _robot_with(opts.ns, 'gripper', opts.robot)
+    if robot is None:
+        return 2
+    gripper = robot['gripper']
+    gap = _gap(opts.target, gripper['positions'])
+    if gap is None:
+        print('error: gripper target %r: give a position of %s (%s) or a gap in m'
+              % (opts.target, robot['name'], ', '.join(sorted(gripper['positions'])) or 'none'), file=sys.stderr)
+        return 2
+    held = _hold(opts.ns, robot, 'gripper', 'temoto_robots_gripper')
+    if held is None:
+        return 1
+    client = actionlib.SimpleActionClient('/' + gripper['action'].lstrip('/'), GripperCommandAction)
+    code = 1
+    try:
+        if not client.wait_for_server(rospy.Duration(30.0)):
+            print('error: no gripper server on %s after 30 s' % gripper['action'], file=sys.stderr)
+            return 1
+        print('gripper to %.1f mm' % (1000 * gap), flush=True)
+        client.send_goal(GripperCommandGoal(command=GripperCommand(position=gap, max_effort=opts.effort)))
+        if not client.wait_for_result(rospy.Duration(opts.timeout)):
+            client.cancel_goal()
+            print('error: no result after %.0f s: cancelled, the fingers stop' % opts.timeout, file=sys.stderr)
+            return 1
+        state, text, result = client.get_state(), client.get_goal_status_text(), client.get_result()
+        if state == GoalStatus.SUCCEEDED:
+            print('%s: %s' % ('holding an object' if result.stalled else 'done', text), flush=True)
+            code = 0
+        else:
+            print('failed: %s' % text, flush=True)
+    except KeyboardInterrupt:
+        client.cancel_goal()
+        print('cancelled: the fingers stop', flush=True)
+        code = 130
+    finally:
+        _let_go(held, 'temoto robots gripper')
     return code
 
 
@@ -172,4 +252,6 @@ def main(argv: List[str]) -> int:
         return _check(opts.files)
     if opts.cmd == 'go':
         return _go(opts)
+    if opts.cmd == 'gripper':
+        return _gripper(opts)
     return _list(opts.ns)

@@ -36,8 +36,9 @@ One file holds a list under ``robots``::
               hold: [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
         gripper:
           controller: {package: vaultbot_sim, executable: gripper_controller}
-          action: left_gripper/gripper_command
+          action: gripper/gripper_command
           arm: left_arm                      # the arm that carries it
+          positions: {open: 0.085, closed: 0.0}   # named gaps between the pads (m)
 
 Every problem is reported with its file and line (``temoto robots check FILE``); a robot with a
 problem is left out, the others load.
@@ -63,7 +64,7 @@ _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
-_GRIPPER_KEYS = {'controller', 'action', 'arm'}
+_GRIPPER_KEYS = {'controller', 'action', 'arm', 'positions'}
 
 
 class DescriptionError(ValueError):
@@ -124,6 +125,7 @@ class Gripper:
     controller: Part
     action: str
     arm: str
+    positions: Dict[str, float] = field(default_factory=dict)   # named gaps between the pads (m): open, closed
 
 
 @dataclass(frozen=True)
@@ -290,8 +292,17 @@ class _Reader:
             if carrier not in arms:
                 raise self.error(g_at + ['arm'], 'gripper.arm %r is not an arm of manipulation (%s)'
                                  % (carrier, ', '.join(arms) or 'none'))
+            positions_raw = g_raw.get('positions', {})
+            if not isinstance(positions_raw, dict):
+                raise self.error(g_at + ['positions'], 'gripper.positions must map names to gaps in metres')
+            positions = {}
+            for label, gap in positions_raw.items():
+                p_at = g_at + ['positions', label]
+                if isinstance(gap, bool) or not isinstance(gap, (int, float)) or not 0 <= gap < 1:
+                    raise self.error(p_at, 'gripper.positions.%s must be a gap from 0 to 1 m, got %r' % (label, gap))
+                positions[str(label)] = float(gap)
             gripper = Gripper(self.part(g_raw['controller'], g_at + ['controller']),
-                              self.text(g_raw, 'action', g_at, name=True), carrier)
+                              self.text(g_raw, 'action', g_at, name=True), carrier, positions)
         return RobotDescription(
             name, str(raw.get('description', '')), float(reliability),
             self.text(raw, 'temoto_namespace', at, default=''),

@@ -42,8 +42,9 @@ from temoto_core.rr.settings import journal_param
 from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, ROBOTS, RR_NAME as NAME
-from temoto_robot_manager.description import FEATURES, ObstacleSource, Part, RobotDescription
+from temoto_robot_manager.description import ObstacleSource, Part, RobotDescription
 from temoto_robot_manager.obstacle_failover import ObstacleFailover
+from temoto_robot_manager.selection import choose_robot
 from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
 
 SUB = Subsystem.ROBOT_MANAGER
@@ -77,27 +78,7 @@ class RobotManager:
 
     # -- load_robot --------------------------------------------------------------------------------------
     def choose(self, robot_name: str, features: List[str]) -> RobotDescription:
-        """The robot asked for by name, or the most reliable one with every feature; raises naming why none."""
-        unknown = [f for f in features if f not in FEATURES]
-        if unknown:
-            raise TemotoError(ErrorCode.BAD_REQUEST, SUB, 'unknown feature %s (features: %s)'
-                              % (', '.join(repr(f) for f in unknown), ', '.join(FEATURES)))
-        if robot_name:
-            robot = self.robots.get(robot_name)
-            if robot is None:
-                raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'no robot %r is described (described: %s)'
-                                  % (robot_name, ', '.join(sorted(self.robots)) or 'none'))
-            missing = [f for f in features if f not in robot.features]
-            if missing:
-                raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'robot %s has no %s (it has: %s)'
-                                  % (robot_name, ', '.join(missing), ', '.join(robot.features)))
-            return robot
-        able = [r for r in self.robots.values() if all(f in r.features for f in features)]
-        if not able:
-            raise TemotoError(ErrorCode.ROBOT_NOT_FOUND, SUB, 'no described robot has %s (described: %s)' % (
-                ', '.join(features) or 'a feature', '; '.join('%s: %s' % (r.name, ', '.join(r.features))
-                                                              for r in self.robots.values()) or 'none'))
-        return max(able, key=lambda r: self.reliability[r.name].value)
+        return choose_robot(self.robots, lambda name: self.reliability[name].value, robot_name, features)
 
     def _load(self, req, res) -> None:
         features = [f.strip() for f in req.features if f.strip()]
@@ -237,6 +218,8 @@ class RobotManager:
             'places': sorted(r.navigation.places) if r.navigation else [],
             'place_poses': {k: list(v) for k, v in r.navigation.places.items()} if r.navigation else {},
             'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
+            'gripper': {'action': r.gripper.action, 'arm': r.gripper.arm, 'positions': r.gripper.positions}
+            if r.gripper else None,
             'loaded': [dict(entry, features=list(entry['features'])) for entry in loaded if entry['robot'] == r.name],
         } for r in self.robots.values()], 'problems': self.problems}, sort_keys=True)
 

@@ -1,5 +1,6 @@
 """Robot description files (temoto_robot_manager/description.py): the VaultBot's own, and every kind of
 mistake reported at its line; then `temoto robots check` as a user runs it."""
+import dataclasses
 import os
 import subprocess
 import sys
@@ -7,7 +8,10 @@ import textwrap
 
 import pytest
 
+from temoto_core.errors import TemotoError
 from temoto_robot_manager.description import load_file
+from temoto_robot_manager.selection import choose_robot
+from vaultbot_sim.gripper import STROKE
 from vaultbot_sim.kinematics import ROBOT_URDF, resolve_world
 from vaultbot_sim.scene import Scene
 from vaultbot_sim.spec import BASE_JOINTS, HOLD_POSE
@@ -49,7 +53,8 @@ def test_the_vaultbots_description_matches_the_simulated_robot():
     robots, problems = load_file(VAULTBOT)
     assert problems == [] and [r.name for r in robots] == ['vaultbot']
     vaultbot = robots[0]
-    assert vaultbot.features == ['navigation', 'manipulation']
+    assert vaultbot.features == ['navigation', 'manipulation', 'gripper']
+    assert vaultbot.gripper.arm == 'left_arm' and vaultbot.gripper.positions['open'] == STROKE
     for arm in vaultbot.manipulation.values():
         assert arm.named_poses['hold'] == pytest.approx([HOLD_POSE[j] for j in arm.joints], abs=1e-3)
     assert [s.label for s in vaultbot.navigation.obstacle_sources] == [
@@ -136,3 +141,67 @@ def test_the_description_reads_without_a_master():
         from temoto_robot_manager.description import load_file
         print(len(load_file(%r)[0]))''' % VAULTBOT)], capture_output=True, text=True, timeout=60, env=env)
     assert out.stdout.strip() == '1', out.stderr
+
+
+@pytest.mark.parametrize('name, features, words', [
+    ('', ['flying'], "unknown feature 'flying' (features: navigation, manipulation, gripper)"),
+    ('', ['navigation', 'gripper'],
+     'no described robot has navigation, gripper (described: rover: navigation; crane: manipulation, gripper)'),
+    ('rover', ['gripper'], 'robot rover has no gripper (it has: navigation)'),
+    ('husky_9', [], "no robot 'husky_9' is described (described: crane, rover)"),
+])
+def test_a_request_no_robot_serves_is_refused_naming_why(tmp_path, name, features, words):
+    robots = described(tmp_path)
+    with pytest.raises(TemotoError) as caught:
+        choose_robot(robots, lambda n: 0.5, name, features)
+    assert words in str(caught.value)
+
+
+def test_the_most_reliable_robot_with_every_feature_is_chosen(tmp_path):
+    robots = described(tmp_path)
+    assert choose_robot(robots, lambda n: 0.5, '', ['manipulation']).name == 'crane'
+    both = dict(robots, crane2=dataclasses.replace(robots['crane'], name='crane2'))
+    assert choose_robot(both, {'rover': 0.9, 'crane': 0.2, 'crane2': 0.7}.get, '', ['gripper']).name == 'crane2'
+
+
+@pytest.mark.parametrize('positions, words', [
+    ('{open: 0.085, closed: 0.0}', ''),
+    ('{open: -0.01}', 'gripper.positions.open must be a gap from 0 to 1 m, got -0.01'),
+    ('{open: wide}', "gripper.positions.open must be a gap from 0 to 1 m, got 'wide'"),
+    ('[0.085]', 'gripper.positions must map names to gaps in metres'),
+])
+def test_gripper_positions_are_gaps_in_metres(tmp_path, positions, words):
+    path = tmp_path / 'rover.yaml'
+    path.write_text(GOOD + '      positions: %s\n' % positions)
+    robots, problems = load_file(str(path))
+    if not words:
+        assert problems == [] and robots[0].gripper.positions == {'open': 0.085, 'closed': 0.0}
+    else:
+        assert [str(p) for p in problems] == ['%s:%d: %s' % (path, GOOD.count('\n') + 1, words)]
+
+
+def described(tmp_path):
+    """Two robots: a rover that only drives, a crane with an arm and a gripper."""
+    path = tmp_path / 'two.yaml'
+    path.write_text(textwrap.dedent("""\
+        robots:
+          - name: rover
+            navigation:
+              driver: {package: rover_base, executable: base.launch}
+              obstacle_sources:
+                - {sensor_type: lidar, output_topic: lidar_data}
+          - name: crane
+            manipulation:
+              arm:
+                controller: {package: crane, executable: arm_controller}
+                action: arm/follow_joint_trajectory
+                joints: [a, b]
+                tool_frame: tool0
+            gripper:
+              controller: {package: crane, executable: gripper}
+              action: gripper/gripper_command
+              arm: arm
+        """))
+    robots, problems = load_file(str(path))
+    assert problems == []
+    return {r.name: r for r in robots}

@@ -13,6 +13,7 @@ from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
 from temoto_testing.sensor_manager import er_processes, robot_info, start_robot_stack
+from vaultbot_sim.msg import GripperState
 
 HANG = 60.0
 ARM_CONTROLLERS = {'left_arm_controller', 'right_arm_controller'}
@@ -74,7 +75,6 @@ def test_a_crashed_part_reaches_the_holder_as_failed_naming_it(rmi):
 
 @pytest.mark.parametrize('features, name, code, words', [
     (['flying'], '', ErrorCode.BAD_REQUEST, "unknown feature 'flying'"),
-    (['gripper'], '', ErrorCode.ROBOT_NOT_FOUND, 'no described robot has gripper'),
     ([], 'husky_9', ErrorCode.ROBOT_NOT_FOUND, "no robot 'husky_9' is described (described: vaultbot)"),
 ])
 def test_a_bad_request_is_refused_naming_what_is_wrong_and_starts_nothing(rmi, features, name, code, words):
@@ -83,3 +83,34 @@ def test_a_bad_request_is_refused_naming_what_is_wrong_and_starts_nothing(rmi, f
         rmi().load_robot(features, robot_name=name)
     assert any(f.code == code for f in caught.value.stack) and words in str(caught.value), str(caught.value)
     assert running_labels() == before
+
+
+def test_the_gripper_loads_with_its_controller_and_the_cli_opens_and_closes_it(stack, collect):
+    truth = collect('/vaultbot_sim/gripper_state', GripperState)
+    wait_for(lambda: truth.last(), HANG, 'the gripper\'s ground truth')
+    unknown = temoto('gripper', 'sideways')
+    assert unknown.returncode == 2 and "give a position of vaultbot (closed, open) or a gap in m" in unknown.stderr, \
+        unknown.stdout + unknown.stderr
+    assert not gripper_controller_running()
+    closed = temoto('gripper', 'close')
+    assert closed.returncode == 0 and 'gripper to 0.0 mm' in closed.stdout and 'done: reached' in closed.stdout, \
+        closed.stdout + closed.stderr
+    assert truth.last().gap == pytest.approx(0.0, abs=0.002)
+    wait_for(lambda: not gripper_controller_running(), HANG, 'the controller released with the command\'s hold')
+    refused = temoto('gripper', '0.5')
+    assert refused.returncode == 1 and 'failed: command.position 0.5000 m is beyond the stroke' in refused.stdout, \
+        refused.stdout + refused.stderr
+    opened = temoto('gripper', 'open', '--effort', '40')
+    assert opened.returncode == 0 and 'done: reached 85.0 mm' in opened.stdout, opened.stdout + opened.stderr
+    assert truth.last().gap == pytest.approx(0.085, abs=0.002)
+    wait_for(lambda: not gripper_controller_running(), HANG, 'the controller released again')
+    assert robot_info()['robots'][0]['loaded'] == []
+
+
+def gripper_controller_running():
+    return any('gripper_controller' in label for label in running_labels())
+
+
+def temoto(*args, timeout=120):
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'] + list(args), capture_output=True,
+                          text=True, timeout=timeout)
