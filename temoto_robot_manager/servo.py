@@ -1,0 +1,126 @@
+"""Servoing: one step of joint velocities that brings an arm's tool towards a target pose, safely. No ROS.
+
+The tool follows a stream of target poses (a hand, a marker) as MoveIt Servo follows twists:
+
+1. the pose error becomes a twist, proportional (``GAIN``), capped at ``MAX_LINEAR`` and ``MAX_ANGULAR``;
+2. the twist becomes joint velocities by damped least squares, ``J^T (J J^T + lambda^2 I)^-1 v``: near a
+   singularity the damping trades accuracy for bounded speeds instead of the pseudo-inverse's blow-up;
+3. near a singularity, moving towards it, the step slows: the Jacobian's condition number scales it from
+   1 at ``SINGULARITY_SLOW`` (17) down to 0 at ``SINGULARITY_STOP`` (30), MoveIt Servo's UR thresholds, and
+   halts beyond. Moving away is never slowed, so the operator can always back out;
+4. a joint within ``JOINT_MARGIN`` (0.1 rad, MoveIt Servo's) of its range's end, moving towards it, halts
+   the step;
+5. the whole step is scaled down so no joint exceeds its speed limit (the direction is kept);
+6. the arm where the step leads (``LOOKAHEAD_S`` ahead) is checked against the robot's own body
+   (``self_collision.py``): slowed within ``COLLISION_SLOW`` of it, halted at contact.
+
+A halted step commands zero and says why; the next step may move again (a target that leads away).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, List, Optional, Sequence
+
+import numpy as np
+
+from temoto_robot_manager.arm_kinematics import ArmKinematics
+
+GAIN = 8.0                  # 1/s: the twist per metre (and per radian) of error
+MAX_LINEAR = 0.5            # m/s of the tool
+MAX_ANGULAR = 1.5           # rad/s of the tool
+DAMPING = 0.05              # lambda of the damped least squares
+SINGULARITY_SLOW = 17.0     # condition number: slow from here (MoveIt Servo's UR figures)
+SINGULARITY_STOP = 30.0     # and halt here
+JOINT_MARGIN = 0.1          # rad from a range's end
+COLLISION_SLOW = 0.01       # m from the robot's own body: slow within, halt at contact
+LOOKAHEAD_S = 0.05          # s ahead: where the self-collision check looks
+
+# the distance (m) from the arm to the robot's own body with the arm's joints at q, within a margin; None if
+# farther (self_collision.SelfCollision.nearest, adapted)
+BodyDistance = Callable[[Sequence[float], float], Optional[float]]
+
+
+@dataclass
+class Step:
+    velocities: List[float]
+    positions: List[float]          # where the velocities lead after the period: the setpoint to send
+    scale: float                    # 1: as asked; 0: halted
+    condition: float
+    why: str = ''                   # what slowed or halted it ('' when nothing did)
+
+    @property
+    def halted(self) -> bool:
+        return self.scale == 0.0
+
+
+def rotation_error(current: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis x angle, in the base frame) that turns ``current`` onto ``target``."""
+    r = target @ current.T
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
+    if angle < 1e-9:
+        return np.zeros(3)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    norm = np.linalg.norm(axis)
+    if norm < 1e-9:                          # a half turn: the axis from the symmetric part
+        w, v = np.linalg.eigh((r + np.eye(3)) / 2)
+        axis = v[:, int(np.argmax(w))]
+        norm = 1.0
+    return axis / norm * angle
+
+
+class Servo:
+    def __init__(self, kinematics: ArmKinematics, period: float, body_distance: Optional[BodyDistance] = None) -> None:
+        self.kin = kinematics
+        self.period = period
+        self.body_distance = body_distance
+
+    def twist(self, q: Sequence[float], target: np.ndarray) -> np.ndarray:
+        here = self.kin.fk(q)
+        linear = GAIN * (target[:3, 3] - here[:3, 3])
+        angular = GAIN * rotation_error(here[:3, :3], target[:3, :3])
+        n = np.linalg.norm(linear)
+        if n > MAX_LINEAR:
+            linear *= MAX_LINEAR / n
+        n = np.linalg.norm(angular)
+        if n > MAX_ANGULAR:
+            angular *= MAX_ANGULAR / n
+        return np.concatenate([linear, angular])
+
+    def step(self, q: Sequence[float], target: np.ndarray) -> Step:
+        q = np.asarray(q, dtype=float)
+        jac = self.kin.jacobian(q)
+        dq = jac.T @ np.linalg.solve(jac @ jac.T + DAMPING ** 2 * np.eye(6), self.twist(q, target))
+        condition = self.kin.condition_number(q)
+        scale, why = 1.0, ''
+        # 3. the singularity, when moving towards it
+        if condition >= SINGULARITY_SLOW and np.any(dq):
+            ahead = self.kin.condition_number(q + dq * self.period)
+            if ahead > condition:
+                if condition >= SINGULARITY_STOP:
+                    return self._halt(q, condition, 'near a singularity (condition number %.1f, stop at %.0f)'
+                                      % (condition, SINGULARITY_STOP))
+                scale = (SINGULARITY_STOP - condition) / (SINGULARITY_STOP - SINGULARITY_SLOW)
+                why = 'slowed near a singularity (condition number %.1f)' % condition
+        # 4. the joints' ranges, with their margin
+        for name, v, lim, dv in zip(self.kin.joints, q, self.kin.limits, dq):
+            if (dv > 0 and v >= lim.upper - JOINT_MARGIN) or (dv < 0 and v <= lim.lower + JOINT_MARGIN):
+                return self._halt(q, condition, '%s at %.3f rad is within %.1f rad of its range\'s end'
+                                  % (name, v, JOINT_MARGIN))
+        # 5. each joint within its speed
+        worst = max((abs(dv * scale) / lim.velocity for dv, lim in zip(dq, self.kin.limits)), default=0.0)
+        if worst > 1.0:
+            scale /= worst
+        # 6. the robot's own body, where the step leads
+        if self.body_distance is not None and np.any(dq):
+            distance = self.body_distance(q + dq * scale * LOOKAHEAD_S, COLLISION_SLOW)
+            if distance is not None:
+                if distance <= 0.0:
+                    return self._halt(q, condition, 'the arm would touch the robot\'s own body')
+                scale *= distance / COLLISION_SLOW
+                why = why or 'slowed %.1f mm from the robot\'s own body' % (1000 * distance)
+        velocities = list(dq * scale)
+        return Step(velocities, list(q + dq * scale * self.period), scale, condition, why)
+
+    def _halt(self, q: np.ndarray, condition: float, why: str) -> Step:
+        return Step([0.0] * len(q), list(q), 0.0, condition, why)
