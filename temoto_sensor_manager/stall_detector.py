@@ -60,6 +60,7 @@ class TopicProbe:
         self.late = 0.0                      # how much later than usual the stall detector woke at most, in it
         self.caught_up = False               # whether it was given its one catch-up after a late wake-up
         self.starved = 0.0                   # the starvation allowed for at the last look (for the message)
+        self.starved_parts = (0.0, 0.0, 0.0, 0.0)   # its parts: timer lateness, driver, receive thread, machine
         self.publisher = ''                  # the node that sent the first message (its connection header)
         self.publisher_pid = 0               # its process, when it runs on this host (0: not known)
         self.publisher_wait: Optional[WaitMeter] = None   # that process's threads' CPU waiting
@@ -94,8 +95,9 @@ class TopicProbe:
 
     def describe_limit(self, limit: float) -> str:
         """How ``limit`` was found, for a stall's message."""
-        starved = (', plus %.3f s the machine held this manager or the driver back' % self.starved
-                   if self.starved > 0.0005 else '')
+        starved = (', plus %.3f s the machine held this manager or the driver back (%s)' % (
+            self.starved, 'its timer %.3f s late; beyond their usual waits: the driver %.3f s, the receive thread '
+            '%.3f s, the machine %.3f s' % self.starved_parts) if self.starved > 0.0005 else '')
         if self.arrivals is None or limit >= self.limit:
             return 'limit %.3f s%s' % (limit, starved)
         return 'adaptive limit %.3f s of at most %.3f s%s: %s' % (limit, self.limit, starved,
@@ -226,9 +228,10 @@ class StallDetector:
                     # and the receive thread waited beyond the usual (one after the other on a message's way:
                     # their waits add up), or the machine's excess if larger, at most half the limit (a
                     # real stall comes late by that much at the most)
-                    probe.starved = probe.late + min(0.5 * limit, max(
-                        probe.publisher_starved(since, now) + probe.reader_starved(),
-                        self.pressure.excess(since, now)))
+                    driver, reader = probe.publisher_starved(since, now), probe.reader_starved()
+                    machine = self.pressure.excess(since, now)
+                    probe.starved = probe.late + min(0.5 * limit, max(driver + reader, machine))
+                    probe.starved_parts = (probe.late, driver, reader, machine)
                     due += probe.starved
                 if due > now:
                     heapq.heappush(self._heap, (self._next_look(probe, due, now), next(self._seq), probe))
