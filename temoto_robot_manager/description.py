@@ -27,6 +27,7 @@ One file holds a list under ``robots``::
         manipulation:
           left_arm:                          # one entry per arm
             controller: {package: vaultbot_sim, executable: arm_controller, args: _arm:=left_arm}
+            manipulator: {package: temoto_robot_manager, executable: manipulator}   # goals and servoing
             action: left_arm/follow_joint_trajectory
             servo_topic: left_arm/servo_command
             joints: [left_shoulder_pan_joint, ...]
@@ -63,7 +64,7 @@ _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_frame', 'base_frame', 'footprint',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
-_ARM_KEYS = {'controller', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
+_ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
 _GRIPPER_KEYS = {'controller', 'action', 'arm', 'positions'}
 
 
@@ -118,6 +119,7 @@ class Arm:
     base_frame: str
     tool_frame: str
     named_poses: Dict[str, Tuple[float, ...]]
+    manipulator: Optional[Part] = None      # the node that serves the arm's goals and servoing (manipulator_node)
 
 
 @dataclass(frozen=True)
@@ -263,7 +265,8 @@ class _Reader:
                    self.text(raw, 'action', at, name=True),
                    self.text(raw, 'servo_topic', at, default='%s/servo_command' % name, name=True),
                    tuple(joints), self.text(raw, 'base_frame', at, default='base_link'),
-                   self.text(raw, 'tool_frame', at), poses)
+                   self.text(raw, 'tool_frame', at), poses,
+                   self.part(raw['manipulator'], list(at) + ['manipulator']) if 'manipulator' in raw else None)
 
     def robot(self, value: Any, at: Sequence) -> RobotDescription:
         raw = self.mapping(value, at, _ROBOT_KEYS, ('name',))
@@ -339,3 +342,14 @@ def load_file(path: str) -> Tuple[List[RobotDescription], List[DescriptionError]
             continue
         robots.append(robot)
     return robots, problems
+
+
+def described_robot(path: str, name: str, feature: str) -> RobotDescription:
+    """Robot ``name`` of the file ``path``, which must have ``feature``; raises ValueError naming why not (a node
+    started by the Robot Manager reads its robot so)."""
+    robots, problems = load_file(path)
+    for robot in robots:
+        if robot.name == name and feature in robot.features:
+            return robot
+    raise ValueError('%s describes no robot %r with %s%s' % (path, name, feature,
+                                                             ''.join('; ' + str(p) for p in problems)))

@@ -66,6 +66,10 @@ class RobotManager:
         self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB, journal=journal_param())
         self.namespace = self.rr.namespace
         self._source_topics: Dict[str, rospy.Publisher] = {}
+        self._owner_topics = {r.name: rospy.Publisher(self.owner_topic(r.name), String, queue_size=1, latch=True)
+                              for r in robots}
+        for pub in self._owner_topics.values():
+            pub.publish(String(rospy.get_name()))
         self.obstacles = ObstacleFailover(self._start_source, self.rr.unload, self._tell, self._announce_source,
                                           SUB, lambda text: rospy.logwarn('%s: %s', NAME, text))
         self.rr.register_status_callback(self._on_part_status)
@@ -93,6 +97,13 @@ class RobotManager:
                 for arm in robot.manipulation.values():
                     parts.append(self._part(robot, 'manipulation.%s.controller' % arm.name, arm.controller,
                                             arm.action + '/status'))
+                    if arm.manipulator is not None:
+                        args = ' '.join(a for a in (arm.manipulator.args, '_description:=%s' % robot.path,
+                                                    '_robot:=%s' % robot.name, '_arm:=%s' % arm.name,
+                                                    '_owner_topic:=%s' % self.owner_topic(robot.name)) if a)
+                        parts.append(self._part(robot, 'manipulation.%s.manipulator' % arm.name,
+                                                dataclasses.replace(arm.manipulator, args=args),
+                                                '%s/move_arm/status' % arm.name))
             if 'gripper' in features:
                 parts.append(self._part(robot, 'gripper.controller', robot.gripper.controller,
                                         robot.gripper.action + '/status'))
@@ -113,6 +124,11 @@ class RobotManager:
         self.obstacles.release(res.trr.resource_id)
         with self._lock:
             self._loaded.pop(res.trr.resource_id, None)
+
+    def owner_topic(self, robot: str) -> str:
+        """The latched topic that the motion nodes of ``robot`` subscribe to: its connection's end tells them
+        this manager is gone (``goal_holders.py``)."""
+        return '/%s/%s/%s/owner' % (self.namespace, NAME, robot)
 
     def source_topic(self, robot: str) -> str:
         """The latched topic on which the navigator of ``robot`` hears which obstacle topic to read."""

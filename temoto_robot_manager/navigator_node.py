@@ -13,7 +13,7 @@ In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source a
 or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic`` (default
 ``~obstacle_source``). Out: ``cmd_vel``.
 
-A goal whose holder is gone ends at once, the robot stopped (:meth:`NavigatorNode._holder_gone`): a
+A goal whose holder is gone ends at once, the robot stopped (``goal_holders.py``): a
 robot must not drive for nobody. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
 the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
 the next tick. Both hold one lock around deciding and publishing, so a stale zero is never followed
@@ -42,30 +42,23 @@ from std_msgs.msg import Float32, String
 
 from temoto_core import params
 from temoto_core.node import init_node, ok
-from temoto_core.rospy_internals import connection_header, live_subscribers
+from temoto_core.rospy_internals import connection_header
 from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
-from temoto_robot_manager.description import RobotDescription, load_file
+from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
+from temoto_robot_manager.goal_holders import GoalHolders
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 
 FEEDBACK_PERIOD_S = 0.2
 
 
-def describe(path: str, name: str) -> RobotDescription:
-    robots, problems = load_file(path)
-    for robot in robots:
-        if robot.name == name and robot.navigation is not None:
-            return robot
-    raise ValueError('%s describes no robot %r with navigation%s' % (
-        path, name, ''.join('; ' + str(p) for p in problems)))
-
-
 class NavigatorNode:
     def __init__(self) -> None:
-        robot = describe(params.text('description', '', empty=False), params.text('robot', '', empty=False))
+        robot = described_robot(params.text('description', '', empty=False), params.text('robot', '', empty=False),
+                                'navigation')
         nav = robot.navigation
         self.robot = robot
         self.odom_frame, self.base_frame = nav.odom_frame, nav.base_frame
@@ -92,8 +85,6 @@ class NavigatorNode:
         # the Robot Manager's latched topic: its connection is also how the navigator knows the manager lives
         self._owner = rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
                                        lambda msg: self.use_source(msg.data), queue_size=5)
-        self._owner_seen = False
-        self._client_seen = False
         initial = params.text('obstacle_topic', '')
         if initial:
             self.use_source(initial)
@@ -105,6 +96,8 @@ class NavigatorNode:
         except TimeoutError:
             rospy.logwarn('navigator: no %s after %.0f s; serving goals anyway (each is refused until both come)',
                           'map' if self.nav.costmap is None else 'odometry', params.number('startup_timeout', 30.0))
+        self.holders = GoalHolders('navigator', self._owner, self.server,
+                                   fire_and_forget='move_base_simple-')
         self.server.start()
         threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
@@ -220,7 +213,7 @@ class NavigatorNode:
                 goal = self._checked(target)
                 self.nav.start(goal, now)
                 previous, self.active = self.active, handle
-                self._client_seen = False
+                self.holders.new_goal()
                 path = self.nav.path
         except (BadGoal, NoPath) as err:
             rospy.logwarn('navigator: goal %s refused: %s', handle.get_goal_id().id, err)
@@ -277,28 +270,6 @@ class NavigatorNode:
                 rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped', self.source_topic,
                               (now - self.nav.freshness.last) * 1e3, self.nav.freshness.periods)
 
-    def _holder_gone(self) -> Optional[str]:
-        """Why the active goal has nobody left to want it, or None. Two holders are watched through their
-        connections, which the kernel closes the moment a process dies: the goal's action client (its
-        subscription to the status this server publishes, read for an end of file each tick:
-        ``rospy_internals.live_subscribers``), and the Robot Manager that started this navigator (its
-        latched obstacle_source topic), once it has been seen."""
-        connected = self._owner.get_num_connections() > 0
-        if connected:
-            self._owner_seen = True
-        elif self._owner_seen:
-            return 'the Robot Manager that started this navigator is gone'
-        goal_id = self.active.get_goal_id().id
-        if goal_id.startswith('move_base_simple-'):
-            return None                              # RViz's tool sends and forgets: nobody to watch
-        client = goal_id.split('-', 1)[0]
-        listening = client in live_subscribers(self.server.status_pub)
-        if listening:
-            self._client_seen = True
-        elif self._client_seen:                      # a goal sent with no client (rostopic pub) is never watched
-            return 'its client %s is gone' % client
-        return None
-
     def spin(self) -> None:
         period = 1.0 / self.rate
         next_at = time.monotonic()
@@ -307,7 +278,7 @@ class NavigatorNode:
             gone = None
             with self.lock:
                 if self.active is not None:
-                    gone = self._holder_gone()
+                    gone = self.holders.gone(self.active.get_goal_id().id)
                     if gone is not None:
                         self.nav.cancel()
                         self._command(0.0, 0.0)

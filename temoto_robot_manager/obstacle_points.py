@@ -22,12 +22,17 @@ _DTYPES = {PointField.FLOAT32: '<f4', PointField.FLOAT64: '<f8'}
 
 def matrix_of(t: Transform) -> np.ndarray:
     """A geometry_msgs/Transform as a 4x4 matrix."""
-    x, y, z, w = t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w
+    return matrix_of_pose(t.translation, t.rotation)
+
+
+def matrix_of_pose(position, orientation) -> np.ndarray:
+    """A position (x, y, z) and a unit quaternion (x, y, z, w), as in a Pose or a Transform, as a 4x4 matrix."""
+    x, y, z, w = orientation.x, orientation.y, orientation.z, orientation.w
     m = np.eye(4)
     m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = t.translation.x, t.translation.y, t.translation.z
+    m[:3, 3] = position.x, position.y, position.z
     return m
 
 

@@ -8,6 +8,7 @@ from actionlib_msgs.msg import GoalStatus
 from temoto_core.wait import wait_for
 
 GOAL_CLIENT = [sys.executable, '-m', 'temoto_testing.goal_client']     # + X Y YAW: one goal, then waits
+ARM_CLIENT = [sys.executable, '-m', 'temoto_testing.arm_client']       # + ARM Q1..Q6 [SCALE]: one goal, then waits
 
 
 def commanded_zero_after(states: List, t0: float, timeout: float):

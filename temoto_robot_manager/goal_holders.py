@@ -1,0 +1,53 @@
+"""Who holds a goal of a motion node (the navigator, a manipulator), watched through their connections.
+
+The kernel closes a process's connections the moment it dies, so a connection's end is the fastest news
+of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched:
+
+- the goal's action client: its subscription to the status the server publishes, read for an end of file
+  on every look (``rospy_internals.live_subscribers``). A goal sent with no client (``rostopic pub``) or by
+  a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned;
+- the Robot Manager that started the node: the latched topic it publishes to the node, once seen.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import actionlib
+import rospy
+
+from temoto_core.rospy_internals import live_subscribers
+
+
+class GoalHolders:
+    def __init__(self, node: str, owner: Optional[rospy.Subscriber], server: actionlib.ActionServer,
+                 fire_and_forget: str = '') -> None:
+        """``node``: what the node is, for the reasons (``navigator``); ``owner``: the subscription to the
+        Robot Manager's latched topic (None: not started by one); ``server``: the action server (its status
+        publisher appears when it starts); ``fire_and_forget``: the prefix of goal ids that have no client
+        to watch."""
+        self._node = node
+        self._owner = owner
+        self._server = server
+        self._fire_and_forget = fire_and_forget
+        self._owner_seen = False
+        self._client_seen = False
+
+    def new_goal(self) -> None:
+        """A new goal: its client has not been seen yet."""
+        self._client_seen = False
+
+    def gone(self, goal_id: str) -> Optional[str]:
+        """Why the goal ``goal_id`` has nobody left to want it, or None."""
+        if self._owner is not None:
+            if self._owner.get_num_connections() > 0:
+                self._owner_seen = True
+            elif self._owner_seen:
+                return 'the Robot Manager that started this %s is gone' % self._node
+        if self._fire_and_forget and goal_id.startswith(self._fire_and_forget):
+            return None
+        client = goal_id.split('-', 1)[0]
+        if client in live_subscribers(self._server.status_pub):
+            self._client_seen = True
+        elif self._client_seen:
+            return 'its client %s is gone' % client
+        return None

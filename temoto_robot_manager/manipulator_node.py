@@ -1,0 +1,260 @@
+"""The manipulator node: one arm's goals and servoing, for one described robot, over the arm's controller.
+
+- ``<arm>/move_arm`` (``temoto_robot_manager/MoveArm`` action): a pose of the tool (any frame TF knows), a
+  named pose of the description, or one position per joint. A goal is planned at once
+  (``arm_planner.py``: IK through KDL, the way checked against the robot's own body, time-parameterised)
+  and *rejected*, with its code and the field at fault, when it cannot be; nothing moves then. An
+  accepted goal runs as a ``FollowJointTrajectory`` goal of the arm's controller, whose result it passes
+  on (an abort says the controller's reason). A new goal preempts; a cancel holds the arm where it is;
+- ``<arm>/servo_target`` (``geometry_msgs/PoseStamped``, a stream): the tool follows it (``servo.py``),
+  sent to the controller's servo input at ``~servo_rate``. A target older than ``SERVO_TIMEOUT_S`` is
+  not followed: the node falls silent and the controller's own deadman (0.1 s) holds the arm. A
+  trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
+  ``<arm>/servo_status`` (``std_msgs/String``) when it changes.
+
+A goal whose holder is gone (its client, or the Robot Manager that started this node: ``goal_holders.py``)
+is cancelled at once, and the arm holds.
+
+Private parameters: ``~description`` (a robot description file), ``~robot``, ``~arm`` (an arm of its
+manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 50).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import List, Optional
+
+import actionlib
+import numpy as np
+import rospy
+import tf2_ros
+from actionlib_msgs.msg import GoalStatus, GoalStatusArray
+from control_msgs.msg import FollowJointTrajectoryAction, FollowJointTrajectoryGoal
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from temoto_core import params
+from temoto_core.node import init_node, ok
+from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
+from temoto_robot_manager.description import described_robot
+from temoto_robot_manager.goal_holders import GoalHolders
+from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
+from temoto_robot_manager.obstacle_points import matrix_of_pose
+from temoto_robot_manager.self_collision import SelfCollision
+from temoto_robot_manager.servo import Servo
+
+SERVO_TIMEOUT_S = 0.1        # a target this old is not followed (MoveIt Servo's incoming_command_timeout)
+STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
+COLLISION_EVERY = 2          # servo steps per self-collision check (25 Hz at 50 Hz: MoveIt Servo checks at 50 Hz)
+WATCH_PERIOD_S = 0.02
+
+
+class ManipulatorNode:
+    def __init__(self) -> None:
+        robot = described_robot(params.text('description', '', empty=False), params.text('robot', '', empty=False),
+                                'manipulation')
+        name = params.text('arm', '', empty=False)
+        if name not in robot.manipulation:
+            raise ValueError('robot %s has no arm %r (its arms: %s)' % (robot.name, name,
+                                                                       ', '.join(robot.manipulation)))
+        self.arm = robot.manipulation[name]
+        urdf = rospy.get_param(params.text('robot_description', 'robot_description'))
+        try:
+            self.kin = ArmKinematics(urdf, self.arm.base_frame, self.arm.tool_frame, self.arm.joints)
+        except KinematicsError as err:
+            raise ValueError('arm %s: %s' % (name, err)) from None
+        reference = dict(zip(self.arm.joints, self.arm.named_poses.get('hold', [0.0] * self.kin.n)))
+        self.body = SelfCollision(urdf, self.arm.joints, reference)
+        self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches)
+        self.servo_rate = params.number('servo_rate', 50.0, above=0, maximum=500)
+        self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
+        self.lock = threading.Lock()
+        self.q: Optional[List[float]] = None
+        self.q_at = 0.0
+        self.target: Optional[np.ndarray] = None
+        self.target_at = 0.0
+        self.active = None                       # the goal handle being run
+        self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
+        self._tf_listener = tf2_ros.TransformListener(self.tf)
+        self.controller = actionlib.SimpleActionClient(self.arm.action, FollowJointTrajectoryAction)
+        self.pub_servo = rospy.Publisher(self.arm.servo_topic, JointTrajectory, queue_size=5, tcp_nodelay=True)
+        self.pub_status = rospy.Publisher('%s/servo_status' % name, String, queue_size=5, latch=True)
+        rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
+        rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
+                         tcp_nodelay=True)
+        owner_topic = params.text('owner_topic', '')
+        self._owner = rospy.Subscriber(owner_topic, String, lambda _m: None, queue_size=1) if owner_topic else None
+        # the controller's status: its connection's end is how this node knows the controller is gone
+        self._controller_status = rospy.Subscriber(self.arm.action + '/status', GoalStatusArray, lambda _m: None,
+                                                   queue_size=1)
+        if not self.controller.wait_for_server(rospy.Duration(params.number('startup_timeout', 30.0, above=0))):
+            raise ValueError('no trajectory controller on %s' % rospy.resolve_name(self.arm.action))
+        self.server = actionlib.ActionServer('%s/move_arm' % name, MoveArmAction, self._on_goal, self._on_cancel,
+                                             auto_start=False)
+        self.holders = GoalHolders('manipulator', self._owner, self.server)
+        self.server.start()
+        self._said = None
+        rospy.loginfo('manipulator: %s of %s, goals on %s, servo targets on %s', name, robot.name,
+                      rospy.resolve_name('%s/move_arm' % name), rospy.resolve_name('%s/servo_target' % name))
+
+    # -- inputs ------------------------------------------------------------------------------------------------
+    def _on_joint_states(self, msg: JointState) -> None:
+        pos = dict(zip(msg.name, msg.position))
+        if all(j in pos for j in self.arm.joints):
+            with self.lock:
+                self.q, self.q_at = [pos[j] for j in self.arm.joints], time.monotonic()
+
+    def _in_base(self, pose: PoseStamped) -> np.ndarray:
+        """The pose as a matrix in the arm's base frame; raises GoalRefused naming the frame."""
+        frame = pose.header.frame_id.strip() or self.arm.base_frame
+        try:
+            t = self.tf.lookup_transform(self.arm.base_frame, frame, rospy.Time(0), rospy.Duration(0.2))
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
+            raise GoalRefused(INVALID_GOAL, 'pose.header.frame_id %r: no transform to %s (%s)'
+                              % (frame, self.arm.base_frame, err)) from None
+        return matrix_of_pose(t.transform.translation, t.transform.rotation) @ matrix_of_pose(
+            pose.pose.position, pose.pose.orientation)
+
+    def _on_servo_target(self, msg: PoseStamped) -> None:
+        try:
+            target = self._in_base(msg)
+        except (GoalRefused, ValueError) as err:
+            rospy.logerr_throttle(1.0, 'manipulator: servo target refused: %s' % err)
+            return
+        with self.lock:
+            self.target, self.target_at = target, time.monotonic()
+
+    def _touches(self, q) -> Optional[str]:
+        near = self.body.nearest(dict(zip(self.arm.joints, q)), 0.0)
+        return '%s touches %s' % (near.link, near.other) if near else None
+
+    def _body_distance(self, q, margin: float) -> Optional[float]:
+        near = self.body.nearest(dict(zip(self.arm.joints, q)), margin)
+        return near.distance if near else None
+
+    # -- goals -------------------------------------------------------------------------------------------------
+    def _on_goal(self, handle) -> None:
+        goal = handle.get_goal()
+        with self.lock:
+            q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
+        try:
+            if q is None:
+                raise GoalRefused(INVALID_GOAL, 'where the arm is is not known: no joint states of %s'
+                                  % ', '.join(self.arm.joints))
+            pose = self._in_base(goal.pose) if goal.pose.header.frame_id.strip() else None
+            points = self.planner.plan(q, pose, goal.named_pose.strip(), list(goal.joint_positions),
+                                       goal.speed_scale)
+        except GoalRefused as err:
+            rospy.logwarn('manipulator: goal %s refused: %s', handle.get_goal_id().id, err)
+            handle.set_rejected(MoveArmResult(error_code=err.code, error_string=str(err), joint_positions=q or []),
+                                str(err))
+            return
+        trajectory = FollowJointTrajectoryGoal()
+        trajectory.trajectory.joint_names = list(self.arm.joints)
+        for t, positions, velocities in points:
+            point = JointTrajectoryPoint(positions=positions, velocities=velocities)
+            point.time_from_start = rospy.Duration.from_sec(t)
+            trajectory.trajectory.points.append(point)
+        with self.lock:
+            previous, self.active = self.active, handle
+            self.holders.new_goal()
+            self.target = None                   # a trajectory takes the arm from the servo stream
+        if previous is not None:
+            previous.set_canceled(self._result(MoveArmResult.PREEMPTED), 'preempted by goal %s'
+                                  % handle.get_goal_id().id)
+        handle.set_accepted('moving %s: %.1f s' % (self.arm.name, points[-1][0]))
+        self.controller.send_goal(trajectory, done_cb=lambda state, result: self._done(handle, state, result),
+                                  feedback_cb=lambda fb: self._feedback(handle, fb, points[-1][0]))
+
+    def _on_cancel(self, handle) -> None:
+        with self.lock:
+            if self.active is None or self.active.get_goal_id().id != handle.get_goal_id().id:
+                return
+            self.active = None
+        self.controller.cancel_goal()            # the controller holds the arm where it is
+        handle.set_canceled(self._result(MoveArmResult.PREEMPTED), 'canceled: the arm holds where it is')
+
+    def _done(self, handle, state: int, result) -> None:
+        with self.lock:
+            if self.active is not handle:
+                return                           # preempted, canceled or orphaned already
+            self.active = None
+        if state == GoalStatus.SUCCEEDED:
+            handle.set_succeeded(self._result(MoveArmResult.SUCCESS), 'there')
+            return
+        why = (result.error_string if result is not None else '') or self.controller.get_goal_status_text() \
+            or 'status %d' % state
+        text = 'the arm\'s controller ended the motion: %s' % why
+        handle.set_aborted(self._result(MoveArmResult.CONTROLLER_FAILED, text), text)
+
+    def _feedback(self, handle, fb, duration: float) -> None:
+        if self.active is not handle:
+            return
+        t = fb.desired.time_from_start.to_sec() if fb.desired.time_from_start else 0.0
+        handle.publish_feedback(MoveArmFeedback(fraction=min(1.0, t / duration) if duration > 0 else 1.0,
+                                                joint_positions=list(fb.actual.positions)))
+
+    def _result(self, code: int, text: str = '') -> MoveArmResult:
+        with self.lock:
+            q = list(self.q) if self.q is not None else []
+        return MoveArmResult(error_code=code, error_string=text, joint_positions=q)
+
+    # -- the loop: holders, the controller, and the servo stream ---------------------------------------------
+    def spin(self) -> None:
+        period = 1.0 / self.servo_rate
+        next_at, steps = time.monotonic(), 0
+        while ok():
+            now = time.monotonic()
+            self._watch_goal()
+            with self.lock:
+                running = self.active is not None
+                target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
+                q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
+            if target is not None and q is not None and not running:
+                steps += 1
+                self.servo.body_distance = self._body_distance if steps % COLLISION_EVERY == 0 else None
+                step = self.servo.step(q, target)
+                self._say(step.why)
+                point = JointTrajectoryPoint(positions=step.positions, velocities=step.velocities)
+                msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
+                msg.header.stamp = rospy.Time.now()
+                self.pub_servo.publish(msg)
+            next_at += period
+            delay = next_at - time.monotonic()
+            if delay < 0:
+                next_at = time.monotonic()
+            else:
+                time.sleep(delay)
+
+    def _watch_goal(self) -> None:
+        with self.lock:
+            handle = self.active
+            gone = self.holders.gone(handle.get_goal_id().id) if handle is not None else None
+            if gone is None and handle is not None and self._controller_status.get_num_connections() == 0:
+                gone = 'the arm\'s controller is gone'
+            if gone is not None:
+                self.active = None
+        if gone is None:
+            return
+        self.controller.cancel_goal()
+        rospy.logwarn('manipulator: goal %s: %s: the arm holds', handle.get_goal_id().id, gone)
+        code = MoveArmResult.CONTROLLER_FAILED if 'controller' in gone else MoveArmResult.PREEMPTED
+        handle.set_aborted(self._result(code, gone), '%s: the arm holds' % gone)
+
+    def _say(self, why: str) -> None:
+        if why != self._said:
+            self._said = why
+            self.pub_status.publish(String(why or 'following'))
+
+
+def main() -> None:
+    init_node('manipulator')
+    try:
+        node = ManipulatorNode()
+    except ValueError as err:                     # a bad parameter or description: say which
+        rospy.logerr('manipulator: %s', err)
+        raise SystemExit(2)
+    node.spin()

@@ -1,0 +1,210 @@
+"""Arm goals and servoing across processes: the Robot Manager loads the VaultBot's manipulation, whose parts are
+each arm's controller and manipulator; goals go through ``<arm>/move_arm`` and targets through
+``<arm>/servo_target``, as an action or an operator's hand would send them. Judged by the sim's ground truth
+(joint states and ``vaultbot_sim/arm_states``)."""
+import math
+import os
+import signal
+import time
+
+import actionlib
+import numpy as np
+import pytest
+import rospy
+from actionlib_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import JointState
+
+from temoto_robot_manager.arm_kinematics import pose_error
+from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal, MoveArmResult
+from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_testing import made_interfaces, wait_for, wait_receiving
+from temoto_testing.motion import ARM_CLIENT
+from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_stack
+from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix
+from vaultbot_sim.msg import ArmState
+from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
+
+HANG = 60.0
+LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
+HOLD = [HOLD_POSE[j] for j in LEFT]
+MODEL = TreeModel(ROBOT_URDF)
+
+
+@pytest.fixture(scope='module')
+def stack(rospy_client, module_procs, tmp_path_factory):
+    module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'))
+    return module_procs
+
+
+@pytest.fixture(scope='module')
+def arm(stack):
+    """The VaultBot's manipulation, held for the module: the left arm's MoveArm client."""
+    with made_interfaces(RobotManagerInterface) as make:
+        rm = make()
+        robot = rm.load_robot(['manipulation'], on_status=lambda event: None)   # a part's failure: tested below
+        assert {'manipulation.left_arm.manipulator', 'manipulation.right_arm.manipulator'} <= set(robot.parts)
+        client = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
+        assert client.wait_for_server(rospy.Duration(HANG)), 'the left arm\'s manipulator'
+        yield client
+        rm.release(robot.resource_id)
+    managers_idle(('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager'), timeout=30)
+
+
+@pytest.fixture
+def truth(collect, arm):
+    joints = collect('/joint_states', JointState)
+    states = collect('/vaultbot_sim/arm_states', ArmState)
+    wait_receiving([joints.sub, states.sub], HANG, 'the sim\'s states')
+    wait_for(lambda: joints.last() and states.last(), HANG, 'the first states')
+    return joints, states
+
+
+def here(joints):
+    msg = joints.last()
+    pos = dict(zip(msg.name, msg.position))
+    return [pos[j] for j in LEFT]
+
+
+def tool_in_base(q):
+    cfg = dict(HOLD_POSE, **dict(zip(LEFT, q)))
+    return MODEL.link_pose('left_tool0', cfg)        # base_link is the model's root
+
+
+def run(client, goal):
+    client.send_goal(goal)
+    assert client.wait_for_result(rospy.Duration(HANG)), 'no result'
+    return client.get_state(), client.get_result(), client.get_goal_status_text()
+
+
+def settled(joints):
+    """Where the arm is once it has stopped (two readings 0.2 s apart agree)."""
+    def still():
+        a = here(joints)
+        t = joints.last().header.stamp
+        wait_for(lambda: joints.last().header.stamp.to_sec() > t.to_sec() + 0.2, HANG, 'a later state')
+        b = here(joints)
+        return b if max(abs(x - y) for x, y in zip(a, b)) < 1e-4 else None
+    return wait_for(still, HANG, 'the arm at rest')
+
+
+def test_named_joint_and_pose_goals_put_the_arm_there(arm, truth):
+    joints, _ = truth
+    target = list(HOLD)
+    target[0] += 0.4
+    target[3] -= 0.3
+    state, result, text = run(arm, MoveArmGoal(joint_positions=target, speed_scale=0.8))
+    assert state == GoalStatus.SUCCEEDED and result.error_code == MoveArmResult.SUCCESS, text
+    assert max(abs(a - b) for a, b in zip(settled(joints), target)) < 0.02
+    # a pose of the tool in base_link: 8 cm forward and 6 cm up from the hold pose's
+    goal_m = tool_in_base(HOLD)
+    goal_m[:3, 3] += [0.08, 0.0, 0.06]
+    pose = PoseStamped()
+    pose.header.frame_id = 'base_link'
+    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = goal_m[:3, 3]
+    (pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z,
+     pose.pose.orientation.w) = quat_from_matrix(goal_m)
+    state, result, text = run(arm, MoveArmGoal(pose=pose))
+    assert state == GoalStatus.SUCCEEDED, text
+    dp, da = pose_error(tool_in_base(settled(joints)), goal_m)
+    assert dp < 0.01 and da < 0.02, (dp, da)            # within the controller's 0.01 rad goal tolerance
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+    assert max(abs(a - b) for a, b in zip(settled(joints), HOLD)) < 0.02
+
+
+@pytest.mark.parametrize('goal, code, words', [
+    (MoveArmGoal(), MoveArmResult.INVALID_GOAL, 'give exactly one of pose, named_pose and joint_positions'),
+    (MoveArmGoal(named_pose='wave'), MoveArmResult.INVALID_GOAL, "named_pose 'wave' is not a pose of this arm"),
+    (MoveArmGoal(joint_positions=[0.0] * 5), MoveArmResult.INVALID_GOAL, 'joint_positions has 5 values'),
+    (MoveArmGoal(joint_positions=HOLD[:5] + [float('nan')]), MoveArmResult.INVALID_GOAL, 'is nan, not a finite'),
+    (MoveArmGoal(joint_positions=HOLD, speed_scale=2.0), MoveArmResult.INVALID_GOAL, 'speed_scale 2.0'),
+    ('far', MoveArmResult.NO_SOLUTION, 'pose: no joint positions reach the target'),
+    ('frame', MoveArmResult.INVALID_GOAL, "pose.header.frame_id 'nowhere': no transform"),
+    ('fold', MoveArmResult.SELF_COLLISION, 'touches the robot\'s own body'),
+])
+def test_a_goal_that_cannot_be_is_rejected_naming_why_and_nothing_moves(arm, truth, goal, code, words):
+    joints, states = truth
+    if goal in ('far', 'frame'):
+        pose = PoseStamped()
+        pose.header.frame_id = 'base_link' if goal == 'far' else 'nowhere'
+        pose.pose.position.x, pose.pose.orientation.w = 3.0, 1.0
+        goal = MoveArmGoal(pose=pose)
+    elif goal == 'fold':
+        folded = list(HOLD)
+        folded[LEFT.index('left_elbow_joint')] -= 1.4
+        goal = MoveArmGoal(joint_positions=folded)
+    before = here(joints)
+    sent = rospy.Time.now()
+    state, result, text = run(arm, goal)
+    assert state == GoalStatus.REJECTED and result.error_code == code and words in text, (state, text)
+    later = wait_for(lambda: next((m for m in reversed(states.msgs) if m.arm == 'left_arm'
+                                   and m.header.stamp > sent), None), HANG, 'a state after the refusal')
+    assert later.commanded_speed == 0.0 and max(abs(a - b) for a, b in zip(here(joints), before)) < 1e-6
+
+
+def test_a_goal_whose_client_dies_stops_the_arm(stack, arm, truth):
+    joints, states = truth
+    far = list(HOLD)
+    far[0] += 1.5
+    client = stack.command(ARM_CLIENT + ['left_arm'] + [str(v) for v in far] + ['0.3'], 'arm_client')
+    try:
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.speed > 0.2), None), HANG,
+                 'the arm moving for the client')
+        os.kill(client.pid, signal.SIGKILL)
+        killed = rospy.Time.now().to_sec()
+        stopped = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm'
+                                         and m.header.stamp.to_sec() > killed and m.commanded_speed == 0.0), None),
+                           HANG, 'the arm commanded to stop')
+        assert stopped.header.stamp.to_sec() - killed < 5.0          # generous: catches a hang; the bound: bench
+        q = settled(joints)
+        assert abs(q[0] - far[0]) > 0.1                               # it stopped on the way
+    finally:
+        client.stop()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
+def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(arm, truth):
+    joints, states = truth
+    start = tool_in_base(settled(joints))
+    pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=5)
+    wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator to subscribe to the servo targets')
+    target = start.copy()
+    period, sent = 0.02, 0
+    for k in range(150):                          # 3 s: the target moves 10 cm along y at 5 cm/s, then waits
+        target[1, 3] = start[1, 3] + min(0.10, 0.05 * k * period)
+        msg = PoseStamped()
+        msg.header.frame_id, msg.header.stamp = 'base_link', rospy.Time.now()
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = target[:3, 3]
+        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+         msg.pose.orientation.w) = quat_from_matrix(target)
+        pub.publish(msg)
+        sent += 1
+        time.sleep(period)                        # the stream's own pace, as a hand tracker sends
+    silent = rospy.Time.now().to_sec()
+    dp, _ = pose_error(tool_in_base(here(joints)), target)
+    assert dp < 0.01, dp
+    held = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm'
+                                  and m.header.stamp.to_sec() > silent and m.speed == 0.0), None), HANG,
+                    'the arm at rest after the stream')
+    assert held.header.stamp.to_sec() - silent < 5.0
+    pub.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
+def test_a_controller_that_crashes_mid_goal_aborts_it_naming_the_controller(arm, truth):
+    joints, _ = truth
+    far = list(HOLD)
+    far[0] -= 1.2
+    arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+    wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.1, HANG, 'the arm moving')
+    pid = next(p['pid'] for p in er_processes() if 'left_arm_controller' in str(p['command']))
+    os.kill(pid, signal.SIGKILL)
+    assert arm.wait_for_result(rospy.Duration(HANG))
+    assert arm.get_state() == GoalStatus.ABORTED
+    assert arm.get_result().error_code == MoveArmResult.CONTROLLER_FAILED, arm.get_goal_status_text()
+    assert 'controller' in arm.get_goal_status_text()
+    q = settled(joints)
+    assert abs(q[0] - far[0]) > 0.1 and math.isfinite(q[0])
