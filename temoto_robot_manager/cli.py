@@ -6,6 +6,9 @@
                                          (Ctrl-C cancels the goal: the robot stops)
     temoto robots gripper open | close | GAP   load a robot's gripper, open, close or set the gap
                                          between its pads (m), print how it ended, release it
+    temoto robots arm ARM POSE | --joints Q.. | --pose X Y Z [R P Y]   load a robot's manipulation, move
+                                         the arm to a named pose, joint positions or a tool pose in --frame
+                                         (Ctrl-C cancels: the arm holds)
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import actionlib
 import rospy
 from actionlib_msgs.msg import GoalStatus
 from control_msgs.msg import GripperCommand, GripperCommandAction, GripperCommandGoal
+from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from std_msgs.msg import Float32
 
@@ -29,6 +33,7 @@ from temoto_core.srv import GetRegistry
 from temoto_robot_manager.contract import ROBOTS, RR_NAME
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal
 
 TIMEOUT = 5.0
 
@@ -50,6 +55,16 @@ def _parser() -> argparse.ArgumentParser:
     h.add_argument('--robot', default='', help='the robot (default: the most reliable one with a gripper)')
     h.add_argument('--effort', type=float, default=0.0, help='the most force, N (default: the gripper\'s own)')
     h.add_argument('--timeout', type=float, default=30.0, help='seconds before the goal is cancelled (30)')
+    a = sub.add_parser('arm', help='move an arm to a named pose, joint positions, or a pose of its tool')
+    a.add_argument('arm', help='an arm of the robot\'s manipulation (left_arm, right_arm for the VaultBot)')
+    a.add_argument('pose', nargs='?', default='', help='a named pose of the arm (hold)')
+    a.add_argument('--joints', nargs='+', type=float, metavar='Q', help='one position per joint, rad')
+    a.add_argument('--pose', dest='tool', nargs='+', type=float, metavar='V',
+                   help='the tool\'s X Y Z (m), and optionally ROLL PITCH YAW (rad; default 0 0 0)')
+    a.add_argument('--frame', default='base_link', help='the frame of --pose (default base_link)')
+    a.add_argument('--speed', type=float, default=0.0, help='of each joint\'s speed limit, (0, 1] (default 0.5)')
+    a.add_argument('--robot', default='', help='the robot (default: the most reliable one with manipulation)')
+    a.add_argument('--timeout', type=float, default=60.0, help='seconds before the goal is cancelled (60)')
     return ap
 
 
@@ -246,6 +261,70 @@ def _gripper(opts) -> int:
     return code
 
 
+def _arm_goal(opts) -> Optional[MoveArmGoal]:
+    """The goal the options ask for; None (said why) when they ask for none or for two."""
+    given = [w for w, v in (('POSE', opts.pose), ('--joints', opts.joints), ('--pose', opts.tool)) if v]
+    if len(given) != 1:
+        print('error: give one of a named POSE, --joints and --pose (given: %s)' % (', '.join(given) or 'none'),
+              file=sys.stderr)
+        return None
+    if opts.tool:
+        if len(opts.tool) not in (3, 6):
+            print('error: --pose takes X Y Z, or X Y Z ROLL PITCH YAW', file=sys.stderr)
+            return None
+        pose = PoseStamped()
+        pose.header.frame_id = opts.frame
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = opts.tool[:3]
+        roll, pitch, yaw = opts.tool[3:] if len(opts.tool) == 6 else (0.0, 0.0, 0.0)
+        cr, sr, cp, sp, cy, sy = (math.cos(roll / 2), math.sin(roll / 2), math.cos(pitch / 2), math.sin(pitch / 2),
+                                  math.cos(yaw / 2), math.sin(yaw / 2))
+        o = pose.pose.orientation
+        o.w, o.x = cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy
+        o.y, o.z = cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy
+        return MoveArmGoal(pose=pose, speed_scale=opts.speed)
+    return MoveArmGoal(named_pose=opts.pose, joint_positions=opts.joints or [], speed_scale=opts.speed)
+
+
+def _arm(opts) -> int:
+    """Hold the robot's manipulation for one arm goal."""
+    robot = _robot_with(opts.ns, 'manipulation', opts.robot)
+    if robot is None:
+        return 2
+    if opts.arm not in robot['arms']:
+        print('error: %s has no arm %r (its arms: %s)' % (robot['name'], opts.arm, ', '.join(sorted(robot['arms']))),
+              file=sys.stderr)
+        return 2
+    goal = _arm_goal(opts)
+    if goal is None:
+        return 2
+    held = _hold(opts.ns, robot, 'manipulation', 'temoto_robots_arm')
+    if held is None:
+        return 1
+    client = actionlib.SimpleActionClient('/%s/move_arm' % opts.arm, MoveArmAction)
+    code = 1
+    try:
+        if not client.wait_for_server(rospy.Duration(30.0)):
+            print('error: no manipulator for %s after 30 s' % opts.arm, file=sys.stderr)
+            return 1
+        print('moving %s' % opts.arm, flush=True)
+        client.send_goal(goal)
+        if not client.wait_for_result(rospy.Duration(opts.timeout)):
+            client.cancel_goal()
+            print('error: not there after %.0f s: cancelled, the arm holds' % opts.timeout, file=sys.stderr)
+            return 1
+        state, text = client.get_state(), client.get_goal_status_text()
+        print('%s: %s' % ({GoalStatus.SUCCEEDED: 'there', GoalStatus.REJECTED: 'refused'}.get(state, 'failed'), text),
+              flush=True)
+        code = 0 if state == GoalStatus.SUCCEEDED else 1
+    except KeyboardInterrupt:
+        client.cancel_goal()
+        print('cancelled: the arm holds', flush=True)
+        code = 130
+    finally:
+        _let_go(held, 'temoto robots arm')
+    return code
+
+
 def main(argv: List[str]) -> int:
     opts = _parser().parse_args(argv)
     if opts.cmd == 'check':
@@ -254,4 +333,6 @@ def main(argv: List[str]) -> int:
         return _go(opts)
     if opts.cmd == 'gripper':
         return _gripper(opts)
+    if opts.cmd == 'arm':
+        return _arm(opts)
     return _list(opts.ns)

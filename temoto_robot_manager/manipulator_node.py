@@ -7,8 +7,10 @@
   accepted goal runs as a ``FollowJointTrajectory`` goal of the arm's controller, whose result it passes
   on (an abort says the controller's reason). A new goal preempts; a cancel holds the arm where it is;
 - ``<arm>/servo_target`` (``geometry_msgs/PoseStamped``, a stream): the tool follows it (``servo.py``),
-  sent to the controller's servo input at ``~servo_rate``. A target older than ``SERVO_TIMEOUT_S`` is
-  not followed: the node falls silent and the controller's own deadman (0.1 s) holds the arm. A
+  sent to the controller's servo input as each target arrives (its latency is one step's computation),
+  and at ``~servo_rate`` between targets. When the newest target is older than ``SERVO_TIMEOUT_S`` the
+  node sends one hold (zero velocities where the arm is) and falls silent; the controller's own
+  deadman (0.1 s) would hold the arm too, one timeout later. A
   trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
   ``<arm>/servo_status`` (``std_msgs/String``) when it changes.
 
@@ -48,8 +50,7 @@ from temoto_robot_manager.servo import Servo
 
 SERVO_TIMEOUT_S = 0.1        # a target this old is not followed (MoveIt Servo's incoming_command_timeout)
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
-COLLISION_EVERY = 2          # servo steps per self-collision check (25 Hz at 50 Hz: MoveIt Servo checks at 50 Hz)
-WATCH_PERIOD_S = 0.02
+COLLISION_PERIOD_S = 0.04    # between two self-collision checks of the servo (25 Hz; MoveIt Servo checks at 50 Hz)
 
 
 class ManipulatorNode:
@@ -72,6 +73,11 @@ class ManipulatorNode:
         self.servo_rate = params.number('servo_rate', 50.0, above=0, maximum=500)
         self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
         self.lock = threading.Lock()
+        self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick
+        self._new_target = False
+        self._checked_at = 0.0                         # the servo's last self-collision check
+        self._streaming = False                        # servo commands are being sent
+        self._controller_seen = False                  # connected to the controller's status once
         self.q: Optional[List[float]] = None
         self.q_at = 0.0
         self.target: Optional[np.ndarray] = None
@@ -126,6 +132,8 @@ class ManipulatorNode:
             return
         with self.lock:
             self.target, self.target_at = target, time.monotonic()
+            self._new_target = True
+            self.wake.notify()
 
     def _touches(self, q) -> Optional[str]:
         near = self.body.nearest(dict(zip(self.arm.joints, q)), 0.0)
@@ -162,6 +170,7 @@ class ManipulatorNode:
             previous, self.active = self.active, handle
             self.holders.new_goal()
             self.target = None                   # a trajectory takes the arm from the servo stream
+            self._streaming = False
         if previous is not None:
             previous.set_canceled(self._result(MoveArmResult.PREEMPTED), 'preempted by goal %s'
                                   % handle.get_goal_id().id)
@@ -205,43 +214,65 @@ class ManipulatorNode:
     # -- the loop: holders, the controller, and the servo stream ---------------------------------------------
     def spin(self) -> None:
         period = 1.0 / self.servo_rate
-        next_at, steps = time.monotonic(), 0
+        next_at = time.monotonic()
         while ok():
+            with self.wake:
+                delay = next_at - time.monotonic()
+                if delay > 0 and not self._new_target:
+                    self.wake.wait(delay)
+                self._new_target = False
             now = time.monotonic()
-            self._watch_goal()
-            with self.lock:
-                running = self.active is not None
-                target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
-                q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
-            if target is not None and q is not None and not running:
-                steps += 1
-                self.servo.body_distance = self._body_distance if steps % COLLISION_EVERY == 0 else None
-                step = self.servo.step(q, target)
-                self._say(step.why)
-                point = JointTrajectoryPoint(positions=step.positions, velocities=step.velocities)
-                msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
-                msg.header.stamp = rospy.Time.now()
-                self.pub_servo.publish(msg)
-            next_at += period
-            delay = next_at - time.monotonic()
-            if delay < 0:
-                next_at = time.monotonic()
-            else:
-                time.sleep(delay)
+            if now >= next_at:
+                next_at = max(next_at + period, now)
+                self._watch_goal()
+            self._servo(now)
+
+    def _servo(self, now: float) -> None:
+        """One servo step towards the latest target, if it is fresh, the arm's state is, and no goal runs."""
+        with self.lock:
+            if self.active is not None:
+                return
+            target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
+            q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
+        if target is None or q is None:
+            if self._streaming and q is not None:
+                # the stream fell silent: hold now, rather than one more deadman later at the controller
+                self._streaming = False
+                self._send(q, [0.0] * len(q))
+                self._say('holding: no target for %.1f s' % SERVO_TIMEOUT_S)
+            return
+        self._streaming = True
+        check = now - self._checked_at >= COLLISION_PERIOD_S
+        if check:
+            self._checked_at = now
+        self.servo.body_distance = self._body_distance if check else None
+        step = self.servo.step(q, target)
+        self._say(step.why)
+        self._send(step.positions, step.velocities)
+
+    def _send(self, positions, velocities) -> None:
+        point = JointTrajectoryPoint(positions=list(positions), velocities=list(velocities))
+        msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
+        msg.header.stamp = rospy.Time.now()
+        self.pub_servo.publish(msg)
 
     def _watch_goal(self) -> None:
+        """End the running goal at once when its holder or its controller is gone; the arm holds."""
+        code = MoveArmResult.PREEMPTED
         with self.lock:
             handle = self.active
             gone = self.holders.gone(handle.get_goal_id().id) if handle is not None else None
-            if gone is None and handle is not None and self._controller_status.get_num_connections() == 0:
-                gone = 'the arm\'s controller is gone'
+            if gone is None and handle is not None:
+                if self._controller_status.get_num_connections() > 0:
+                    self._controller_seen = True
+                elif self._controller_seen:
+                    code, gone = MoveArmResult.CONTROLLER_FAILED, 'the arm\'s controller is gone'
             if gone is not None:
                 self.active = None
         if gone is None:
             return
         self.controller.cancel_goal()
         rospy.logwarn('manipulator: goal %s: %s: the arm holds', handle.get_goal_id().id, gone)
-        code = MoveArmResult.CONTROLLER_FAILED if 'controller' in gone else MoveArmResult.PREEMPTED
         handle.set_aborted(self._result(code, gone), '%s: the arm holds' % gone)
 
     def _say(self, why: str) -> None:

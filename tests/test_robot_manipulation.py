@@ -5,6 +5,8 @@ each arm's controller and manipulator; goals go through ``<arm>/move_arm`` and t
 import math
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import actionlib
@@ -192,6 +194,31 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
     pub.unregister()
     state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
     assert state == GoalStatus.SUCCEEDED, text
+
+
+def test_temoto_robots_arm_moves_an_arm_and_refuses_what_cannot_be(arm, truth):
+    joints, _ = truth
+    unknown = temoto('arm', 'tail_arm', 'hold')
+    assert unknown.returncode == 2 and "vaultbot has no arm 'tail_arm' (its arms: left_arm, right_arm)" in \
+        unknown.stderr, unknown.stderr
+    both = temoto('arm', 'left_arm', 'hold', '--joints', '0', '0')
+    assert both.returncode == 2 and 'give one of a named POSE, --joints and --pose (given: POSE, --joints)' in \
+        both.stderr, both.stderr
+    short = temoto('arm', 'left_arm', '--joints', '0.1', '0.2')
+    assert short.returncode == 1 and 'refused: joint_positions has 2 values for the 6 joints' in short.stdout, \
+        short.stdout + short.stderr
+    target = list(HOLD)
+    target[0] += 0.3
+    moved = temoto('arm', 'left_arm', '--joints', *[str(v) for v in target], '--speed', '0.9')
+    assert moved.returncode == 0 and 'there' in moved.stdout, moved.stdout + moved.stderr
+    assert max(abs(a - b) for a, b in zip(settled(joints), target)) < 0.02
+    back = temoto('arm', 'left_arm', 'hold')
+    assert back.returncode == 0, back.stdout + back.stderr
+
+
+def temoto(*args, timeout=120):
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'] + list(args), capture_output=True,
+                          text=True, timeout=timeout)
 
 
 def test_a_controller_that_crashes_mid_goal_aborts_it_naming_the_controller(arm, truth):
