@@ -159,9 +159,11 @@ def main() -> int:
                 pub.publish(pose_msg(target))
                 got = wait_for(lambda: next((at for at, _ in commands.since(t)), None), HANG, 'a servo command')
                 latency.append(got - t)
-                time.sleep(max(0.0, t + 0.05 - time.monotonic()))     # the stream's own pace: 20 Hz
-            last = time.monotonic()
-            silent_hold.append(arm_held_after(states, last + 0.001) - last)
+                last = t
+                if k < 39:
+                    time.sleep(max(0.0, t + 0.05 - time.monotonic()))     # the stream's own pace: 20 Hz
+            # the first hold after the last target, from the moment that target was sent
+            silent_hold.append(arm_held_after(states, last + 0.05) - last)
             home(client)
         pub.unregister()
         # 5. an arm goal's client killed mid-motion

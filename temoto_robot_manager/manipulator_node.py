@@ -217,7 +217,10 @@ class ManipulatorNode:
         next_at = time.monotonic()
         while ok():
             with self.wake:
-                delay = next_at - time.monotonic()
+                wake_at = next_at
+                if self._streaming:               # the stream's silence is acted on at its moment, not a tick later
+                    wake_at = min(wake_at, self.target_at + SERVO_TIMEOUT_S + 0.0005)
+                delay = wake_at - time.monotonic()
                 if delay > 0 and not self._new_target:
                     self.wake.wait(delay)
                 self._new_target = False
