@@ -83,6 +83,14 @@ def test_an_arm_tracks_its_setpoint_within_its_limits_and_holds_when_the_stream_
     assert arm.at_rest and peak / ACCEL <= 0.4 + 1e-9, 'braked to a hold at its limit'
 
 
+def test_a_setpoint_that_stops_a_moving_arm_says_so_for_its_moment_to_be_published():
+    b = body(Walls(wall=100.0))
+    assert not b.command_arm('arm', {'j1': (0.0, 0.0), 'j2': (0.0, 0.0)}, 0.0)        # not moving: nothing stops
+    assert not b.command_arm('arm', {'j1': (1.0, 0.5), 'j2': (0.0, 0.0)}, 0.01)
+    assert b.command_arm('arm', {'j1': (0.3, 0.0), 'j2': (0.0, 0.0)}, 0.02)           # the hold's moment
+    assert not b.command_arm('arm', {'j1': (0.3, 0.0), 'j2': (0.0, 0.0)}, 0.03)       # held already
+
+
 def test_an_arm_that_touches_the_world_is_put_back_and_its_setpoint_dropped():
     b = body(Walls(wall=100.0, table=0.5))
     run(b, 2.0, 0.0, arm={'j1': (1.0, 0.0), 'j2': (0.0, 0.0)})

@@ -55,10 +55,14 @@ class Body:
             self.lock.notify()
             return moving and self.base.commanded == (0.0, 0.0)
 
-    def command_arm(self, arm: str, setpoint: Mapping[str, Tuple[float, float]], now: float) -> None:
+    def command_arm(self, arm: str, setpoint: Mapping[str, Tuple[float, float]], now: float) -> bool:
+        """An arm's setpoint; True when it makes the commanded joint speed zero now (a hold's moment)."""
         with self.lock:
-            self.arms[arm].command(setpoint, now)
+            plant = self.arms[arm]
+            moving = plant.setpoint is not None and any(v != 0.0 for _, v in plant.setpoint.values())
+            plant.command(setpoint, now)
             self.lock.notify()
+            return moving and all(v == 0.0 for _, v in plant.setpoint.values())
 
     def stop_arm(self, arm: str, now: float) -> None:
         with self.lock:

@@ -237,8 +237,9 @@ class SimNode:
             if len(msg.name) != len(msg.position) or len(msg.name) != len(msg.velocity):
                 raise ValueError('%d names, %d positions and %d velocities' % (len(msg.name), len(msg.position),
                                                                                len(msg.velocity)))
-            self.body.command_arm(arm, {n: (q, v) for n, q, v in zip(msg.name, msg.position, msg.velocity)},
-                                  time.monotonic())
+            if self.body.command_arm(arm, {n: (q, v) for n, q, v in zip(msg.name, msg.position, msg.velocity)},
+                                     time.monotonic()):
+                self._publish_arm(arm, rospy.Time.now())      # the hold's moment, not the next step's
         except ValueError as e:
             rospy.logerr_throttle(1.0, 'vaultbot_sim: %s command refused: %s' % (arm, e))
 
