@@ -22,7 +22,7 @@ from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal, MoveArmResult
 from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.motion import ARM_CLIENT
-from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_stack
+from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_manager, start_robot_stack
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix
 from vaultbot_sim.msg import ArmState
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
@@ -46,10 +46,12 @@ def arm(stack):
         rm = make()
         robot = rm.load_robot(['manipulation'], on_status=lambda event: None)   # a part's failure: tested below
         assert {'manipulation.left_arm.manipulator', 'manipulation.right_arm.manipulator'} <= set(robot.parts)
+        manager = stack.robot_manager
         client = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
         assert client.wait_for_server(rospy.Duration(HANG)), 'the left arm\'s manipulator'
         yield client
-        rm.release(robot.resource_id)
+        if stack.robot_manager is manager:      # a test that kills the manager takes the hold with it
+            rm.release(robot.resource_id)
     managers_idle(('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager'), timeout=30)
 
 
@@ -235,3 +237,29 @@ def test_a_controller_that_crashes_mid_goal_aborts_it_naming_the_controller(arm,
     assert 'controller' in arm.get_goal_status_text()
     q = settled(joints)
     assert abs(q[0] - far[0]) > 0.1 and math.isfinite(q[0])
+
+
+def test_the_arm_holds_at_once_when_the_robot_manager_dies_mid_goal(stack, truth):
+    """The right arm (its controller is whole): the manager that started its manipulator is SIGKILLed while a goal
+    runs; the goal ends naming it and the arm holds, before any respawn."""
+    _, states = truth
+    right = actionlib.SimpleActionClient('/right_arm/move_arm', MoveArmAction)
+    assert right.wait_for_server(rospy.Duration(HANG))
+    far = [HOLD_POSE['right_%s_joint' % j] for j in ARM_JOINTS]
+    far[0] += 1.2
+    right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+    wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
+             'the right arm moving')
+    os.kill(stack.robot_manager.pid, signal.SIGKILL)
+    killed = rospy.Time.now().to_sec()
+    held = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'right_arm'
+                                  and m.header.stamp.to_sec() > killed and m.commanded_speed == 0.0), None),
+                    HANG, 'the right arm commanded to hold')
+    assert held.header.stamp.to_sec() - killed < 5.0               # generous: catches a hang
+    assert right.wait_for_result(rospy.Duration(HANG))
+    assert right.get_state() == GoalStatus.ABORTED
+    assert 'the Robot Manager that started this manipulator is gone' in right.get_goal_status_text()
+    # the manager's parts go with it (the ER Manager sees its consumer die); a new manager starts clean
+    wait_for(lambda: not any('manipulator' in str(p['command']) for p in er_processes()), HANG,
+             'the manipulators released with their dead manager')
+    stack.robot_manager = start_robot_manager(stack)
