@@ -18,7 +18,7 @@ A goal whose holder is gone (its client, or the Robot Manager that started this 
 is cancelled at once, and the arm holds.
 
 Private parameters: ``~description`` (a robot description file), ``~robot``, ``~arm`` (an arm of its
-manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 50).
+manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 125, MoveIt Servo's).
 """
 from __future__ import annotations
 
@@ -70,7 +70,7 @@ class ManipulatorNode:
         reference = dict(zip(self.arm.joints, self.arm.named_poses.get('hold', [0.0] * self.kin.n)))
         self.body = SelfCollision(urdf, self.arm.joints, reference)
         self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches)
-        self.servo_rate = params.number('servo_rate', 50.0, above=0, maximum=500)
+        self.servo_rate = params.number('servo_rate', 125.0, above=0, maximum=500)
         self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick

@@ -169,6 +169,21 @@ def test_a_goal_whose_client_dies_stops_the_arm(stack, arm, truth):
     assert state == GoalStatus.SUCCEEDED, text
 
 
+def test_a_second_goal_preempts_the_first_and_the_arm_goes_to_the_second(arm, truth):
+    joints, _ = truth
+    far = list(HOLD)
+    far[0] += 1.2
+    arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.2))
+    wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.05, HANG, 'the arm moving to the first goal')
+    second = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
+    assert second.wait_for_server(rospy.Duration(HANG))
+    state, _, text = run(second, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+    assert arm.wait_for_result(rospy.Duration(HANG))
+    assert arm.get_state() == GoalStatus.PREEMPTED and 'preempted by goal' in arm.get_goal_status_text()
+    assert max(abs(a - b) for a, b in zip(settled(joints), HOLD)) < 0.02
+
+
 def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(arm, truth):
     joints, states = truth
     start = tool_in_base(settled(joints))
