@@ -120,6 +120,16 @@ def _stale(uri: str, node_name: str, publishers: list, subscribers: list, timeou
     return not expected <= there
 
 
+def registration_alive(master_uri: str, node_name: str, timeout: float = 1.0) -> bool:
+    """Whether ``node_name`` is registered by a live node: not unregistered, and not left over by a dead process
+    (:func:`_stale`, which also tells a dead node's port now given to another node)."""
+    uri = lookup_node(master_uri, node_name, timeout)
+    if uri is None:
+        return False
+    code, _msg, (publishers, subscribers, _services) = _proxy(master_uri, timeout).getSystemState(CALLER_ID)
+    return code == 1 and not _stale(uri, node_name, publishers, subscribers, timeout)
+
+
 def cleanup_dead_node(master_uri: str, node_name: str, timeout: float = 1.0) -> int:
     """Unregister what a dead node left at the master, as ``rosnode cleanup`` does for one node.
 

@@ -125,6 +125,9 @@ class ERManager:
                                         self.config, base_ns=rospy.get_namespace())
                 plan = self.resolver.resolve(lreq, name_taken=self._name_taken)
                 self._refuse_taken_names(plan)
+                # what a dead node of these names left at the master goes first: the master would send the new
+                # node's predecessor a shutdown, and a live node that has the dead one's port now would get it
+                self._cleanup_master([n for spec in plan.specs for n in spec.node_names])
             except RequestRefused as e:
                 rospy.logwarn('%s: refused load_process from %s (%s %s %s %r): %s', NAME, client, req.action,
                               req.package_name, req.executable, req.args, e)
@@ -282,11 +285,11 @@ class ERManager:
             if resource.state() != 'exited' and any(full_name in spec.node_names for spec in resource.plan.specs):
                 return True
         try:
-            uri = master.lookup_node(self.master_uri, full_name)
+            # a stale registration (a node that was SIGKILLed never unregisters) does not count, even when its
+            # port has been given to another node since, which then answers there
+            return master.registration_alive(self.master_uri, full_name)
         except OSError:
             return False
-        # a stale registration (a node that was SIGKILLed never unregisters) does not count
-        return uri is not None and master.node_pid(uri) is not None
 
     # -- recovery after a restart ---------------------------------------------------------------------
 

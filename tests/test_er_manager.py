@@ -510,6 +510,25 @@ def test_a_node_name_in_use_by_a_live_node_is_refused_and_that_node_lives_on(con
     c.rr.unload(held.trr.resource_id)
 
 
+def test_a_name_left_by_a_dead_node_whose_port_another_node_has_now_is_free(consumers, rospy_client):
+    """A SIGKILLed node never unregisters. When its port goes to another node, that node answers at the dead one's
+    URI: the name must still count as free (CI once refused a test's own restart so), and starting it must not
+    shut down the node that has the port now."""
+    import xmlrpc.client
+
+    import rosgraph
+    import rospy
+    master = xmlrpc.client.ServerProxy(rosgraph.get_master_uri())
+    # the dead /ghost's registration, at the URI this process (a live node) has now
+    code, _msg, _ = master.registerPublisher('/ghost', '/ghost/chatter', 'std_msgs/String', rospy.get_node_uri())
+    assert code == 1
+    c = consumers()
+    node = c.load('er_test_node', '__name:=ghost')
+    assert node_pid('/ghost') == node.pid and node_pid(rospy.get_name()) == os.getpid()
+    c.rr.unload(node.trr.resource_id)
+    wait_for(lambda: pid_gone(node.pid), 10, 'the ghost to stop')
+
+
 def test_two_different_requests_for_one_explicit_name_cannot_kill_each_other(consumers):
     """``__name:=d _v:=1`` and ``__name:=d _v:=2`` at once: one starts, the other is refused (the master
     used to shut the first down when the second registered)."""
