@@ -4,7 +4,7 @@
   wanted between the pads (m, 0 to the stroke), ``command.max_effort`` the force allowed (N; 0: the
   gripper's own). A goal is checked before anything moves and refused with a text naming what is wrong.
   An accepted one is streamed to the motor at ``~rate`` with feedback, and ends:
-  - SUCCEEDED, ``reached_goal``: within ``GOAL_TOLERANCE`` of the gap wanted;
+  - SUCCEEDED, ``reached_goal``: within ``GOAL_TOLERANCE`` of the gap wanted, the fingers at rest;
   - SUCCEEDED, ``stalled``: the fingers stopped short of it for ``STALL_TIME_S`` (an object between the
     pads: a grasp). The controller reads its stall from the fingers' joint states, as a real one reads
     its encoders, not from the simulation's word;
@@ -34,7 +34,7 @@ from vaultbot_sim.spec import GRIPPER_JOINTS
 from vaultbot_sim.ticks import Ticks
 
 RATE_HZ = 50.0
-GOAL_TOLERANCE = 0.002      # m of the gap
+GOAL_TOLERANCE = 0.0005     # m of the gap, with the fingers at rest: stopped while moving, they stop short of it
 STALL_TIME_S = 0.2          # s without the gap moving STALL_MOTION: stalled
 STALL_MOTION = 0.0005       # m
 DEFAULT_EFFORT = 100.0      # N, when the goal gives 0 (a 2F-85 closes with 20 to 235 N)
@@ -66,6 +66,7 @@ class GripperController:
         action = params.text('action', 'gripper/gripper_command', empty=False)
         self.lock = threading.Lock()
         self.gap: Optional[float] = None
+        self.moving = 0.0                         # m/s of the gap now, from the finger joints' velocities
         self._gap_seen = threading.Event()
         self.pub = rospy.Publisher('gripper/joint_command', JointState, queue_size=10, tcp_nodelay=True)
         self.cable = CableFollower('gripper', 'gripper: controller', self.sim_ns)
@@ -83,8 +84,10 @@ class GripperController:
 
     def _on_joint_states(self, msg: JointState) -> None:
         if GRIPPER_JOINTS[0] in msg.name:
+            i = msg.name.index(GRIPPER_JOINTS[0])
             with self.lock:
-                self.gap = 2 * msg.position[msg.name.index(GRIPPER_JOINTS[0])]
+                self.gap = 2 * msg.position[i]
+                self.moving = 2 * msg.velocity[i] if len(msg.velocity) > i else 0.0
             self._gap_seen.set()
 
     def _gap(self) -> float:
@@ -133,7 +136,9 @@ class GripperController:
                 return
             self.send(target)
             gap, now = self._gap(), time.monotonic()
-            if abs(gap - target) <= GOAL_TOLERANCE:
+            with self.lock:
+                at_rest = self.moving == 0.0
+            if abs(gap - target) <= GOAL_TOLERANCE and at_rest:
                 self.stop()
                 self._end(self._result(True, False, 0.0), 'reached %.1f mm in %.2f s' % (1000 * gap, now - t0))
                 return
