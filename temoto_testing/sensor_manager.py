@@ -21,9 +21,19 @@ def start_er_manager(launcher, log_dir):
     return launcher.node('temoto_er_manager', 'temoto_er_manager', params=dict(ER_PARAMS, log_dir=str(log_dir)))
 
 
-def start_sensor_manager(launcher, first_data_timeout=20.0, extra=FAKE_CATALOGUE, name='temoto_sensor_manager'):
-    proc = launcher.node('temoto_sensor_manager', 'temoto_sensor_manager', name=name,
-                         params={'extra_catalogues': extra, 'first_data_timeout': first_data_timeout})
+# A driver's start-up allowance for the stacks whose tests are not about start-up speed: the product's 4 s
+# (temoto_sensor_manager DEFAULT_FIRST_DATA_ALLOWANCE) covers a loaded robot, not a CI machine running two
+# workers' simulations on 2 cores, where a healthy driver's first message once came later (a SICK, a fake
+# camera) and a test failed on a start-up it was not about. bench_sensor.py and bench_sim.py measure start-ups.
+GENEROUS_ALLOWANCE = 10.0
+
+
+def start_sensor_manager(launcher, first_data_timeout=20.0, extra=FAKE_CATALOGUE, name='temoto_sensor_manager',
+                         first_data_allowance=None):
+    params = {'extra_catalogues': extra, 'first_data_timeout': first_data_timeout}
+    if first_data_allowance is not None:
+        params['first_data_allowance'] = first_data_allowance
+    proc = launcher.node('temoto_sensor_manager', 'temoto_sensor_manager', name=name, params=params)
     rospy.wait_for_service('/%s/temoto_sensor_manager/start_sensor' % NS, timeout=20)
     return proc
 
@@ -130,7 +140,8 @@ def start_robot_stack(launcher, er_logs, **sim):
     start_sim(launcher, **sim)
     launcher.node('vaultbot_sim', 'base_controller')
     start_er_manager(launcher, er_logs)
-    start_sensor_manager(launcher, first_data_timeout=20.0, extra='')      # the VaultBot's sensors only
+    start_sensor_manager(launcher, first_data_timeout=20.0, extra='',       # the VaultBot's sensors only
+                         first_data_allowance=GENEROUS_ALLOWANCE)
     return start_robot_manager(launcher)
 
 

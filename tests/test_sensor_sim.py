@@ -16,8 +16,8 @@ from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
 from temoto_sensor_manager import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
-from temoto_testing.sensor_manager import (TopicWatch, catalogue, er_processes, managers_idle, pid_gone, set_cable,
-                                           start_er_manager, start_sensor_manager, start_sim)
+from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, TopicWatch, catalogue, er_processes, managers_idle,
+                                           pid_gone, set_cable, start_er_manager, start_sensor_manager, start_sim)
 
 HOGGED_RUN_S = 15.0        # a bounded run in the suite; bench_stall.py runs 10 minutes
 D435_TOPICS = {'camera_data': '/d435/depth_registered/points', 'camera_info': '/d435/color/camera_info'}
@@ -27,7 +27,7 @@ D435_TOPICS = {'camera_data': '/d435/depth_registered/points', 'camera_info': '/
 def stack(rospy_client, module_procs, tmp_path_factory):
     start_sim(module_procs)
     start_er_manager(module_procs, tmp_path_factory.mktemp('er_logs'))
-    start_sensor_manager(module_procs, first_data_timeout=20.0)
+    start_sensor_manager(module_procs, first_data_timeout=20.0, first_data_allowance=GENEROUS_ALLOWANCE)
     return module_procs
 
 
