@@ -17,7 +17,7 @@ import json
 import math
 import sys
 import time
-from typing import List, Optional
+from typing import Callable, List, Optional
 
 import actionlib
 import rospy
@@ -154,6 +154,29 @@ def _let_go(held, node: str) -> None:
     rospy.signal_shutdown('%s: done' % node)
 
 
+def _one_goal(held, node: str, client, server: str, starting: str, goal, timeout: float, stops: str,
+              report: Callable[[int, str, object], int]) -> int:
+    """Send one goal while the robot is held, print how it ended (``report`` returns the exit code), release the
+    robot. No result within ``timeout``, or Ctrl-C: the goal is cancelled and the motion ``stops``."""
+    try:
+        if not client.wait_for_server(rospy.Duration(30.0)):
+            print('error: no %s after 30 s' % server, file=sys.stderr)
+            return 1
+        print(starting, flush=True)
+        client.send_goal(goal)
+        if not client.wait_for_result(rospy.Duration(timeout)):
+            client.cancel_goal()
+            print('error: no result after %.0f s: cancelled, %s' % (timeout, stops), file=sys.stderr)
+            return 1
+        return report(client.get_state(), client.get_goal_status_text(), client.get_result())
+    except KeyboardInterrupt:
+        client.cancel_goal()
+        print('cancelled: %s' % stops, flush=True)
+        return 130
+    finally:
+        _let_go(held, node)
+
+
 def _go(opts) -> int:
     """Hold the robot's navigation for the goal's length, as an action would: the robot drives for a holder."""
     robot = _robot_with(opts.ns, 'navigation', opts.robot)
@@ -235,30 +258,17 @@ def _gripper(opts) -> int:
     if held is None:
         return 1
     client = actionlib.SimpleActionClient('/' + gripper['action'].lstrip('/'), GripperCommandAction)
-    code = 1
-    try:
-        if not client.wait_for_server(rospy.Duration(30.0)):
-            print('error: no gripper server on %s after 30 s' % gripper['action'], file=sys.stderr)
-            return 1
-        print('gripper to %.1f mm' % (1000 * gap), flush=True)
-        client.send_goal(GripperCommandGoal(command=GripperCommand(position=gap, max_effort=opts.effort)))
-        if not client.wait_for_result(rospy.Duration(opts.timeout)):
-            client.cancel_goal()
-            print('error: no result after %.0f s: cancelled, the fingers stop' % opts.timeout, file=sys.stderr)
-            return 1
-        state, text, result = client.get_state(), client.get_goal_status_text(), client.get_result()
+
+    def report(state: int, text: str, result) -> int:
         if state == GoalStatus.SUCCEEDED:
             print('%s: %s' % ('holding an object' if result.stalled else 'done', text), flush=True)
-            code = 0
-        else:
-            print('failed: %s' % text, flush=True)
-    except KeyboardInterrupt:
-        client.cancel_goal()
-        print('cancelled: the fingers stop', flush=True)
-        code = 130
-    finally:
-        _let_go(held, 'temoto robots gripper')
-    return code
+            return 0
+        print('failed: %s' % text, flush=True)
+        return 1
+    return _one_goal(held, 'temoto robots gripper', client, 'gripper server on %s' % gripper['action'],
+                     'gripper to %.1f mm' % (1000 * gap),
+                     GripperCommandGoal(command=GripperCommand(position=gap, max_effort=opts.effort)),
+                     opts.timeout, 'the fingers stop', report)
 
 
 def _arm_goal(opts) -> Optional[MoveArmGoal]:
@@ -301,28 +311,13 @@ def _arm(opts) -> int:
     if held is None:
         return 1
     client = actionlib.SimpleActionClient('/%s/move_arm' % opts.arm, MoveArmAction)
-    code = 1
-    try:
-        if not client.wait_for_server(rospy.Duration(30.0)):
-            print('error: no manipulator for %s after 30 s' % opts.arm, file=sys.stderr)
-            return 1
-        print('moving %s' % opts.arm, flush=True)
-        client.send_goal(goal)
-        if not client.wait_for_result(rospy.Duration(opts.timeout)):
-            client.cancel_goal()
-            print('error: not there after %.0f s: cancelled, the arm holds' % opts.timeout, file=sys.stderr)
-            return 1
-        state, text = client.get_state(), client.get_goal_status_text()
+
+    def report(state: int, text: str, _result) -> int:
         print('%s: %s' % ({GoalStatus.SUCCEEDED: 'there', GoalStatus.REJECTED: 'refused'}.get(state, 'failed'), text),
               flush=True)
-        code = 0 if state == GoalStatus.SUCCEEDED else 1
-    except KeyboardInterrupt:
-        client.cancel_goal()
-        print('cancelled: the arm holds', flush=True)
-        code = 130
-    finally:
-        _let_go(held, 'temoto robots arm')
-    return code
+        return 0 if state == GoalStatus.SUCCEEDED else 1
+    return _one_goal(held, 'temoto robots arm', client, 'manipulator for %s' % opts.arm, 'moving %s' % opts.arm,
+                     goal, opts.timeout, 'the arm holds', report)
 
 
 def main(argv: List[str]) -> int:
