@@ -45,7 +45,7 @@ from vaultbot_sim.world_map import world_map  # noqa: E402
 
 HANG = 60.0
 VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
-FOOTPRINT = Footprint.of(VAULTBOT.navigation.footprint)
+FOOTPRINT = Footprint.of(VAULTBOT.navigation.footprint, VAULTBOT.navigation.protrusions)
 PLACES = VAULTBOT.navigation.places
 
 

@@ -31,43 +31,59 @@ OCCUPIED_THRESHOLD = 50        # an OccupancyGrid value at or above this is an o
 
 @dataclass(frozen=True)
 class Footprint:
-    """The robot's outline on the floor, a rectangle in ``base_link``'s frame (m): everything it carries
-    included, as its arms hold while it drives. It need not be centred: the VaultBot's arms reach further
-    forward than its bumper does back."""
+    """The robot's outline on the floor, in ``base_link``'s frame (m): everything it carries included, as its
+    arms hold while it drives. A rectangle, which need not be centred (the VaultBot's arms reach further
+    forward than its bumper does back), and the parts that stick out of it (``protrusions``, rectangles too:
+    a gripper ahead of the bumper). A part is kept clear as the body is; it does not widen the outline all
+    round, as a rectangle grown to hold it would, and so the turning circle grows only as far as it reaches."""
     x_min: float
     x_max: float
     y_min: float
     y_max: float
+    protrusions: Tuple[Tuple[float, float, float, float], ...] = ()
 
     @classmethod
     def centred(cls, length: float, width: float) -> 'Footprint':
         return cls(-length / 2, length / 2, -width / 2, width / 2)
 
     @classmethod
-    def of(cls, numbers) -> 'Footprint':
-        """From a description's ``footprint``: [length, width] (centred) or [x_min, x_max, y_min, y_max]."""
-        return cls.centred(*numbers) if len(numbers) == 2 else cls(*numbers)
+    def of(cls, numbers, protrusions=()) -> 'Footprint':
+        """From a description's ``footprint``: [length, width] (centred) or [x_min, x_max, y_min, y_max], and
+        its ``protrusions``."""
+        body = cls.centred(*numbers) if len(numbers) == 2 else cls(*numbers)
+        return cls(body.x_min, body.x_max, body.y_min, body.y_max, tuple(tuple(p) for p in protrusions))
+
+    @property
+    def boxes(self) -> Tuple[Tuple[float, float, float, float], ...]:
+        """The body and each protrusion, as (x_min, x_max, y_min, y_max)."""
+        return ((self.x_min, self.x_max, self.y_min, self.y_max),) + self.protrusions
 
     @property
     def inscribed(self) -> float:
-        """From the base's origin to the outline's nearest side."""
+        """From the base's origin to the body's nearest side."""
         return min(-self.x_min, self.x_max, -self.y_min, self.y_max)
 
     @property
     def circumscribed(self) -> float:
         """From the base's origin to the outline's furthest corner."""
-        return max(math.hypot(x, y) for x in (self.x_min, self.x_max) for y in (self.y_min, self.y_max))
+        return max(math.hypot(x, y) for x0, x1, y0, y1 in self.boxes for x in (x0, x1) for y in (y0, y1))
 
     def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Which points (N x 2, base frame) are inside the outline grown by ``margin``."""
-        return ((points[:, 0] >= self.x_min - margin) & (points[:, 0] <= self.x_max + margin)
-                & (points[:, 1] >= self.y_min - margin) & (points[:, 1] <= self.y_max + margin))
+        inside = np.zeros(len(points), dtype=bool)
+        for x0, x1, y0, y1 in self.boxes:
+            inside |= ((points[:, 0] >= x0 - margin) & (points[:, 0] <= x1 + margin)
+                       & (points[:, 1] >= y0 - margin) & (points[:, 1] <= y1 + margin))
+        return inside
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Each point's distance (m) from the outline (0 inside)."""
-        dx = np.maximum(np.maximum(self.x_min - points[:, 0], points[:, 0] - self.x_max), 0.0)
-        dy = np.maximum(np.maximum(self.y_min - points[:, 1], points[:, 1] - self.y_max), 0.0)
-        return np.hypot(dx, dy)
+        nearest = np.full(len(points), np.inf)
+        for x0, x1, y0, y1 in self.boxes:
+            dx = np.maximum(np.maximum(x0 - points[:, 0], points[:, 0] - x1), 0.0)
+            dy = np.maximum(np.maximum(y0 - points[:, 1], points[:, 1] - y1), 0.0)
+            nearest = np.minimum(nearest, np.hypot(dx, dy))
+        return nearest
 
 
 def disk_offsets(radius_cells: float) -> Tuple[np.ndarray, np.ndarray]:

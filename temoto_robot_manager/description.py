@@ -62,6 +62,7 @@ FEATURES = ('navigation', 'manipulation', 'gripper')
 _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_frame', 'base_frame', 'footprint',
+                    'protrusions',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
@@ -107,6 +108,9 @@ class Navigation:
     footprint: Tuple[float, ...]          # [length, width] (centred) or [x_min, x_max, y_min, y_max] (m)
     obstacle_sources: Tuple[ObstacleSource, ...]
     places: Dict[str, Tuple[float, float, float]]
+    # what sticks out of the footprint's rectangle (a gripper ahead of the bumper), each [x_min, x_max, y_min,
+    # y_max] (m): part of the outline that is kept clear, without widening it all round
+    protrusions: Tuple[Tuple[float, float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -239,13 +243,23 @@ class _Reader:
             footprint = self.numbers(fp_raw, fp_at, 2, '[length, width] or [x_min, x_max, y_min, y_max]')
             if min(footprint) <= 0:
                 raise self.error(fp_at, '%s.footprint must be positive' % self.label(at))
+        pr_at, pr_raw = list(at) + ['protrusions'], raw.get('protrusions', [])
+        if not isinstance(pr_raw, list):
+            raise self.error(pr_at, '%s.protrusions must be a list of [x_min, x_max, y_min, y_max]' % self.label(at))
+        protrusions = []
+        for k, box in enumerate(pr_raw):
+            box = self.numbers(box, pr_at + [k], 4, '[x_min, x_max, y_min, y_max]')
+            if not (box[0] < box[1] and box[2] < box[3]):
+                raise self.error(pr_at + [k], '%s.protrusions[%d]: each min must be below its max'
+                                 % (self.label(at), k))
+            protrusions.append(box)
         return Navigation(
             self.part(raw['driver'], list(at) + ['driver']),
             self.part(raw['controller'], list(at) + ['controller']) if 'controller' in raw else None,
             self.text(raw, 'cmd_vel_topic', at, default='cmd_vel', name=True),
             self.text(raw, 'odom_topic', at, default='odom', name=True),
             self.text(raw, 'odom_frame', at, default='odom'), self.text(raw, 'base_frame', at, default='base_link'),
-            footprint, tuple(ranked), places)
+            footprint, tuple(ranked), places, tuple(protrusions))
 
     def arm(self, name: str, value: Any, at: Sequence) -> Arm:
         raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))

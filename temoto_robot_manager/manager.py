@@ -43,11 +43,13 @@ from temoto_core.srv import GetRegistry, GetRegistryResponse
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, ROBOTS, RR_NAME as NAME
 from temoto_robot_manager.description import ObstacleSource, Part, RobotDescription
-from temoto_robot_manager.obstacle_failover import ObstacleFailover
+from temoto_robot_manager.obstacle_failover import ObstacleFailover, Served
 from temoto_robot_manager.selection import choose_robot
 from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
 
 SUB = Subsystem.ROBOT_MANAGER
+LOADED_KEY = 'robot/%d'            # owner state: what a load holds, for the next incarnation (``_recover``)
+RELIABILITIES_KEY = 'reliabilities'
 RUNNING_CHECK_S = 5.0          # a part that runs with the robot must show its topic within this
 CHECK_PERIOD_S = 0.1
 
@@ -63,6 +65,7 @@ class RobotManager:
         self._lock = threading.Lock()
         self._robot_of_part: Dict[int, str] = {}     # a part's local id -> the robot it serves
         self._loaded: Dict[int, dict] = {}           # load_robot internal id -> what it holds
+        self._held: Dict[int, List[int]] = {}         # load_robot internal id -> its linked parts' local ids
         self.rr = ResourceRegistrar(NAME, namespace=namespace, subsystem=SUB, journal=journal_param())
         self.namespace = self.rr.namespace
         self._source_topics: Dict[str, rospy.Publisher] = {}
@@ -72,8 +75,14 @@ class RobotManager:
             pub.publish(String(rospy.get_name()))
         self.obstacles = ObstacleFailover(self._start_source, self.rr.unload, self._tell, self._announce_source,
                                           SUB, lambda text: rospy.logwarn('%s: %s', NAME, text))
+        kept = self.rr.owner_state()
+        self._restore_reliabilities(kept.get(RELIABILITIES_KEY))
+        self._records = {int(k.split('/')[1]): json.loads(v) for k, v in kept.items() if k.startswith('robot/')}
         self.rr.register_status_callback(self._on_part_status)
-        self.rr.add_server(LOAD_ROBOT, LOAD_ROBOT_TYPE, self._load, self._unload, recover=lambda q, s: None)
+        self.rr.add_server(LOAD_ROBOT, LOAD_ROBOT_TYPE, self._load, self._unload, recover=self._recover)
+        for stale in self._records:                   # a load the registry did not bring back
+            self.rr.drop_owner_state(LOADED_KEY % stale)
+        self._records.clear()
         self._info_srv = rospy.Service('/%s/%s/%s' % (self.namespace, NAME, ROBOTS), GetRegistry,
                                        lambda _req: GetRegistryResponse(json=self.info_json()))
         self.rr.resume()
@@ -90,32 +99,37 @@ class RobotManager:
         features = features or robot.features
         load_id = res.trr.resource_id
         parts: List[KeyValue] = []
+        held: List[int] = []                       # the local ids of the linked parts, for the journal
         try:
             if 'navigation' in features:
-                parts += self._navigation(robot, load_id)
+                parts += self._navigation(robot, load_id, held)
             if 'manipulation' in features:
                 for arm in robot.manipulation.values():
                     parts.append(self._part(robot, 'manipulation.%s.controller' % arm.name, arm.controller,
-                                            arm.action + '/status'))
+                                            arm.action + '/status', held))
                     if arm.manipulator is not None:
                         args = ' '.join(a for a in (arm.manipulator.args, '_description:=%s' % robot.path,
                                                     '_robot:=%s' % robot.name, '_arm:=%s' % arm.name,
                                                     '_owner_topic:=%s' % self.owner_topic(robot.name)) if a)
                         parts.append(self._part(robot, 'manipulation.%s.manipulator' % arm.name,
                                                 dataclasses.replace(arm.manipulator, args=args),
-                                                '%s/move_arm/status' % arm.name))
+                                                '%s/move_arm/status' % arm.name, held))
             if 'gripper' in features:
                 parts.append(self._part(robot, 'gripper.controller', robot.gripper.controller,
-                                        robot.gripper.action + '/status'))
+                                        robot.gripper.action + '/status', held))
         except TemotoError:
             self.obstacles.release(load_id)       # held on this manager's account: the registrar's rollback skips it
             self.reliability[robot.name].failure()
+            self._keep_reliabilities()
             raise
         self.reliability[robot.name].success()
+        self._keep_reliabilities()
         res.robot_name, res.features, res.parts = robot.name, features, parts
+        entry = {'robot': robot.name, 'features': features, 'parts': {kv.key: kv.value for kv in parts}}
         with self._lock:
-            self._loaded[load_id] = {'robot': robot.name, 'features': features,
-                                     'parts': {kv.key: kv.value for kv in parts}}
+            self._loaded[load_id] = entry
+            self._held[load_id] = held
+        self._keep_load(load_id)
         rospy.loginfo('%s: loaded %s with %s: %s', NAME, robot.name, ', '.join(features),
                       '; '.join('%s = %s' % (kv.key, kv.value) for kv in parts))
 
@@ -124,6 +138,62 @@ class RobotManager:
         self.obstacles.release(res.trr.resource_id)
         with self._lock:
             self._loaded.pop(res.trr.resource_id, None)
+            self._held.pop(res.trr.resource_id, None)
+        if self.rr.journaled:
+            self.rr.drop_owner_state(LOADED_KEY % res.trr.resource_id)
+
+    def _keep_load(self, load_id: int) -> None:
+        """What load ``load_id`` holds, kept across a crash of this manager (the journal, and the holder's
+        copy of the record): the robot, its parts and the obstacle source, watched again by ``_recover``."""
+        with self._lock:
+            entry, held = self._loaded.get(load_id), self._held.get(load_id, [])
+        if entry is None or not self.rr.journaled:       # a load in progress journals itself at its end
+            return
+        record = dict(entry, held=list(held))
+        served = self.obstacles.served(load_id)
+        if served is not None:
+            record['obstacles'] = {'source': served.source.label if served.source else '',
+                                   'local_id': served.local_id, 'sensor': served.sensor, 'topic': served.topic}
+        self.rr.put_owner_state(LOADED_KEY % load_id, json.dumps(record))
+
+    def _keep_reliabilities(self) -> None:
+        if self.rr.journaled:
+            self.rr.put_owner_state(RELIABILITIES_KEY, json.dumps(
+                {name: r.samples() for name, r in self.reliability.items()}))
+
+    def _restore_reliabilities(self, kept: Optional[str]) -> None:
+        for name, samples in (json.loads(kept) if kept else {}).items():
+            if name in self.reliability:
+                self.reliability[name].restore(samples)
+
+    # -- recovery after a restart ----------------------------------------------------------------------------
+    def _recover(self, req, res) -> None:
+        """A robot the previous incarnation loaded: its parts run on (their owners say so when this
+        registrar reclaims them, right after), so take back what this manager kept of it: which robot each
+        part serves, and the obstacle source, to fail over again when it fails."""
+        load_id = res.trr.resource_id
+        record = self._records.pop(load_id, None)
+        robot = self.robots.get(res.robot_name)
+        if record is None or robot is None:
+            raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, 'robot %s: %s' % (
+                res.robot_name, 'the journal has no record of its parts' if record is None
+                else 'it is not described any more'))
+        with self._lock:
+            self._loaded[load_id] = {k: record[k] for k in ('robot', 'features', 'parts')}
+            self._held[load_id] = [int(local_id) for local_id in record.get('held', [])]
+            for local_id in record.get('held', []):
+                self._robot_of_part[int(local_id)] = robot.name
+        kept = record.get('obstacles')
+        if kept is not None and robot.navigation is not None:
+            source = next((s for s in robot.navigation.obstacle_sources if s.label == kept['source']), None)
+            served = Served(robot.name, tuple(robot.navigation.obstacle_sources), source, int(kept['local_id']),
+                            kept['topic'], kept['sensor'])
+            if served.local_id:
+                with self._lock:
+                    self._robot_of_part[served.local_id] = robot.name
+            self.obstacles.adopt(load_id, served)
+        rospy.loginfo('%s: took robot %s back after a restart (load %d): %s', NAME, robot.name, load_id,
+                      ', '.join(sorted(record['parts'])))
 
     def owner_topic(self, robot: str) -> str:
         """The latched topic that the motion nodes of ``robot`` subscribe to: its connection's end tells them
@@ -134,13 +204,16 @@ class RobotManager:
         """The latched topic on which the navigator of ``robot`` hears which obstacle topic to read."""
         return '/%s/%s/%s/obstacle_source' % (self.namespace, NAME, robot)
 
-    def _announce_source(self, robot: str, topic: str) -> None:
+    def _announce_source(self, load_id: int, served: Served) -> None:
+        """Tell the navigator of ``served.robot`` its new obstacle topic; journal the load's new source."""
+        robot, topic = served.robot, served.topic
         with self._lock:
             pub = self._source_topics.get(robot)
             if pub is None:
                 pub = self._source_topics[robot] = rospy.Publisher(self.source_topic(robot), String, queue_size=1,
                                                                    latch=True)
         pub.publish(String(topic))
+        self._keep_load(load_id)
 
     def _tell(self, load_id: int, code: int, message: str) -> None:
         """A status of a loaded robot to its holders (the obstacle failover's steps)."""
@@ -157,9 +230,9 @@ class RobotManager:
         topic = dict((kv.key, kv.value) for kv in resp.output_topics).get(source.output_topic, '')
         return resp.trr.resource_id, resp.sensor_name, topic
 
-    def _navigation(self, robot: RobotDescription, load_id: int) -> List[KeyValue]:
+    def _navigation(self, robot: RobotDescription, load_id: int, held: List[int]) -> List[KeyValue]:
         nav = robot.navigation
-        parts = [self._part(robot, 'navigation.driver', nav.driver, nav.odom_topic)]
+        parts = [self._part(robot, 'navigation.driver', nav.driver, nav.odom_topic, held)]
         served = self.obstacles.take(load_id, robot.name, nav.obstacle_sources)
         with self._lock:
             self._robot_of_part[served.local_id] = robot.name
@@ -169,10 +242,10 @@ class RobotManager:
                                         '_obstacle_topic:=%s' % served.topic,
                                         '_obstacle_source_topic:=%s' % self.source_topic(robot.name)) if a)
             parts.append(self._part(robot, 'navigation.controller', dataclasses.replace(nav.controller, args=args),
-                                    'move_base/status'))
+                                    'move_base/status', held))
         return parts
 
-    def _part(self, robot: RobotDescription, label: str, part: Part, topic: str) -> KeyValue:
+    def _part(self, robot: RobotDescription, label: str, part: Part, topic: str, held: List[int]) -> KeyValue:
         """Start ``part`` through the ER Manager (linked), or check that it runs; raises naming the part."""
         if part.running:
             if topic and not self._published(topic):
@@ -189,6 +262,7 @@ class RobotManager:
                                self.rr.prefix) from None
         with self._lock:
             self._robot_of_part[resp.trr.resource_id] = robot.name
+        held.append(resp.trr.resource_id)
         if topic and not self._published(topic):
             raise TemotoError(ErrorCode.RESOURCE_FAILED, SUB, '%s of %s started (pid %d) but nothing publishes %s '
                               'after %.0f s' % (label, robot.name, resp.pid, rospy.resolve_name(topic),
@@ -221,6 +295,7 @@ class RobotManager:
             robot = self._robot_of_part.pop(event.resource_id, None)
         if robot is not None:
             self.reliability[robot].failure()
+            self._keep_reliabilities()
             rospy.logwarn('%s: a part of %s failed: %s', NAME, robot, event.message)
         self.obstacles.failed(event.resource_id, event.message)
 

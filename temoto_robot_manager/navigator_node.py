@@ -65,7 +65,7 @@ class NavigatorNode:
         self.map_frame: Optional[str] = None
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
-        self.nav = Navigator(Footprint.of(nav.footprint), Freshness())
+        self.nav = Navigator(Footprint.of(nav.footprint, nav.protrusions), Freshness())
         self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self._tf_listener = tf2_ros.TransformListener(self.tf)
         self.rate = params.number('rate', 20.0, above=0, maximum=200)

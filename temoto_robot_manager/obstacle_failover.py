@@ -44,13 +44,13 @@ class Served:
 
 
 # start(source) -> (local id, sensor name, topic); release(local id); tell(load id, code, message);
-# announce(robot, topic): the navigator's latched topic
+# announce(load id, served): a load's source is new (the navigator's latched topic, the journal)
 Start = Callable[[ObstacleSource], tuple]
 
 
 class ObstacleFailover:
     def __init__(self, start: Start, release: Callable[[int], None], tell: Callable[[int, int, str], None],
-                 announce: Callable[[str, str], None], subsystem: int, log: Callable[[str], None]) -> None:
+                 announce: Callable[[int, Served], None], subsystem: int, log: Callable[[str], None]) -> None:
         self._start, self._release, self._tell, self._announce = start, release, tell, announce
         self._subsystem, self._log = subsystem, log
         self._lock = threading.Lock()
@@ -71,8 +71,18 @@ class ObstacleFailover:
         with self._lock:
             self._served[load_id] = served
             self._by_source[local_id] = load_id
-        self._announce(robot, topic)
+        self._announce(load_id, served)
         return served
+
+    def adopt(self, load_id: int, served: Served) -> None:
+        """A source the previous incarnation of this manager held for ``load_id`` (a restart): watched and
+        failed over again from here on."""
+        with self._lock:
+            self._served[load_id] = served
+            if served.local_id:
+                self._by_source[served.local_id] = load_id
+        if served.topic:
+            self._announce(load_id, served)
 
     def release(self, load_id: int) -> None:
         """The robot is unloaded (or its load rolled back): its source goes too."""
@@ -84,6 +94,12 @@ class ObstacleFailover:
             self._by_source.pop(served.local_id, None)
         if served.local_id:
             self._release(served.local_id)
+
+    def served(self, load_id: int) -> Optional[Served]:
+        """A copy of what ``load_id`` holds now, or None."""
+        with self._lock:
+            served = self._served.get(load_id)
+            return dataclasses.replace(served) if served is not None else None
 
     def holds(self, local_id: int) -> bool:
         with self._lock:
@@ -122,7 +138,7 @@ class ObstacleFailover:
         if not keep:
             self._release(local_id)
             return
-        self._announce(served.robot, topic)
+        self._announce(load_id, served)
         self._tell(load_id, ResourceStatus.UPDATE, 'obstacles from %s (%s) on %s now; the robot drives on'
                    % (source.label, sensor, topic))
 

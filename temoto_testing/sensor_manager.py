@@ -126,10 +126,13 @@ def set_cable(device, state, mode=''):
     return time.monotonic()
 
 
-def start_robot_manager(launcher, descriptions=''):
-    """The Robot Manager, with the VaultBot's description unless ``descriptions`` names others."""
-    proc = launcher.node('temoto_robot_manager', 'temoto_robot_manager',
-                         params={'descriptions': descriptions} if descriptions else {})
+def start_robot_manager(launcher, descriptions='', journal=''):
+    """The Robot Manager, with the VaultBot's description unless ``descriptions`` names others; with a
+    ``journal`` path it runs under its warm-respawn parent (``proc``) and recovers after a crash."""
+    params = {'descriptions': descriptions} if descriptions else {}
+    if journal:
+        params['journal'] = journal
+    proc = launcher.node('temoto_robot_manager', 'temoto_robot_manager', params=params)
     rospy.wait_for_service('/%s/temoto_robot_manager/load_robot' % NS, timeout=20)
     return proc
 

@@ -31,7 +31,7 @@ from vaultbot_sim.world_map import world_map
 
 HANG = 60.0
 VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
-HUSKY = Footprint.of(VAULTBOT.navigation.footprint)      # the base with its arms held
+HUSKY = Footprint.of(VAULTBOT.navigation.footprint, VAULTBOT.navigation.protrusions)   # arms held, the gripper
 PLACES = VAULTBOT.navigation.places
 
 
@@ -80,6 +80,18 @@ def test_the_planner_goes_round_an_obstacle_and_says_when_there_is_no_way(lab):
         global_planner.plan(cm, (0.0, 0.0), there)
     cm.mark(np.zeros((0, 2)))
     assert len(global_planner.plan(cm, (0.0, 0.0), there)), 'the next frame clears the fence'
+
+
+def test_a_protrusion_is_part_of_the_outline_without_widening_it_all_round():
+    body = Footprint(-0.5, 0.64, -0.69, 0.67)
+    with_gripper = Footprint.of([-0.5, 0.64, -0.69, 0.67], [[0.55, 0.76, 0.25, 0.38]])
+    ahead, beside = np.array([[0.72, 0.3]]), np.array([[0.72, -0.3]])
+    assert with_gripper.contains(ahead).all() and not body.contains(ahead).any()
+    assert not with_gripper.contains(beside).any()               # only where the gripper is
+    assert with_gripper.distance(np.array([[0.86, 0.3]]))[0] == pytest.approx(0.10)
+    assert with_gripper.distance(beside)[0] == pytest.approx(0.08)
+    assert with_gripper.circumscribed == pytest.approx(body.circumscribed)   # the body's corner is further
+    assert with_gripper.inscribed == body.inscribed
 
 
 def test_the_collision_monitor_looks_where_the_robot_goes():

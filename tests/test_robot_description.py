@@ -6,9 +6,11 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 
 from temoto_core.errors import TemotoError
+from temoto_robot_manager.costmap import Footprint
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.selection import choose_robot
 from vaultbot_sim.gripper import STROKE
@@ -61,6 +63,25 @@ def test_the_vaultbots_description_matches_the_simulated_robot():
         'base LIDAR scan', 'arm LIDAR stitched cloud', 'RGB-D camera cloud']
 
 
+def test_the_vaultbots_footprint_covers_its_body_with_the_arms_held():
+    """The footprint is what the navigator keeps clear and cuts out of its own sensors' points: a body part
+    outside it (the gripper's fingers) is seen by the stitched cloud as an obstacle that drives with the robot."""
+    vaultbot = load_file(VAULTBOT)[0][0]
+    outline = Footprint.of(vaultbot.navigation.footprint, vaultbot.navigation.protrusions)
+    scene = Scene(ROBOT_URDF, resolve_world('lab'))
+    try:
+        scene.set_robot(HOLD_POSE)
+        p, robot = scene.p, scene.robot
+        for link in range(-1, p.getNumJoints(robot, physicsClientId=scene.cid)):
+            (lx, ly, _), (hx, hy, _) = p.getAABB(robot, link, physicsClientId=scene.cid)
+            name = p.getJointInfo(robot, link, physicsClientId=scene.cid)[12].decode() if link >= 0 else 'base'
+            xs, ys = np.meshgrid(np.linspace(lx, hx, 9), np.linspace(ly, hy, 9))
+            assert outline.contains(np.stack([xs.ravel(), ys.ravel()], axis=1)).all(), \
+                '%s (%.2f..%.2f, %.2f..%.2f) sticks out of the outline %s' % (name, lx, hx, ly, hy, outline.boxes)
+    finally:
+        scene.close()
+
+
 def test_every_named_place_of_the_vaultbot_is_free_in_the_lab():
     """A place the robot cannot stand on is a goal that can only fail: each is checked in the lab's geometry."""
     vaultbot = load_file(VAULTBOT)[0][0]
@@ -93,6 +114,8 @@ def test_a_good_file_loads_every_feature(tmp_path):
     ('        joints: [a, b]', '        joints: [a, a]', 13, 'joints must list each joint once'),
     ('        action: arm/follow_joint_trajectory', '        action: "arm follow"', 12,
      "action 'arm follow' is not a legal ROS name"),
+    ('      places:', '      protrusions: [[0.5, 0.4, 0.0, 0.1]]\n      places:', 7,
+     'protrusions[0]: each min must be below its max'),
 ])
 def test_each_mistake_is_reported_at_its_line_and_the_robot_left_out(tmp_path, old, new, line, words):
     assert old in GOOD

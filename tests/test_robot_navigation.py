@@ -16,12 +16,13 @@ from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 
+from temoto_core import master_lookup
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import aborted_goal, commanded_zero_after
-from temoto_testing.sensor_manager import (er_processes, set_cable, start_robot_manager,
+from temoto_testing.sensor_manager import (er_processes, registry, robot_info, set_cable, start_robot_manager,
                                            start_robot_stack)
 from vaultbot_sim.msg import BaseState
 
@@ -31,7 +32,8 @@ PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbo
 
 @pytest.fixture(scope='module')
 def stack(rospy_client, module_procs, tmp_path_factory):
-    module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), hand_motion=False)
+    module_procs.robot_manager = start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), hand_motion=False,
+                                                     sweep=True)     # the Hokuyo's wrist: the stitched cloud
     return module_procs
 
 
@@ -67,7 +69,9 @@ def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_ste
     set_cable('sick', 'unplugged', 'stall')
     wait_for(lambda: truth.last().commanded_linear == 0.0 and truth.last().commanded_angular == 0.0, HANG,
              'the base stopped: its obstacle source is silent')
-    wait_for(lambda: any('obstacles from' in e.message for e in heard), HANG, 'the next obstacle source to serve')
+    taken = wait_for(lambda: next((e for e in heard if 'obstacles from' in e.message), None), HANG,
+                     'the next obstacle source to serve')
+    assert 'obstacles from arm LIDAR stitched cloud (hokuyo_utm30lx) on /laser_stitcher/cloud' in taken.message
     wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG * 2, 'the goal to end')
     assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
     with lock:
@@ -102,6 +106,76 @@ def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to be released with its dead manager')
     stack.robot_manager = start_robot_manager(stack)
     assert truth.last().contacts == 0
+
+
+def manager_pid():
+    uri = master_lookup.lookup_node(os.environ['ROS_MASTER_URI'], '/temoto_robot_manager')
+    return master_lookup.node_pid(uri) if uri else None
+
+
+def comparable_registry():
+    """The Robot Manager's registry once it has recovered, without what a restart changes by design."""
+    try:
+        raw = registry('temoto_robot_manager')
+    except Exception:            # the new incarnation is not serving yet
+        return None
+    if raw['recovering']:
+        return None
+    for key in ('node', 'incarnation', 'calls_in_flight'):
+        raw.pop(key)
+    return raw
+
+
+def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_over_again(
+        stack, rmi, rospy_client, collect, tmp_path):
+    """SIGKILLed mid-drive under its warm-respawn parent: the base stops at once, the manager comes back with
+    the registry it had, the same parts running, and what it kept of the robot: its obstacle source fails over
+    when it fails, the holder hears each step, and the robot drives again."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    statuses = collect('/move_base/status', GoalStatusArray)
+    stack.robot_manager.stop()
+    stack.robot_manager = start_robot_manager(stack, journal=str(tmp_path / 'rm.sqlite'))
+    heard, lock = [], threading.Lock()
+
+    def on_status(event):
+        with lock:
+            heard.append(event)
+    rm = rmi()
+    robot = rm.load_robot(['navigation'], on_status=on_status)
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    before = wait_for(comparable_registry, HANG, 'the registry')
+    parts = sorted(p['pid'] for p in er_processes())
+    client.send_goal(goal_to(rospy_client, 'drums'))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    victim = manager_pid()
+    os.kill(victim, signal.SIGKILL)
+    killed = time.time()
+    zero = commanded_zero_after(truth.msgs, killed, HANG)
+    assert zero.header.stamp.to_sec() - killed < 5.0
+    assert 'Robot Manager that started this navigator is gone' in aborted_goal(statuses.msgs, HANG).text
+    wait_for(lambda: manager_pid() not in (None, victim), HANG, 'the warm respawn')
+    after = wait_for(comparable_registry, HANG, 'the registry recovered')
+    assert after == before
+    assert sorted(p['pid'] for p in er_processes()) == parts, 'the parts ran on: none lost, none started again'
+    loaded = [entry for r in robot_info()['robots'] for entry in r['loaded']]
+    assert [entry['parts']['navigation.obstacles'] for entry in loaded] == [robot.parts['navigation.obstacles']]
+    # what the manager kept: the obstacle source is still watched, and fails over
+    with lock:
+        heard.clear()
+    set_cable('sick', 'unplugged', 'stall')
+    wait_for(lambda: any('obstacles from' in e.message for e in heard), HANG, 'the next obstacle source to serve')
+    with lock:
+        steps = [(e.code, e.message) for e in heard]
+    assert 'obstacle source base LIDAR scan failed' in steps[0][1] and steps[0][0] == ResourceStatus.UPDATE, steps
+    set_cable('sick', 'plugged')
+    client.send_goal(goal_to(rospy_client, 'home'))
+    wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG * 2, 'the goal to end')
+    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    assert truth.last().contacts == 0
+    rm.release(robot.resource_id)
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
 
 
 def temoto(*args, timeout=240):

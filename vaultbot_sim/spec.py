@@ -26,6 +26,10 @@ HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
 BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 
 SWEEP_JOINT = 'right_wrist_3_joint'
+# The robot's own body at HOLD_POSE, in base_link (x_min, x_max, y_min, y_max, z_min, z_max; m), with 5 cm
+# around it: the stitcher drops the scanner's hits on its own robot inside it, scan by scan, before a moving
+# base would smear them out of the body (tests/test_vaultbot_model.py checks it against the URDF).
+SELF_BOX = (-0.55, 0.80, -0.74, 0.72, -0.05, 1.33)
 # the camera arm's gripper: each finger's joint is half the gap between the pads (urdf_gen.py)
 GRIPPER_JOINTS = ('gripper_left_finger_joint', 'gripper_right_finger_joint')
 PERSON_JOINT = 'person_shoulder_joint'

@@ -6,6 +6,14 @@ extrapolation rule the driver used when rendering). A sweep covers
 `sweep_angle` of wrist turn (pi by default: half a turn of a 270 deg scan plane
 that contains the turning axis covers everything around it).
 
+A base that drives while the wrist sweeps carries the scanner along: a scan taken a second ago
+placed by the arm alone would put what it saw where the base was, a metre behind. So each scan
+is kept in the fixed ``odom`` frame (the base's pose at its stamp, from odometry, given as
+``base``), and a cloud is given in the base frame of its newest scan: what the sweep saw, where
+it is now. Without odometry (a base that does not drive) the base frame is the fixed one. The
+scanner's hits on its own robot move with the base, not with the world: they are dropped scan by
+scan (``self_box``, the body in the base frame) before they could be left behind.
+
 Two ways to cut the stream of scans into clouds:
 - ``RollingStitcher`` (what the node publishes): the latest sweep's worth of
   scans, the freshest of each direction, published at a steady rate. Data flows
@@ -35,7 +43,8 @@ class ScanProjector:
     """Places one scan in the base frame with the sensor pose of its joint configuration."""
 
     def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
-                 base_frame: str = 'base_link', sweep_angle: float = math.pi, max_window: float = 3.0):
+                 base_frame: str = 'base_link', sweep_angle: float = math.pi, max_window: float = 3.0,
+                 self_box: tuple | None = None):
         if base_frame != model.root and base_frame not in model.links():
             raise ValueError(f'base frame {base_frame!r} is not a link of {model.path}')
         if not sweep_angle > 0 or not max_window > 0:
@@ -43,6 +52,7 @@ class ScanProjector:
         self.model, self.sweep_joint = model, sweep_joint
         self.sensor_frame, self.base_frame = sensor_frame, base_frame
         self.sweep_angle, self.max_window = sweep_angle, max_window
+        self.self_box = self_box
 
     def scan_points(self, ranges: np.ndarray, angle_min: float, angle_increment: float,
                     cfg: Mapping[str, float]) -> np.ndarray:
@@ -52,7 +62,13 @@ class ScanProjector:
         ok = np.isfinite(r)
         local = np.stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok]), np.zeros(ok.sum())], axis=1)
         t = self.model.transform(self.sensor_frame, self.base_frame, cfg)
-        return local @ t[:3, :3].T + t[:3, 3]
+        pts = local @ t[:3, :3].T + t[:3, 3]
+        if self.self_box is None:
+            return pts
+        x0, x1, y0, y1, z0, z1 = self.self_box
+        on_self = ((pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
+                   & (pts[:, 2] >= z0) & (pts[:, 2] <= z1))
+        return pts[~on_self]
 
 
 class RollingStitcher(ScanProjector):
@@ -71,16 +87,21 @@ class RollingStitcher(ScanProjector):
 
     def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
                  base_frame: str = 'base_link', sweep_angle: float = math.pi, max_window: float = 4.5,
-                 angle_bin: float = math.pi / 80):
-        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window)
+                 angle_bin: float = math.pi / 80, self_box: tuple | None = None):
+        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window, self_box)
         if not 0 < angle_bin <= sweep_angle:
             raise ValueError(f'angle_bin ({angle_bin}) must be > 0 and at most sweep_angle ({sweep_angle})')
         self.angle_bin = angle_bin
-        self.bins: dict[int, tuple[float, float, np.ndarray]] = {}   # bin -> (stamp, angle, points)
+        self.bins: dict[int, tuple[float, float, np.ndarray]] = {}   # bin -> (stamp, angle, points in odom)
         self.newest_stamp: float | None = None
+        self.newest_base = np.eye(4)               # odom -> base at the newest scan
 
     def __len__(self) -> int:
         return len(self.bins)
+
+    def clear(self) -> None:
+        """Drop every scan held (the frame they were kept in changed)."""
+        self.bins.clear()
 
     @property
     def complete(self) -> bool:
@@ -91,23 +112,28 @@ class RollingStitcher(ScanProjector):
         return max(angles) - min(angles) >= self.sweep_angle - 2.0 * self.angle_bin - 1e-9
 
     def add(self, stamp: float, ranges, angle_min: float, angle_increment: float,
-            cfg: Mapping[str, float]) -> None:
-        """Add one scan. A scan older than the newest one means the clock went back (a
-        restarted sim): the window starts again from this scan."""
+            cfg: Mapping[str, float], base: np.ndarray | None = None) -> None:
+        """Add one scan; ``base``: the base's pose in ``odom`` at ``stamp`` (4 x 4), None for a base at
+        rest. A scan older than the newest one means the clock went back (a restarted sim): the
+        window starts again from this scan."""
         if self.newest_stamp is not None and stamp < self.newest_stamp:
             self.bins.clear()
         angle = float(cfg.get(self.sweep_joint, 0.0))
         pts = self.scan_points(ranges, angle_min, angle_increment, cfg)
-        self.bins[math.floor(angle / self.angle_bin)] = (stamp, angle, pts)
-        self.newest_stamp = stamp
+        base = np.eye(4) if base is None else base
+        self.bins[math.floor(angle / self.angle_bin)] = (stamp, angle, pts @ base[:3, :3].T + base[:3, 3])
+        self.newest_stamp, self.newest_base = stamp, base
         for key in [k for k, (t, _, _) in self.bins.items() if stamp - t > self.max_window]:
             del self.bins[key]
 
     def cloud(self) -> np.ndarray:
-        """The held scans as one structured XYZ array (base frame), in wrist-angle order."""
+        """The held scans as one structured XYZ array, in the base frame at the newest scan, in wrist-angle
+        order."""
         if not self.bins:
             return _xyz(np.zeros((0, 3)))
-        return _xyz(np.concatenate([self.bins[k][2] for k in sorted(self.bins)]))
+        pts = np.concatenate([self.bins[k][2] for k in sorted(self.bins)])
+        inverse = np.linalg.inv(self.newest_base)
+        return _xyz(pts @ inverse[:3, :3].T + inverse[:3, 3])
 
 
 class SweepStitcher(ScanProjector):
@@ -115,9 +141,10 @@ class SweepStitcher(ScanProjector):
 
     def __init__(self, model: TreeModel, sweep_joint: str, sensor_frame: str = 'hokuyo_link',
                  base_frame: str = 'base_link', sweep_angle: float = math.pi, min_angle: float = 0.2,
-                 max_window: float = 3.0):
-        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window)
+                 max_window: float = 3.0, self_box: tuple | None = None):
+        super().__init__(model, sweep_joint, sensor_frame, base_frame, sweep_angle, max_window, self_box)
         self.min_angle = min_angle
+        self.last_base = np.eye(4)             # odom -> base at the last scan added
         self._reset()
 
     def _reset(self) -> None:
@@ -128,9 +155,12 @@ class SweepStitcher(ScanProjector):
         self.direction = 0.0
 
     def add(self, stamp: float, ranges, angle_min: float, angle_increment: float,
-            cfg: Mapping[str, float]) -> np.ndarray | None:
-        """Add one scan; returns the finished sweep's cloud (structured XYZ array) or None."""
+            cfg: Mapping[str, float], base: np.ndarray | None = None) -> np.ndarray | None:
+        """Add one scan (``base`` as for ``RollingStitcher.add``); returns the finished sweep's cloud
+        (structured XYZ array, in the base frame of the sweep's last scan) or None."""
         pts = self.scan_points(ranges, angle_min, angle_increment, cfg)
+        base = np.eye(4) if base is None else base
+        pts = pts @ base[:3, :3].T + base[:3, 3]
         angle = float(cfg.get(self.sweep_joint, 0.0))
         done = None
         if self.t0 is not None:
@@ -142,10 +172,15 @@ class SweepStitcher(ScanProjector):
                 done = self._finish()
             self.direction = direction
         self._append(stamp, angle, pts)
+        self.last_base = base
         if done is None and self.hi - self.lo >= self.sweep_angle - 1e-3:
             done = self._finish()
             self._append(stamp, angle, pts)   # the boundary scan also starts the next sweep
         return done
+
+    def clear(self) -> None:
+        """Drop the sweep in progress (the frame its scans were kept in changed)."""
+        self._reset()
 
     def _append(self, stamp: float, angle: float, pts: np.ndarray) -> None:
         if self.t0 is None:
@@ -155,8 +190,8 @@ class SweepStitcher(ScanProjector):
         self.chunks.append(pts)
 
     def _finish(self) -> np.ndarray:
-        direction = self.direction
+        direction, inverse = self.direction, np.linalg.inv(self.last_base)
         pts = np.concatenate(self.chunks) if self.chunks else np.zeros((0, 3))
         self._reset()
         self.direction = direction
-        return _xyz(pts)
+        return _xyz(pts @ inverse[:3, :3].T + inverse[:3, 3])
