@@ -13,10 +13,15 @@
    - a bad goal -> the client hears REJECTED (the four kinds in turn), and nothing moves;
    - the goal's client SIGKILLed while driving -> zero commanded;
    - drives to the described places in turn, some with the SICK stalled on the way: contacts,
-     arrival within 0.10 m and 5 degrees.
+     arrival within 0.10 m and 5 degrees;
+4. **the Robot Manager SIGKILLed during a drive** (``--only manager``): the sim, the ER, Sensor and Robot
+   Managers, the Robot Manager with a journal under its warm-respawn parent, the robot loaded through it:
+   the kill -> the first ground-truth state with zero commanded, and -> the manager's registry answering
+   again, recovered and equal to the one before (as bench_recovery.py measures the other managers).
 
 Prints a markdown table and writes bench/results/navigation.json.
-Usage: python bench/bench_navigation.py [--pairs N] [--drives N] [--trials N] [--hogs N] [--only planners|drives|stops]
+Usage: python bench/bench_navigation.py [--pairs N] [--drives N] [--trials N] [--hogs N]
+                                        [--only planners|drives|stops|manager]
 """
 import argparse
 import json
@@ -322,13 +327,126 @@ def bench_stops(trials, drives, hogs):
     return out
 
 
+def comparable_registry(rr):
+    """``rr``'s registry once it has recovered, without what a restart changes by design; None meanwhile."""
+    from temoto_testing.sensor_manager import registry
+    try:
+        raw = registry(rr)
+    except Exception:            # the new incarnation is not serving yet
+        return None
+    if raw['recovering']:
+        return None
+    for key in ('node', 'incarnation', 'calls_in_flight'):
+        raw.pop(key)
+    return raw
+
+
+def bench_manager(trials, hogs):
+    import actionlib
+    import rospy
+    from actionlib_msgs.msg import GoalStatus
+    from geometry_msgs.msg import PoseStamped
+    from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+    from temoto_core import master_lookup
+    from temoto_core.wait import wait_for
+    from temoto_robot_manager.interface import RobotManagerInterface
+    from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, start_er_manager, start_robot_manager,
+                                               start_sensor_manager, start_sim)
+    from vaultbot_sim.msg import BaseState
+
+    master, launcher = loopback_master('bench_navigation_manager_')
+    hog_procs = cpu_hogs(hogs)
+    out = {'zero': [], 'at_rest': [], 'recovered': [], 'taken_again': [], 'unequal': 0, 'parts_lost': 0}
+    rm = None
+    try:
+        rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
+        start_sim(launcher, hand_motion=False)
+        launcher.node('vaultbot_sim', 'base_controller')
+        start_er_manager(launcher, os.path.join(launcher.workdir, 'er_logs'))
+        start_sensor_manager(launcher, extra='', first_data_allowance=GENEROUS_ALLOWANCE)
+        start_robot_manager(launcher, journal=os.path.join(launcher.workdir, 'rm.sqlite'))
+        states = []
+        rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+        rm = RobotManagerInterface()
+        robot = rm.load_robot(['navigation'])
+        client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+        assert client.wait_for_server(rospy.Duration(HANG)), 'the navigator'
+        wait_for(lambda: states, HANG, 'the base state')
+        navigator = robot.parts['navigation.controller']
+
+        def manager_pid():
+            uri = master_lookup.lookup_node(master.uri, '/temoto_robot_manager')
+            return master_lookup.node_pid(uri) if uri else None
+
+        print('bench_navigation: the Robot Manager SIGKILLed mid-drive x %d ...' % trials, file=sys.stderr,
+              flush=True)
+        tour = ['shelf', 'drums', 'table']                  # each far from the one before
+
+        def send(k):
+            """Send the k-th drive; while the navigator has not heard the new manager yet it refuses goals
+            ('away'): send again until it takes one. Returns when it is taken."""
+            x, y, yaw = PLACES[tour[k % len(tour)]]
+            for _ in range(500):
+                p = PoseStamped()
+                p.header.frame_id, p.header.stamp = 'world', rospy.Time.now()
+                p.pose.position.x, p.pose.position.y = x, y
+                p.pose.orientation.z, p.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+                client.send_goal(MoveBaseGoal(target_pose=p))
+                wait_for(lambda: client.get_state() != GoalStatus.PENDING, HANG, 'an answer to the goal')
+                if client.get_state() != GoalStatus.REJECTED:
+                    return
+                if 'away' not in client.get_goal_status_text():
+                    raise RuntimeError('trial %d: refused: %s' % (k, client.get_goal_status_text()))
+                time.sleep(0.01)
+            raise RuntimeError('trial %d: the navigator refused 500 goals: the manager stayed away' % k)
+
+        send(0)
+        for k in range(trials):
+            before = wait_for(lambda: comparable_registry('temoto_robot_manager'), HANG, 'the registry')
+
+            def moving():
+                if client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE):
+                    raise RuntimeError('trial %d: the goal ended: %s' % (k, client.get_goal_status_text()))
+                return states[-1].commanded_linear > 0.3 or states[-1].commanded_angular > 0.3
+            wait_for(moving, HANG, 'the base driving')
+            time.sleep(0.2 * (k % 5))                        # a seeded moment of the drive
+            victim = manager_pid()
+            os.kill(victim, signal.SIGKILL)
+            killed = time.time()
+            zero = wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-30:]
+                                          if s.header.stamp.to_sec() > killed and s.commanded_linear == 0.0
+                                          and s.commanded_angular == 0.0), None), HANG, 'zero commanded')
+            rest = wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-30:]
+                                          if s.header.stamp.to_sec() > killed and s.linear == 0.0
+                                          and s.angular == 0.0), None), HANG, 'at rest')
+            after = wait_for(lambda: manager_pid() not in (None, victim)
+                             and comparable_registry('temoto_robot_manager'), HANG, 'the registry recovered')
+            out['recovered'].append(time.time() - killed)
+            out['zero'].append(zero - killed)
+            out['at_rest'].append(rest - killed)
+            out['unequal'] += after != before
+            out['parts_lost'] += navigator not in json.dumps(after)
+            wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG, 'the goal')
+            send(k + 1)
+            out['taken_again'].append(time.time() - killed)
+        client.cancel_all_goals()
+        rm.release(robot.resource_id)
+    finally:
+        if rm is not None:
+            rm.shutdown()
+        stop_hogs(hog_procs)
+        launcher.stop_all()
+        master.stop()
+    return out
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--pairs', type=int, default=100, help='planner start/goal pairs')
     p.add_argument('--drives', type=int, default=100, help='seeded kinematic drives; a tenth of them across processes')
     p.add_argument('--trials', type=int, default=20, help='trials of each stop case across processes')
     p.add_argument('--hogs', type=int, default=0)
-    p.add_argument('--only', choices=('planners', 'drives', 'stops'))
+    p.add_argument('--only', choices=('planners', 'drives', 'stops', 'manager'))
     args = p.parse_args()
     results = {'hogs': args.hogs}
     rows = []
@@ -374,6 +492,17 @@ def main() -> int:
         rows.append(('drives to the places across processes (%d with the SICK stalled on the way): reached /'
                      ' driven; contacts' % sum(x['stalled'] for x in dv),
                      '%d / %d; %d' % (len(ok), len(dv), sum(x['contacts'] for x in dv)), '≥ 95 %; 0'))
+    if args.only in (None, 'manager'):
+        m = results['manager'] = bench_manager(args.trials, args.hogs)
+        rows.append(('the Robot Manager SIGKILLed while driving → commanded zero, p50 / p99 (n=%d); at rest, p99'
+                     % len(m['zero']), '%s / %s (max %s); %s' % (ms(pct(m['zero'], 50)), ms(pct(m['zero'], 99)),
+                                                                 ms(max(m['zero'])), ms(pct(m['at_rest'], 99))),
+                     '≤ the cmd_vel timeout + 50 ms = 300 ms'))
+        rows.append(('… its registry recovered, equal to before, p50 / p95 (unequal: %d; parts lost: %d)'
+                     % (m['unequal'], m['parts_lost']), '%s / %s' % (ms(pct(m['recovered'], 50)),
+                                                                     ms(pct(m['recovered'], 95))), '≤ 1 s p95'))
+        rows.append(('… the navigator takes goals again (refused as \'away\' before), p50 / p95',
+                     '%s / %s' % (ms(pct(m['taken_again'], 50)), ms(pct(m['taken_again'], 95))), '-'))
     print_table('Navigation (%d CPU hogs)' % args.hogs, rows)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'navigation%s.json' % ('_' + args.only if args.only else '')),

@@ -36,6 +36,19 @@ class GoalHolders:
         """A new goal: its client has not been seen yet."""
         self._client_seen = False
 
+    def owner_away(self) -> Optional[str]:
+        """Why a new goal must be refused now: the Robot Manager that started this node was seen and has no
+        connection to it (it died, or is being respawned and has not reached this node again), or None."""
+        if self._owner is None:
+            return None
+        if self._owner.get_num_connections() > 0:
+            self._owner_seen = True
+            return None
+        if self._owner_seen:
+            return 'the Robot Manager that started this %s is away (dead, or restarting): nothing moves until ' \
+                   'it is back' % self._node
+        return None
+
     def gone(self, goal_id: str) -> Optional[str]:
         """Why the goal ``goal_id`` has nobody left to want it, or None."""
         if self._owner is not None:

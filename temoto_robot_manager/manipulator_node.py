@@ -149,6 +149,9 @@ class ManipulatorNode:
         with self.lock:
             q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
         try:
+            away = self.holders.owner_away()
+            if away is not None:
+                raise GoalRefused(MoveArmResult.MANAGER_AWAY, away)
             if q is None:
                 raise GoalRefused(INVALID_GOAL, 'where the arm is is not known: no joint states of %s'
                                   % ', '.join(self.arm.joints))
@@ -237,12 +240,13 @@ class ManipulatorNode:
                 return
             target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
-        if target is None or q is None:
+        away = self.holders.owner_away() if target is not None else None
+        if target is None or q is None or away is not None:
             if self._streaming and q is not None:
-                # the stream fell silent: hold now, rather than one more deadman later at the controller
+                # the stream fell silent (or the manager went): hold now, not one more deadman later
                 self._streaming = False
                 self._send(q, [0.0] * len(q))
-                self._say('holding: no target for %.1f s' % SERVO_TIMEOUT_S)
+                self._say('holding: %s' % (away or 'no target for %.1f s' % SERVO_TIMEOUT_S))
             return
         self._streaming = True
         check = now - self._checked_at >= COLLISION_PERIOD_S

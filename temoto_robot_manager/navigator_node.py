@@ -208,6 +208,11 @@ class NavigatorNode:
     def _on_goal(self, handle) -> None:
         target = handle.get_goal().target_pose
         now = time.monotonic()
+        away = self.holders.owner_away()
+        if away is not None:
+            rospy.logwarn('navigator: goal %s refused: %s', handle.get_goal_id().id, away)
+            handle.set_rejected(MoveBaseResult(), away)
+            return
         try:
             with self.lock:
                 goal = self._checked(target)

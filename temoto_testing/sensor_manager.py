@@ -133,8 +133,16 @@ def start_robot_manager(launcher, descriptions='', journal=''):
     if journal:
         params['journal'] = journal
     proc = launcher.node('temoto_robot_manager', 'temoto_robot_manager', params=params)
-    rospy.wait_for_service('/%s/temoto_robot_manager/load_robot' % NS, timeout=20)
+    # the master may still list a SIGKILLed manager's services: wait for this one's registry to answer
+    wait_for(lambda: _answers('temoto_robot_manager'), 30, 'the Robot Manager to serve')
     return proc
+
+
+def _answers(rr):
+    try:
+        return not registry(rr)['recovering']
+    except (OSError, rospy.ServiceException, rospy.ROSException):
+        return False
 
 
 def start_robot_stack(launcher, er_logs, **sim):

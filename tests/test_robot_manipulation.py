@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import actionlib
@@ -16,6 +17,7 @@ import rospy
 from actionlib_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from temoto_robot_manager.arm_kinematics import pose_error
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal, MoveArmResult
@@ -275,6 +277,67 @@ def test_the_arm_holds_at_once_when_the_robot_manager_dies_mid_goal(stack, truth
     assert right.get_state() == GoalStatus.ABORTED
     assert 'the Robot Manager that started this manipulator is gone' in right.get_goal_status_text()
     # the manager's parts go with it (the ER Manager sees its consumer die); a new manager starts clean
+    wait_for(lambda: not any('manipulator' in str(p['command']) for p in er_processes()), HANG,
+             'the manipulators released with their dead manager')
+    stack.robot_manager = start_robot_manager(stack)
+
+
+def stream_targets(arm, start, stop: threading.Event, bound_s: float = 20.0) -> threading.Thread:
+    """Servo targets for ``arm`` at 50 Hz, sliding along y at 2 cm/s from ``start``, until ``stop``."""
+    pub = rospy.Publisher('/%s/servo_target' % arm, PoseStamped, queue_size=5)
+    wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator to subscribe to the servo targets')
+
+    def run():
+        target = start.copy()
+        for k in range(int(bound_s / 0.02)):
+            if stop.wait(0.02):               # the stream's own pace, as a hand tracker sends
+                break
+            target[1, 3] = start[1, 3] + 0.02 * k * 0.02
+            msg = PoseStamped()
+            msg.header.frame_id, msg.header.stamp = 'base_link', rospy.Time.now()
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = target[:3, 3]
+            (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+             msg.pose.orientation.w) = quat_from_matrix(target)
+            pub.publish(msg)
+        pub.unregister()
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_a_servo_stream_holds_at_once_when_the_robot_manager_dies_while_it_goes_on(stack, collect, manager_back):
+    """The manager that started the manipulators is SIGKILLed while the right arm follows a servo stream: the arm
+    holds before any respawn, while its stream still goes on (not a deadman later)."""
+    states = collect('/vaultbot_sim/arm_states', ArmState)
+    joints = collect('/joint_states', JointState)
+    status = collect('/right_arm/servo_status', String)
+    with made_interfaces(RobotManagerInterface) as make:
+        make().load_robot(['manipulation'], on_status=lambda event: None)
+        wait_receiving([states.sub, joints.sub, status.sub], HANG, 'the arm states, joints and servo status')
+        last = wait_for(joints.last, HANG, 'the joint states')
+        tool = MODEL.link_pose('right_tool0', dict(HOLD_POSE, **dict(zip(last.name, last.position))))
+        stop = threading.Event()
+        stream = stream_targets('right_arm', tool, stop)
+        try:
+            wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.commanded_speed > 0.0),
+                                  None), HANG, 'the right arm following the stream')
+            os.kill(stack.robot_manager.pid, signal.SIGKILL)
+            killed = rospy.Time.now().to_sec()
+            held = wait_for(lambda: next((m for m in states.msgs[-40:] if m.arm == 'right_arm'
+                                          and m.header.stamp.to_sec() > killed and m.commanded_speed == 0.0), None),
+                            HANG, 'the right arm commanded to hold')
+            assert stream.is_alive(), 'the arm held only when its stream ended'
+        finally:
+            stop.set()
+            stream.join(HANG)
+        assert held.header.stamp.to_sec() - killed < 5.0               # generous: catches a hang
+        assert any('Robot Manager that started this manipulator is away' in m.data for m in status.msgs)
+
+
+@pytest.fixture
+def manager_back(stack):
+    """A test that SIGKILLs the Robot Manager: once it has ended, its parts are released and a new one serves."""
+    yield
     wait_for(lambda: not any('manipulator' in str(p['command']) for p in er_processes()), HANG,
              'the manipulators released with their dead manager')
     stack.robot_manager = start_robot_manager(stack)

@@ -178,6 +178,36 @@ def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_o
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
 
 
+def test_a_goal_sent_while_the_robot_manager_is_away_is_refused_and_nothing_moves(stack, rmi, rospy_client, collect,
+                                                                                 tmp_path):
+    """The manager and its warm-respawn parent SIGKILLed: nobody brings it back. Until the ER Manager releases the
+    navigator with its dead consumer, a goal sent to the navigator is refused at once naming the manager, rather
+    than accepted and then stopped."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    stack.robot_manager.stop()
+    stack.robot_manager = start_robot_manager(stack, journal=str(tmp_path / 'rm.sqlite'))
+    rmi().load_robot(['navigation'], on_status=lambda event: None)
+    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    os.kill(stack.robot_manager.pid, signal.SIGKILL)          # the parent: its node child dies with it
+    try:
+        before = len(truth.msgs)
+        answers = []
+        for _ in range(20):           # the navigator reads the closed connection a moment after the kill
+            client.send_goal(goal_to(rospy_client, 'shelf'))
+            wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG, 'the answer')
+            answers.append((client.get_state(), client.get_goal_status_text()))
+            if answers[-1][0] == GoalStatus.REJECTED:
+                break
+        assert answers[-1][0] == GoalStatus.REJECTED and 'Robot Manager that started this navigator is away' in \
+            answers[-1][1], answers
+        assert not any(m.commanded_linear or m.commanded_angular for m in truth.msgs[before:])
+        wait_for(lambda: not navigator_running(), HANG, 'the navigator to be released with its dead manager')
+    finally:
+        stack.robot_manager = start_robot_manager(stack)
+
+
 def temoto(*args, timeout=240):
     return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'] + list(args), capture_output=True,
                           text=True, timeout=timeout)
