@@ -327,20 +327,6 @@ def bench_stops(trials, drives, hogs):
     return out
 
 
-def comparable_registry(rr):
-    """``rr``'s registry once it has recovered, without what a restart changes by design; None meanwhile."""
-    from temoto_testing.sensor_manager import registry
-    try:
-        raw = registry(rr)
-    except Exception:            # the new incarnation is not serving yet
-        return None
-    if raw['recovering']:
-        return None
-    for key in ('node', 'incarnation', 'calls_in_flight'):
-        raw.pop(key)
-    return raw
-
-
 def bench_manager(trials, hogs):
     import actionlib
     import rospy
@@ -350,8 +336,8 @@ def bench_manager(trials, hogs):
     from temoto_core import master_lookup
     from temoto_core.wait import wait_for
     from temoto_robot_manager.interface import RobotManagerInterface
-    from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, start_er_manager, start_robot_manager,
-                                               start_sensor_manager, start_sim)
+    from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, recovered_registry, start_er_manager,
+                                               start_robot_manager, start_sensor_manager, start_sim)
     from vaultbot_sim.msg import BaseState
 
     master, launcher = loopback_master('bench_navigation_manager_')
@@ -406,7 +392,7 @@ def bench_manager(trials, hogs):
         for attempt in range(2 * trials):
             if k >= trials:
                 break
-            before = wait_for(lambda: comparable_registry('temoto_robot_manager'), HANG, 'the registry')
+            before = wait_for(lambda: recovered_registry('temoto_robot_manager'), HANG, 'the registry')
 
             def moving():
                 return client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE) or \
@@ -429,7 +415,7 @@ def bench_manager(trials, hogs):
                                           if s.header.stamp.to_sec() > killed and s.linear == 0.0
                                           and s.angular == 0.0), None), HANG, 'at rest')
             after = wait_for(lambda: manager_pid() not in (None, victim)
-                             and comparable_registry('temoto_robot_manager'), HANG, 'the registry recovered')
+                             and recovered_registry('temoto_robot_manager'), HANG, 'the registry recovered')
             out['recovered'].append(time.time() - killed)
             out['zero'].append(zero - killed)
             out['at_rest'].append(rest - killed)

@@ -138,6 +138,20 @@ def start_robot_manager(launcher, descriptions='', journal=''):
     return proc
 
 
+def recovered_registry(rr):
+    """``rr``'s registry once it has recovered, without what a restart changes by design (its node, its
+    incarnation, the calls in flight); None while it does not answer or still recovers."""
+    try:
+        raw = registry(rr)
+    except (OSError, rospy.ServiceException, rospy.ROSException):       # the new incarnation is not serving yet
+        return None
+    if raw['recovering']:
+        return None
+    for key in ('node', 'incarnation', 'calls_in_flight'):
+        raw.pop(key)
+    return raw
+
+
 def _answers(rr):
     try:
         return not registry(rr)['recovering']

@@ -77,6 +77,16 @@ def tool_in_base(q):
     return MODEL.link_pose('left_tool0', cfg)        # base_link is the model's root
 
 
+def target_message(target) -> PoseStamped:
+    """A servo target (a 4 x 4 pose in base_link) as the manipulator takes it, stamped now."""
+    msg = PoseStamped()
+    msg.header.frame_id, msg.header.stamp = 'base_link', rospy.Time.now()
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = target[:3, 3]
+    (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+     msg.pose.orientation.w) = quat_from_matrix(target)
+    return msg
+
+
 def run(client, goal):
     client.send_goal(goal)
     assert client.wait_for_result(rospy.Duration(HANG)), 'no result'
@@ -195,12 +205,7 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
     period, sent = 0.02, 0
     for k in range(150):                          # 3 s: the target moves 10 cm along y at 5 cm/s, then waits
         target[1, 3] = start[1, 3] + min(0.10, 0.05 * k * period)
-        msg = PoseStamped()
-        msg.header.frame_id, msg.header.stamp = 'base_link', rospy.Time.now()
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = target[:3, 3]
-        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
-         msg.pose.orientation.w) = quat_from_matrix(target)
-        pub.publish(msg)
+        pub.publish(target_message(target))
         sent += 1
         time.sleep(period)                        # the stream's own pace, as a hand tracker sends
     silent = rospy.Time.now().to_sec()
@@ -293,12 +298,7 @@ def stream_targets(arm, start, stop: threading.Event, bound_s: float = 20.0) -> 
             if stop.wait(0.02):               # the stream's own pace, as a hand tracker sends
                 break
             target[1, 3] = start[1, 3] + 0.02 * k * 0.02
-            msg = PoseStamped()
-            msg.header.frame_id, msg.header.stamp = 'base_link', rospy.Time.now()
-            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = target[:3, 3]
-            (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
-             msg.pose.orientation.w) = quat_from_matrix(target)
-            pub.publish(msg)
+            pub.publish(target_message(target))
         pub.unregister()
     thread = threading.Thread(target=run, daemon=True)
     thread.start()

@@ -22,8 +22,8 @@ from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import aborted_goal, commanded_zero_after
-from temoto_testing.sensor_manager import (er_processes, registry, robot_info, set_cable, start_robot_manager,
-                                           start_robot_stack)
+from temoto_testing.sensor_manager import (er_processes, recovered_registry, robot_info, set_cable,
+                                           start_robot_manager, start_robot_stack)
 from vaultbot_sim.msg import BaseState
 
 HANG = 90.0
@@ -113,19 +113,6 @@ def manager_pid():
     return master_lookup.node_pid(uri) if uri else None
 
 
-def comparable_registry():
-    """The Robot Manager's registry once it has recovered, without what a restart changes by design."""
-    try:
-        raw = registry('temoto_robot_manager')
-    except Exception:            # the new incarnation is not serving yet
-        return None
-    if raw['recovering']:
-        return None
-    for key in ('node', 'incarnation', 'calls_in_flight'):
-        raw.pop(key)
-    return raw
-
-
 def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_over_again(
         stack, rmi, rospy_client, collect, tmp_path):
     """SIGKILLed mid-drive under its warm-respawn parent: the base stops at once, the manager comes back with
@@ -145,7 +132,7 @@ def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_o
     client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     wait_receiving([truth.sub], HANG, 'the ground truth')
-    before = wait_for(comparable_registry, HANG, 'the registry')
+    before = wait_for(lambda: recovered_registry('temoto_robot_manager'), HANG, 'the registry')
     parts = sorted(p['pid'] for p in er_processes())
     client.send_goal(goal_to(rospy_client, 'drums'))
     wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
@@ -156,7 +143,7 @@ def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_o
     assert zero.header.stamp.to_sec() - killed < 5.0
     assert 'Robot Manager that started this navigator is gone' in aborted_goal(statuses.msgs, HANG).text
     wait_for(lambda: manager_pid() not in (None, victim), HANG, 'the warm respawn')
-    after = wait_for(comparable_registry, HANG, 'the registry recovered')
+    after = wait_for(lambda: recovered_registry('temoto_robot_manager'), HANG, 'the registry recovered')
     assert after == before
     assert sorted(p['pid'] for p in er_processes()) == parts, 'the parts ran on: none lost, none started again'
     loaded = [entry for r in robot_info()['robots'] for entry in r['loaded']]
