@@ -58,8 +58,8 @@ def test_sim_state_tf_and_devices(procs, rospy_client, collect):
     assert all(t.header.frame_id for t in tf.last().transforms)
     assert '<robot name="vaultbot">' in rospy_client.get_param('/robot_description')
     assert [(d.name, d.plugged) for d in devices.last().devices] == [
-        ('base', True), ('d435', True), ('gripper', True), ('hokuyo', True), ('left_arm', True), ('right_arm', True),
-        ('sick', True), ('site_lidar', True)]
+        ('base', True), ('d435', True), ('gripper', True), ('hand_tracker', True), ('hokuyo', True), ('left_arm', True),
+        ('right_arm', True), ('sick', True), ('site_lidar', True)]
     # bad requests are refused with a message naming the problem, and change nothing
     from vaultbot_sim.srv import SetDeviceState, SetSweep
     resp = rospy_client.ServiceProxy('/vaultbot_sim/set_device_state', SetDeviceState)('kinect', 'unplugged', 'crash')

@@ -1,15 +1,19 @@
-"""The sensor drivers: D435 (RGB-D), Hokuyo UTM-30LX and SICK LMS511 (2D lasers) on the robot, and the
-site LIDAR, a 2D laser fixed in the lab."""
+"""The sensor drivers: D435 (RGB-D), Hokuyo UTM-30LX and SICK LMS511 (2D lasers) on the robot, the site
+LIDAR, a 2D laser fixed in the lab, and the operator's hand tracker."""
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import rospy
 from temoto_core import params
 from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 from std_msgs.msg import Header
+from temoto_core.msg import HandSample
 from tf2_msgs.msg import TFMessage
 
 from vaultbot_sim.driver import DriverBase
+from vaultbot_sim.hand_path import HandPath
 from vaultbot_sim.render_worker import RenderWorker
 from vaultbot_sim.rosmsgs import DepthProjector, camera_info, cloud_message, image_message, scan_message, tf_message
 from vaultbot_sim.scene import Intrinsics
@@ -109,3 +113,34 @@ class D435Driver(DriverBase):
         if self.pub_image.get_num_connections():
             self.pub_image.publish(image_message(rgb, header))
         self.pub_info.publish(camera_info(self.intr, header))
+
+
+class HandTrackerDriver(DriverBase):
+    """A hand tracker on the operator's station, as a Leap Motion: the palm's pose and the grab strength, at
+    100 Hz, replayed from a path (``~path``: a file of keyframes, ``hand_path.py``; the default path
+    otherwise). It has a cable like the robot's devices (``hand_tracker``), so it can be unplugged."""
+    device = 'hand_tracker'
+    default_rate = 100.0
+
+    def __init__(self):
+        self.pub = rospy.Publisher('hand/sample', HandSample, queue_size=10, tcp_nodelay=True)
+        self.frame = params.text('frame', 'hand_tracker', empty=False)
+        path = rospy.get_param('~path', '')
+        try:
+            self.path = HandPath.read(path) if path else HandPath()
+        except (OSError, ValueError) as err:
+            rospy.logerr('hand_tracker: ~path: %s', err)
+            raise SystemExit(2)
+        super().__init__()
+        self.t0 = time.monotonic()
+
+    def make_scene(self):
+        return None                       # it sees a hand, not the lab
+
+    def publish(self, stamp: rospy.Time) -> None:
+        _, x, y, z, grab = self.path.at(time.monotonic() - self.t0)
+        msg = HandSample(tracked=True, grab_strength=grab)
+        msg.header.stamp, msg.header.frame_id = stamp, self.frame
+        msg.palm.position.x, msg.palm.position.y, msg.palm.position.z = x, y, z
+        msg.palm.orientation.w = 1.0
+        self.pub.publish(msg)

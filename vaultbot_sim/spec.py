@@ -34,8 +34,9 @@ SELF_BOX = (-0.55, 0.80, -0.74, 0.72, -0.05, 1.33)
 GRIPPER_JOINTS = ('gripper_left_finger_joint', 'gripper_right_finger_joint')
 PERSON_JOINT = 'person_shoulder_joint'
 
-# sensors, and the base's and the arms' controllers: each has a cable that `temoto sim unplug` pulls
-DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base', 'left_arm', 'right_arm', 'gripper')
+# sensors, the base's and the arms' controllers, and the operator's hand tracker: each has a cable that
+# `temoto sim unplug` pulls
+DEVICES = ('d435', 'hokuyo', 'sick', 'site_lidar', 'base', 'left_arm', 'right_arm', 'gripper', 'hand_tracker')
 STATES = ('plugged', 'unplugged')
 MODES = ('crash', 'stall')
 
