@@ -31,7 +31,6 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-import actionlib  # noqa: E402
 import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 from actionlib_msgs.msg import GoalStatus  # noqa: E402
@@ -41,6 +40,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 
 from common import loopback_master, pct, print_table  # noqa: E402
+from temoto_core.action_client import TrackingActionClient  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal  # noqa: E402
 from temoto_testing.motion import ARM_CLIENT  # noqa: E402
@@ -120,7 +120,7 @@ def main() -> int:
         states = Log('/vaultbot_sim/arm_states', ArmState)
         fingers = Log('/vaultbot_sim/gripper_state', GripperState)
         commands = Log('/left_arm/servo_command', JointTrajectory)
-        client = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
+        client = TrackingActionClient('/left_arm/move_arm', MoveArmAction)
         assert client.wait_for_server(rospy.Duration(HANG))
         wait_for(lambda: joints.last() and states.last() and fingers.last(), HANG, 'the sim\'s states')
         model = TreeModel(ROBOT_URDF)
@@ -188,7 +188,7 @@ def main() -> int:
             home(client)
         # 6. the gripper's controller killed mid-stroke (it is started again for each trial)
         dropped = []
-        grip = actionlib.SimpleActionClient('/gripper/gripper_command', GripperCommandAction)
+        grip = TrackingActionClient('/gripper/gripper_command', GripperCommandAction)
         for trial in range(max(3, args.trials // 2)):
             assert grip.wait_for_server(rospy.Duration(HANG))
             gap = fingers.last().gap
@@ -201,7 +201,7 @@ def main() -> int:
             dropped.append(hit - t)
             gripper.stop()
             gripper = launcher.node('vaultbot_sim', 'gripper_controller')
-            grip = actionlib.SimpleActionClient('/gripper/gripper_command', GripperCommandAction)
+            grip = TrackingActionClient('/gripper/gripper_command', GripperCommandAction)
         ms = lambda xs, q: 1000 * pct(xs, q)      # noqa: E731
         out = {
             'rejected_ms': {'p50': ms(rejected, 50), 'p99': ms(rejected, 99), 'n': len(rejected)},

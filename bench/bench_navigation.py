@@ -47,6 +47,7 @@ from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402
 from vaultbot_sim.base import advance  # noqa: E402
 from vaultbot_sim.kinematics import WORLDS, TreeModel  # noqa: E402
 from vaultbot_sim.world_map import world_map  # noqa: E402
+from temoto_core.action_client import TrackingActionClient  # noqa: E402
 
 HANG = 60.0
 VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
@@ -182,7 +183,6 @@ def bench_drives(n, seed=40):
 
 # ------------------------------------------------------------------------------------------------ across processes
 def bench_stops(trials, drives, hogs):
-    import actionlib
     import rospy
     from actionlib_msgs.msg import GoalStatus
     from geometry_msgs.msg import PoseStamped
@@ -210,7 +210,7 @@ def bench_stops(trials, drives, hogs):
         seen = []
         rospy.Subscriber('/move_base/status', GoalStatusArray, lambda m: seen.append(
             [(st.goal_id.id, st.status, st.text) for st in m.status_list]), queue_size=5)
-        client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+        client = TrackingActionClient('/move_base', MoveBaseAction)
         assert client.wait_for_server(rospy.Duration(HANG)), 'the navigator'
         wait_for(lambda: states, HANG, 'the base state')
 
@@ -328,7 +328,6 @@ def bench_stops(trials, drives, hogs):
 
 
 def bench_manager(trials, hogs):
-    import actionlib
     import rospy
     from actionlib_msgs.msg import GoalStatus
     from geometry_msgs.msg import PoseStamped
@@ -356,7 +355,7 @@ def bench_manager(trials, hogs):
         rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
         rm = RobotManagerInterface()
         robot = rm.load_robot(['navigation'])
-        client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+        client = TrackingActionClient('/move_base', MoveBaseAction)
         assert client.wait_for_server(rospy.Duration(HANG)), 'the navigator'
         wait_for(lambda: states, HANG, 'the base state')
         navigator = robot.parts['navigation.controller']

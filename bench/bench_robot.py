@@ -39,6 +39,7 @@ import rospy  # noqa: E402
 from geometry_msgs.msg import Twist  # noqa: E402
 
 from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs  # noqa: E402
+from temoto_core.action_client import TrackingActionClient
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_testing.sensor_manager import set_cable  # noqa: E402
 from vaultbot_sim.base import CMD_VEL_TIMEOUT_S, HUSKY, MOTOR_TIMEOUT_S  # noqa: E402
@@ -216,7 +217,7 @@ def arm_trial(launcher, arm, case, index, servo_pub):
                 got = {round(m.position[0], 9): t for t, m in arm.setpoints if m.position}
             latencies = [got[round(q, 9)] - t for t, q in sent if round(q, 9) in got]
         else:
-            client = actionlib.SimpleActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
+            client = TrackingActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
             if not client.wait_for_server(rospy.Duration(HANG)):
                 raise RuntimeError('the left arm\'s action server did not come up')
             goal = FollowJointTrajectoryGoal()

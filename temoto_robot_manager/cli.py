@@ -19,7 +19,6 @@ import sys
 import time
 from typing import Callable, List, Optional
 
-import actionlib
 import rospy
 from actionlib_msgs.msg import GoalStatus
 from control_msgs.msg import GripperCommand, GripperCommandAction, GripperCommandGoal
@@ -27,6 +26,7 @@ from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from std_msgs.msg import Float32
 
+from temoto_core.action_client import TrackingActionClient
 from temoto_core.errors import TemotoError
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
@@ -191,7 +191,7 @@ def _go(opts) -> int:
     held = _hold(opts.ns, robot, 'navigation', 'temoto_robots_go')
     if held is None:
         return 1
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     left = {'m': float('nan')}
     sub = rospy.Subscriber('/move_base/distance_remaining', Float32,
                            lambda m: left.update(m=m.data), queue_size=1)
@@ -257,7 +257,7 @@ def _gripper(opts) -> int:
     held = _hold(opts.ns, robot, 'gripper', 'temoto_robots_gripper')
     if held is None:
         return 1
-    client = actionlib.SimpleActionClient('/' + gripper['action'].lstrip('/'), GripperCommandAction)
+    client = TrackingActionClient('/' + gripper['action'].lstrip('/'), GripperCommandAction)
 
     def report(state: int, text: str, result) -> int:
         if state == GoalStatus.SUCCEEDED:
@@ -310,7 +310,7 @@ def _arm(opts) -> int:
     held = _hold(opts.ns, robot, 'manipulation', 'temoto_robots_arm')
     if held is None:
         return 1
-    client = actionlib.SimpleActionClient('/%s/move_arm' % opts.arm, MoveArmAction)
+    client = TrackingActionClient('/%s/move_arm' % opts.arm, MoveArmAction)
 
     def report(state: int, text: str, _result) -> int:
         print('%s: %s' % ({GoalStatus.SUCCEEDED: 'there', GoalStatus.REJECTED: 'refused'}.get(state, 'failed'), text),

@@ -37,6 +37,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from temoto_core.action_client import TrackingActionClient
 from temoto_core import params
 from temoto_core.node import init_node, ok
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
@@ -83,9 +84,12 @@ class ManipulatorNode:
         self.target: Optional[np.ndarray] = None
         self.target_at = 0.0
         self.active = None                       # the goal handle being run
+        # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
+        # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
+        self.active_id = ''
         self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self._tf_listener = tf2_ros.TransformListener(self.tf)
-        self.controller = actionlib.SimpleActionClient(self.arm.action, FollowJointTrajectoryAction)
+        self.controller = TrackingActionClient(self.arm.action, FollowJointTrajectoryAction)
         self.pub_servo = rospy.Publisher(self.arm.servo_topic, JointTrajectory, queue_size=5, tcp_nodelay=True)
         self.pub_status = rospy.Publisher('%s/servo_status' % name, String, queue_size=5, latch=True)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
@@ -169,8 +173,9 @@ class ManipulatorNode:
             point = JointTrajectoryPoint(positions=positions, velocities=velocities)
             point.time_from_start = rospy.Duration.from_sec(t)
             trajectory.trajectory.points.append(point)
+        goal_id = handle.get_goal_id().id
         with self.lock:
-            previous, self.active = self.active, handle
+            previous, self.active, self.active_id = self.active, handle, goal_id
             self.holders.new_goal()
             self.target = None                   # a trajectory takes the arm from the servo stream
             self._streaming = False
@@ -180,16 +185,20 @@ class ManipulatorNode:
         handle.set_accepted('moving %s: %.1f s' % (self.arm.name, points[-1][0]))
         self.controller.send_goal(trajectory, done_cb=lambda state, result: self._done(handle, state, result),
                                   feedback_cb=lambda fb: self._feedback(handle, fb, points[-1][0]))
+        rospy.loginfo('manipulator: goal %s: %d points over %.2f s sent to the controller%s', handle.get_goal_id().id,
+                      len(points), points[-1][0], ' (preempting %s)' % previous.get_goal_id().id if previous else '')
 
     def _on_cancel(self, handle) -> None:
+        goal_id = handle.get_goal_id().id        # a new handle object for the same goal
         with self.lock:
-            if self.active is None or self.active.get_goal_id().id != handle.get_goal_id().id:
+            if self.active is None or self.active_id != goal_id:
                 return
             self.active = None
         self.controller.cancel_goal()            # the controller holds the arm where it is
         handle.set_canceled(self._result(MoveArmResult.PREEMPTED), 'canceled: the arm holds where it is')
 
     def _done(self, handle, state: int, result) -> None:
+        rospy.loginfo('manipulator: goal %s: the controller ended it (status %d)', handle.get_goal_id().id, state)
         with self.lock:
             if self.active is not handle:
                 return                           # preempted, canceled or orphaned already
@@ -268,7 +277,7 @@ class ManipulatorNode:
         code = MoveArmResult.PREEMPTED
         with self.lock:
             handle = self.active
-            gone = self.holders.gone(handle.get_goal_id().id) if handle is not None else None
+            gone = self.holders.gone(self.active_id) if handle is not None else None
             if gone is None and handle is not None:
                 if self._controller_status.get_num_connections() > 0:
                     self._controller_seen = True

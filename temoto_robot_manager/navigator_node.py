@@ -74,6 +74,9 @@ class NavigatorNode:
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
         self.active = None                      # the goal handle being driven
+        # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
+        # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
+        self.active_id = ''
         self._source_sub = None
         self.source_topic = ''
         self._feedback_at = 0.0
@@ -213,11 +216,12 @@ class NavigatorNode:
             rospy.logwarn('navigator: goal %s refused: %s', handle.get_goal_id().id, away)
             handle.set_rejected(MoveBaseResult(), away)
             return
+        goal_id = handle.get_goal_id().id
         try:
             with self.lock:
                 goal = self._checked(target)
                 self.nav.start(goal, now)
-                previous, self.active = self.active, handle
+                previous, self.active, self.active_id = self.active, handle, goal_id
                 self.holders.new_goal()
                 path = self.nav.path
         except (BadGoal, NoPath) as err:
@@ -233,8 +237,9 @@ class NavigatorNode:
                       goal[0], goal[1], math.degrees(goal[2]), len(path))
 
     def _on_cancel(self, handle) -> None:
+        goal_id = handle.get_goal_id().id        # a new handle object for the same goal
         with self.lock:
-            if self.active is None or self.active.get_goal_id().id != handle.get_goal_id().id:
+            if self.active is None or self.active_id != goal_id:
                 return
             self.nav.cancel()
             self.pub_cmd.publish(Twist())
@@ -283,7 +288,7 @@ class NavigatorNode:
             gone = None
             with self.lock:
                 if self.active is not None:
-                    gone = self.holders.gone(self.active.get_goal_id().id)
+                    gone = self.holders.gone(self.active_id)
                     if gone is not None:
                         self.nav.cancel()
                         self._command(0.0, 0.0)

@@ -4,15 +4,15 @@ Usage: python -m temoto_testing.goal_client X Y YAW (world frame)."""
 import math
 import sys
 
-import actionlib
 import rospy
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+from temoto_core.action_client import TrackingActionClient
 
 
 def main() -> None:
     x, y, yaw = (float(v) for v in sys.argv[1:4])
     rospy.init_node('goal_client', anonymous=True)
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     client.wait_for_server(rospy.Duration(60))
     goal = MoveBaseGoal()
     goal.target_pose.header.frame_id = 'world'

@@ -6,7 +6,6 @@ import os
 import signal
 import time
 
-import actionlib
 import numpy as np
 import pytest
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
@@ -28,6 +27,7 @@ from vaultbot_sim.base import advance
 from vaultbot_sim.kinematics import WORLDS, TreeModel
 from vaultbot_sim.msg import BaseState, Contact as ContactMsg
 from vaultbot_sim.world_map import world_map
+from temoto_core.action_client import TrackingActionClient
 
 HANG = 60.0
 VAULTBOT = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot')
@@ -280,7 +280,7 @@ def navigation(procs, rospy_client, collect):
     navigator = procs.node('temoto_robot_manager', 'navigator',
                            params={'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot',
                                    'obstacle_topic': 'sick/scan'})
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator\'s move_base action'
     wait_receiving([truth.sub, contacts.sub], HANG, 'the sim\'s ground truth')
     yield dict(truth=truth, contacts=contacts, client=client, navigator=navigator, sick=sick)

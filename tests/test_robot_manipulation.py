@@ -10,7 +10,6 @@ import sys
 import threading
 import time
 
-import actionlib
 import numpy as np
 import pytest
 import rospy
@@ -20,7 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from temoto_robot_manager.arm_kinematics import pose_error
-from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal, MoveArmResult
+from temoto_robot_manager.msg import MoveArmAction, MoveArmActionResult, MoveArmGoal, MoveArmResult
 from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.motion import ARM_CLIENT
@@ -28,6 +27,7 @@ from temoto_testing.sensor_manager import er_processes, managers_idle, start_rob
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix
 from vaultbot_sim.msg import ArmState
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
+from temoto_core.action_client import TrackingActionClient
 
 HANG = 60.0
 LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
@@ -49,7 +49,7 @@ def arm(stack):
         robot = rm.load_robot(['manipulation'], on_status=lambda event: None)   # a part's failure: tested below
         assert {'manipulation.left_arm.manipulator', 'manipulation.right_arm.manipulator'} <= set(robot.parts)
         manager = stack.robot_manager
-        client = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
+        client = TrackingActionClient('/left_arm/move_arm', MoveArmAction)
         assert client.wait_for_server(rospy.Duration(HANG)), 'the left arm\'s manipulator'
         yield client
         if stack.robot_manager is manager:      # a test that kills the manager takes the hold with it
@@ -87,9 +87,23 @@ def target_message(target) -> PoseStamped:
     return msg
 
 
+RESULTS = []          # every left-arm MoveArm result on the wire, to explain a result a client did not get
+_RESULTS_SUB = []
+
+
+def _on_result(msg):
+    RESULTS.append((msg.status.goal_id.id, msg.status.status, msg.status.text))
+
+
 def run(client, goal):
+    if not _RESULTS_SUB:
+        _RESULTS_SUB.append(rospy.Subscriber('/left_arm/move_arm/result', MoveArmActionResult, _on_result))
     client.send_goal(goal)
-    assert client.wait_for_result(rospy.Duration(HANG)), 'no result'
+    if not client.wait_for_result(rospy.Duration(HANG)):
+        goal_id = client.gh.comm_state_machine.action_goal.goal_id.id if client.gh else '?'
+        raise AssertionError('no result for %s (client state %s, comm state %s); on the wire: %s' % (
+            goal_id, client.get_state(), client.gh.get_comm_state() if client.gh else '?',
+            [r for r in RESULTS if r[0] == goal_id] or 'nothing for it; last %s' % RESULTS[-3:]))
     return client.get_state(), client.get_result(), client.get_goal_status_text()
 
 
@@ -187,13 +201,35 @@ def test_a_second_goal_preempts_the_first_and_the_arm_goes_to_the_second(arm, tr
     far[0] += 1.2
     arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.2))
     wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.05, HANG, 'the arm moving to the first goal')
-    second = actionlib.SimpleActionClient('/left_arm/move_arm', MoveArmAction)
+    second = TrackingActionClient('/left_arm/move_arm', MoveArmAction)
     assert second.wait_for_server(rospy.Duration(HANG))
     state, _, text = run(second, MoveArmGoal(named_pose='hold'))
     assert state == GoalStatus.SUCCEEDED, text
     assert arm.wait_for_result(rospy.Duration(HANG))
     assert arm.get_state() == GoalStatus.PREEMPTED and 'preempted by goal' in arm.get_goal_status_text()
     assert max(abs(a - b) for a, b in zip(settled(joints), HOLD)) < 0.02
+
+
+def test_a_burst_of_goals_each_preempting_the_last_ends_every_one(arm, truth):
+    """Each goal comes while another runs: the manipulator plans it holding the action server's lock while its
+    own loop watches the running goal. Before the watch read the goal's id without that lock, the two locks
+    deadlocked: the goal never ended, and the manipulator answered nothing more."""
+    joints, _ = truth
+    clients = [TrackingActionClient('/left_arm/move_arm', MoveArmAction) for _ in range(6)]
+    for client in clients:
+        assert client.wait_for_server(rospy.Duration(HANG))
+    for k, client in enumerate(clients):
+        far = list(HOLD)
+        far[0] += 0.6 if k % 2 else -0.6
+        client.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.2))
+        wait_for(lambda: client.get_state() == GoalStatus.ACTIVE or client.get_state() == GoalStatus.REJECTED,
+                 HANG, 'goal %d accepted' % k)
+        wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.02 or k == 0, HANG, 'the arm moving')
+    for k, client in enumerate(clients):
+        assert client.wait_for_result(rospy.Duration(HANG)), 'goal %d never ended' % k
+    assert [c.get_state() for c in clients] == [GoalStatus.PREEMPTED] * 5 + [GoalStatus.SUCCEEDED]
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
 
 
 def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(arm, truth):
@@ -265,7 +301,7 @@ def test_the_arm_holds_at_once_when_the_robot_manager_dies_mid_goal(stack, truth
     """The right arm (its controller is whole): the manager that started its manipulator is SIGKILLed while a goal
     runs; the goal ends naming it and the arm holds, before any respawn."""
     _, states = truth
-    right = actionlib.SimpleActionClient('/right_arm/move_arm', MoveArmAction)
+    right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
     assert right.wait_for_server(rospy.Duration(HANG))
     far = [HOLD_POSE['right_%s_joint' % j] for j in ARM_JOINTS]
     far[0] += 1.2

@@ -10,12 +10,12 @@ import sys
 import threading
 import time
 
-import actionlib
 import pytest
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from geometry_msgs.msg import PoseStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 
+from temoto_core.action_client import TrackingActionClient
 from temoto_core import master_lookup
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.description import load_file
@@ -61,7 +61,7 @@ def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_ste
     robot = rm.load_robot(['navigation'], on_status=on_status)
     assert robot.parts['navigation.obstacles'].startswith('base LIDAR scan')
     assert robot.parts['navigation.controller'].startswith('process ')
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator the Robot Manager started'
     wait_receiving([truth.sub], HANG, 'the ground truth')
     client.send_goal(goal_to(rospy_client, 'drums'))
@@ -91,7 +91,7 @@ def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi
     statuses = collect('/move_base/status', GoalStatusArray)
     rm = rmi()
     rm.load_robot(['navigation'], on_status=lambda event: None)
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     wait_receiving([truth.sub], HANG, 'the ground truth')
     client.send_goal(goal_to(rospy_client, 'home'))
@@ -129,7 +129,7 @@ def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_o
             heard.append(event)
     rm = rmi()
     robot = rm.load_robot(['navigation'], on_status=on_status)
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     wait_receiving([truth.sub], HANG, 'the ground truth')
     before = wait_for(lambda: recovered_registry('temoto_robot_manager'), HANG, 'the registry')
@@ -174,7 +174,7 @@ def test_a_goal_sent_while_the_robot_manager_is_away_is_refused_and_nothing_move
     stack.robot_manager.stop()
     stack.robot_manager = start_robot_manager(stack, journal=str(tmp_path / 'rm.sqlite'))
     rmi().load_robot(['navigation'], on_status=lambda event: None)
-    client = actionlib.SimpleActionClient('/move_base', MoveBaseAction)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     wait_receiving([truth.sub], HANG, 'the ground truth')
     os.kill(stack.robot_manager.pid, signal.SIGKILL)          # the parent: its node child dies with it

@@ -7,7 +7,6 @@ import signal
 import threading
 import time
 
-import actionlib
 import pytest
 import rospy
 from control_msgs.msg import FollowJointTrajectoryAction, FollowJointTrajectoryGoal, FollowJointTrajectoryResult
@@ -21,6 +20,7 @@ from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT
 from vaultbot_sim.srv import SetSweep
 from vaultbot_sim.arm import JointRange
 from vaultbot_sim.trajectory import Trajectory
+from temoto_core.action_client import TrackingActionClient
 
 HANG = 30.0
 SIM_PARAMS = {'world': 'test_wall', 'sweep': False, 'hand_motion': False}
@@ -60,7 +60,7 @@ def arms(procs, rospy_client, collect):
     joints = collect('/joint_states', JointState)
     procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
     left = procs.node('vaultbot_sim', 'arm_controller', name='left_arm_controller', params={'arm': 'left_arm'})
-    client = actionlib.SimpleActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
+    client = TrackingActionClient('/left_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
     assert client.wait_for_server(rospy_client.Duration(HANG)), 'the left arm\'s action server'
     wait_receiving([states.sub, joints.sub], HANG, 'the sim\'s states')
     wait_for(lambda: arm_state(states, 'left_arm') and joints.last(), HANG, 'the first states')
@@ -202,7 +202,7 @@ def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy
     joints = collect('/joint_states', JointState)
     procs.node('vaultbot_sim', 'vaultbot_sim', params=dict(SIM_PARAMS, sweep=True))
     procs.node('vaultbot_sim', 'arm_controller', name='right_arm_controller', params={'arm': 'right_arm'})
-    client = actionlib.SimpleActionClient('/right_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
+    client = TrackingActionClient('/right_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     right = ['right_%s_joint' % j for j in ARM_JOINTS]
     wait_for(lambda: joints.last() and abs(positions(joints, [SWEEP_JOINT])[0] - HOLD_POSE[SWEEP_JOINT]) > 0.2,

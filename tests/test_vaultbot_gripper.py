@@ -5,7 +5,6 @@ import math
 import os
 import signal
 
-import actionlib
 import numpy as np
 import pytest
 import rospy
@@ -20,6 +19,7 @@ from vaultbot_sim.gripper_controller import Refused, check_goal
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
 from vaultbot_sim.msg import GripperState
 from vaultbot_sim.urdf_gen import FINGER, GRIPPER_BODY, TEST_POLE_RADIUS, TEST_POLE_XY
+from temoto_core.action_client import TrackingActionClient
 
 HANG = 30.0
 ACTION = '/gripper/gripper_command'
@@ -100,7 +100,7 @@ def gripper(procs, rospy_client, collect):
     procs.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'test_wall', 'sweep': False, 'hand_motion': False,
                                                        'base_pose': straddling_pose()})
     controller = procs.node('vaultbot_sim', 'gripper_controller')
-    client = actionlib.SimpleActionClient(ACTION, GripperCommandAction)
+    client = TrackingActionClient(ACTION, GripperCommandAction)
     assert client.wait_for_server(rospy_client.Duration(HANG)), 'the gripper\'s action server'
     wait_receiving([states.sub], HANG, 'the gripper\'s state')
     wait_for(lambda: states.last(), HANG, 'the first gripper state')
