@@ -12,7 +12,10 @@
   node sends one hold (zero velocities where the arm is) and falls silent; the controller's own
   deadman (0.1 s) would hold the arm too, one timeout later. A
   trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
-  ``<arm>/servo_status`` (``std_msgs/String``) when it changes.
+  ``<arm>/servo_status`` (``std_msgs/String``) when it changes;
+- ``<arm>/servo_hold`` (``std_msgs/String``, the reason): hold the arm now and drop the stream's target,
+  for a streamer that knows its own input is gone (a hand tracker's sample that did not come) sooner
+  than the stream's timeout could tell.
 
 A goal whose holder is gone (its client, or the Robot Manager that started this node: ``goal_holders.py``)
 is cancelled at once, and the arm holds.
@@ -76,6 +79,7 @@ class ManipulatorNode:
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick
         self._new_target = False
+        self._hold_now = ''                      # a streamer's hold, for the loop to send: the reason
         self._checked_at = 0.0                         # the servo's last self-collision check
         self._streaming = False                        # servo commands are being sent
         self._controller_seen = False                  # connected to the controller's status once
@@ -93,6 +97,7 @@ class ManipulatorNode:
         self.pub_servo = rospy.Publisher(self.arm.servo_topic, JointTrajectory, queue_size=5, tcp_nodelay=True)
         self.pub_status = rospy.Publisher('%s/servo_status' % name, String, queue_size=5, latch=True)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
+        rospy.Subscriber('%s/servo_hold' % name, String, self._on_servo_hold, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
                          tcp_nodelay=True)
         owner_topic = params.text('owner_topic', '')
@@ -136,6 +141,14 @@ class ManipulatorNode:
             return
         with self.lock:
             self.target, self.target_at = target, time.monotonic()
+            self._new_target = True
+            self.wake.notify()
+
+    def _on_servo_hold(self, msg: String) -> None:
+        """Sent from the loop's thread, after any step it is computing: nothing can follow the hold."""
+        with self.lock:
+            self.target = None
+            self._hold_now = msg.data.strip() or 'told to hold'
             self._new_target = True
             self.wake.notify()
 
@@ -245,10 +258,17 @@ class ManipulatorNode:
     def _servo(self, now: float) -> None:
         """One servo step towards the latest target, if it is fresh, the arm's state is, and no goal runs."""
         with self.lock:
+            told, self._hold_now = self._hold_now, ''     # a goal running owns the arm: a hold is moot
             if self.active is not None:
                 return
             target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
+        if told:
+            if self._streaming and q is not None:     # an arm the stream does not move is left alone
+                self._send(q, [0.0] * len(q))
+            self._streaming = False
+            self._say('holding: %s' % told)
+            return
         away = self.holders.owner_away() if target is not None else None
         if target is None or q is None or away is not None:
             if self._streaming and q is not None:

@@ -256,6 +256,32 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
     assert state == GoalStatus.SUCCEEDED, text
 
 
+def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect):
+    """A streamer that knows its input is gone (a hand tracker's late sample) holds the arm through
+    <arm>/servo_hold rather than falling silent for the stream's timeout; the status names its reason."""
+    joints, states = truth
+    status = collect('/left_arm/servo_status', String)
+    hold = rospy.Publisher('/left_arm/servo_hold', String, queue_size=1)
+    wait_for(lambda: hold.get_num_connections() > 0, HANG, 'the manipulator to subscribe to holds')
+    stop = threading.Event()
+    stream = stream_targets('left_arm', tool_in_base(settled(joints)), stop)
+    try:
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0),
+                              None), HANG, 'the left arm following the stream')
+    finally:
+        stop.set()
+        stream.join(HANG)
+    told = rospy.Time.now().to_sec()
+    hold.publish(String('no hand sample for 25 ms'))
+    wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm' and m.header.stamp.to_sec() > told
+                           and m.commanded_speed == 0.0), None), HANG, 'the left arm commanded to hold')
+    wait_for(lambda: any(m.data == 'holding: no hand sample for 25 ms' for m in status.msgs), HANG,
+             'the status to name the streamer\'s reason, not the stream\'s timeout')
+    hold.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
 def test_temoto_robots_arm_moves_an_arm_and_refuses_what_cannot_be(arm, truth):
     joints, _ = truth
     unknown = temoto('arm', 'tail_arm', 'hold')

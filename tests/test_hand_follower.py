@@ -1,0 +1,68 @@
+"""From hand samples to servo commands (temoto_robot_manager/hand_follower.py): targets while the grab holds,
+one hold the moment the hand goes stale or out of view, and nothing until a new deliberate grab."""
+import math
+
+import numpy as np
+import pytest
+
+from temoto_robot_manager.dial import Dial
+from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
+
+TOOL = np.eye(4)
+
+
+def palm(x):
+    m = np.eye(4)
+    m[0, 3] = x
+    return m
+
+
+def following(follower, t=0.0):
+    assert follower.sample(t, palm(0), 0.0, True, lambda: TOOL) is None     # an open hand: nothing to stop
+    first = follower.sample(t + 0.01, palm(0), 1.0, True, lambda: TOOL)
+    assert first.kind == TARGET and np.allclose(first.pose, TOOL)
+    return t + 0.01
+
+
+def test_the_arm_follows_while_the_grab_holds_and_holds_once_when_it_opens():
+    follower = HandFollower(Dial(0.1))
+    t = following(follower)
+    cmd = follower.sample(t + 0.01, palm(0.2), 1.0, True, lambda: TOOL)
+    assert cmd.kind == TARGET and cmd.pose[0, 3] == pytest.approx(0.02)
+    released = follower.sample(t + 0.02, palm(0.2), 0.0, True, lambda: TOOL)
+    assert released.kind == HOLD and 'let go' in released.why
+    assert follower.sample(t + 0.03, palm(0.2), 0.0, True, lambda: TOOL) is None     # said once
+
+
+def test_a_stale_hand_holds_the_arm_at_its_deadline_and_needs_a_new_grab():
+    follower = HandFollower(Dial(), period=0.01, missed=2)
+    t = following(follower)
+    assert follower.deadline() == pytest.approx(t + 0.02)
+    assert follower.check(t + 0.019) is None
+    held = follower.check(t + 0.02)
+    assert held.kind == HOLD and '2 of its periods' in held.why
+    assert follower.deadline() is None and follower.check(t + 1.0) is None
+    # the source comes back with the fist still closed: nothing moves until the hand opens and grabs again
+    assert follower.sample(t + 1.0, palm(0.3), 1.0, True, lambda: TOOL) is None
+    following(follower, t + 1.1)
+
+
+@pytest.mark.parametrize('tracked, x, grab, words', [
+    (False, 0.0, 1.0, 'no hand in view'), (True, math.nan, 1.0, 'not finite'), (True, 0.0, math.inf, 'not finite')])
+def test_a_hand_out_of_view_or_a_bad_sample_holds_the_arm(tracked, x, grab, words):
+    follower = HandFollower(Dial())
+    t = following(follower)
+    held = follower.sample(t + 0.01, palm(x), grab, tracked, lambda: TOOL)
+    assert held.kind == HOLD and words in held.why and not follower.clutch.engaged
+
+
+def test_nothing_is_held_or_watched_before_the_hand_is_followed():
+    follower = HandFollower(Dial())
+    assert follower.deadline() is None and follower.lost('the source failed') is None
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError):
+        HandFollower(Dial(), period=0.0)
+    with pytest.raises(ValueError):
+        HandFollower(Dial(), missed=0)
