@@ -50,13 +50,19 @@ def goal_to(rospy, place):
     return MoveBaseGoal(target_pose=pose)
 
 
-def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_step(rmi, rospy_client, collect):
-    truth = collect('/vaultbot_sim/base_state', BaseState)
+def status_log():
+    """(the statuses heard, their lock, the callback that keeps them) for a robot's holder."""
     heard, lock = [], threading.Lock()
 
     def on_status(event):
         with lock:
             heard.append(event)
+    return heard, lock, on_status
+
+
+def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_step(rmi, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    heard, lock, on_status = status_log()
     rm = rmi()
     robot = rm.load_robot(['navigation'], on_status=on_status)
     assert robot.parts['navigation.obstacles'].startswith('base LIDAR scan')
@@ -122,11 +128,7 @@ def test_a_robot_manager_with_a_journal_comes_back_holding_the_robot_and_fails_o
     statuses = collect('/move_base/status', GoalStatusArray)
     stack.robot_manager.stop()
     stack.robot_manager = start_robot_manager(stack, journal=str(tmp_path / 'rm.sqlite'))
-    heard, lock = [], threading.Lock()
-
-    def on_status(event):
-        with lock:
-            heard.append(event)
+    heard, lock, on_status = status_log()
     rm = rmi()
     robot = rm.load_robot(['navigation'], on_status=on_status)
     client = TrackingActionClient('/move_base', MoveBaseAction)
