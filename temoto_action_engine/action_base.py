@@ -16,7 +16,7 @@ Life of an instance (one node of a running graph), driven by the graph runner:
 4. Then everything the instance requested is released: its manager interfaces are shut down
    and its own Resource Registrar (``action_<name>_<uid>``) unloads whatever it still holds.
 
-Manager interfaces (sensor, output, context, ER) are imported lazily, so an engine runs and
+Manager interfaces (sensor, output, context, ER, robot) are imported lazily, so an engine runs and
 indexes even when one of those packages is missing; using a missing one raises ActionError.
 """
 from __future__ import annotations
@@ -41,12 +41,13 @@ MANAGER_INTERFACES = {
     'output_manager': ('temoto_output_manager.interface', 'OutputManagerInterface'),
     'context_manager': ('temoto_context_manager.interface', 'ContextManagerInterface'),
     'er_manager': ('temoto_er_manager.interface', 'ERManagerInterface'),
+    'robot_manager': ('temoto_robot_manager.interface', 'RobotManagerInterface'),
     # the Sensor Manager of the operator's station (the engine's own namespace): sensors that are not on a
     # robot, such as a fixed scanner in the lab, which stay in reach when a robot's link fails
     'station_sensor_manager': ('temoto_sensor_manager.interface', 'SensorManagerInterface'),
 }
 # the managers that run on a robot (robot.launch): an action's ``robot`` input names their namespace
-ROBOT_MANAGERS = ('sensor_manager', 'er_manager')
+ROBOT_MANAGERS = ('sensor_manager', 'er_manager', 'robot_manager')
 
 
 class ActionError(RuntimeError):
@@ -280,6 +281,10 @@ class ActionBase:
     @property
     def er_manager(self):
         return self.interface('er_manager')
+
+    @property
+    def robot_manager(self):
+        return self.interface('robot_manager')
 
     def release_resources(self) -> list[str]:
         """Shut the interfaces down and the registrar (which unloads everything it holds).

@@ -29,6 +29,10 @@ from . import worker_protocol as wp
 from .umrf import GraphSpec, UmrfError, parse_graph
 
 EVERYTHING = {'everything', 'all', 'every', 'anything'}
+STOP_ACTION = 'stop'
+MOTION_WAKE = ('robot', 'please')        # the paper's "Robot please go"
+# words that, said after "stop" (or alone), mean the robot: "stop", "stop stop", "stop the robot", "stop moving"
+HALT_WORDS = EVERYTHING | {'stop', 'robot', 'moving', 'motion', 'now', 'driving', 'arm', 'arms', 'base'}
 
 
 class ActionEngine:
@@ -37,7 +41,8 @@ class ActionEngine:
                  publish_event: Callable[[dict], None] | None = None,
                  publish_feedback: Callable[[str], None] | None = None, history: int = 20,
                  interface_factories: dict | None = None, workers: WorkerPool | None = None,
-                 records: GraphRecords | None = None):
+                 records: GraphRecords | None = None, publish_halt: Callable[[str], None] | None = None,
+                 motion_wake: tuple = MOTION_WAKE):
         self.index = index
         self.namespace = namespace
         self.wake_words = [w for w in wake_words if w]
@@ -45,6 +50,8 @@ class ActionEngine:
         self.rr_factory = rr_factory or default_rr_factory(namespace)
         self._publish_event = publish_event or (lambda ev: None)
         self._publish_feedback = publish_feedback or (lambda text: None)
+        self._publish_halt = publish_halt or (lambda reason: None)
+        self.motion_wake = tuple(w.lower() for w in motion_wake if w)
         self._lock = threading.RLock()
         self._graphs: dict[str, GraphRun] = {}
         self._finished: collections.OrderedDict = collections.OrderedDict()
@@ -107,16 +114,55 @@ class ActionEngine:
                 self.feedback('%s did not start: %s' % (ev['action'], ev['message']))
             rospy.loginfo('graph %s: %s %s %s' % (ev['graph'], who, ev['state'], ev['message']))
 
+    # ------------------------------------------------------------------ halting
+    def halt(self, reason: str) -> None:
+        """Every motion node hears "stop" now (``temoto_core/halt.py``), before any graph is stopped."""
+        self._publish_halt(reason)
+        self._publish_event({'event': 'halt', 'reason': reason})
+        rospy.logwarn('halt: %s' % reason)
+
+    @staticmethod
+    def is_halt(clauses) -> bool:
+        """Whether grounded ``clauses`` ask to stop the robot: "stop", "stop stop", "stop everything",
+        "stop the robot". "Stop showing the environment" names an action and halts nothing."""
+        if not clauses or any(c.action != STOP_ACTION for c in clauses):
+            return False
+        return all(ActionEngine.is_halt_target(str(c.inputs.get('action', ''))) for c in clauses)
+
+    @staticmethod
+    def is_halt_target(target: str) -> bool:
+        """Whether the words after "stop" mean the robot (none, "stop", "everything", "the robot", ...)."""
+        words = [w.lower().strip(".'") for w in TOKEN_RE.findall(target or '')]
+        return all(w in HALT_WORDS for w in words)
+
     # ------------------------------------------------------------------ graphs
-    def say(self, text: str, use_wake_words: bool = True):
-        """Ground an instruction and start its graph. Returns (GroundingResult, GraphRun or None)."""
-        result = self.grounder(self.wake_words if use_wake_words else None).ground(text)
+    def say(self, text: str, use_wake_words: bool = True, require_motion_wake: bool = False):
+        """Ground an instruction and start its graph. Returns (GroundingResult, GraphRun or None).
+
+        A stop of the robot halts every motion first, through the halt topic, and then runs its graph, which
+        stops the motion actions. The motion wake phrase (``motion_wake``, "robot please") may open any
+        instruction; with ``require_motion_wake`` (speech, chatter) an instruction that asks for a motion
+        action must open with it, so that words said to someone else never move the robot.
+        """
+        spoken, woke = self.strip_motion_wake(text)
+        result = self.grounder(self.wake_words if use_wake_words else None).ground(spoken)
         if not result.addressed:
             rospy.logdebug('not addressed to us: %r' % text)
             return result, None
         if not result.ok:
             self.feedback(result.message)
             return result, None
+        if self.is_halt(result.clauses):
+            self.halt('the operator said "%s"' % text.strip()[:80])
+        elif require_motion_wake and not woke:
+            moving = [c.action for c in result.clauses if self.index.descriptors()[c.action].motion]
+            if moving:
+                wake = ' '.join(self.motion_wake)
+                result.ok, result.graph = False, None
+                result.message = ('not started: %s moves the robot, so say "%s" first ("%s %s")'
+                                  % (', '.join(dict.fromkeys(moving)), wake, wake, text.strip()))
+                self.feedback(result.message)
+                return result, None
         try:
             run = self.start_graph(result.graph)
         except (UmrfError, RuntimeError) as e:
@@ -129,6 +175,32 @@ class ActionEngine:
         else:
             self.feedback('%s; running as graph %s' % (result.message, run.name))
         return result, run
+
+    def motion_refusal(self, text: str, clauses, motion_wake: tuple) -> str:
+        """Why an instruction may not start its motion actions, or ''."""
+        moving = [c.action for c in clauses if self.index.descriptors()[c.action].motion]
+        if not moving:
+            return ''
+        words = [w.lower().strip(".'") for w in TOKEN_RE.findall(text) if w not in (',', ';')]
+        wake = [w.lower() for w in motion_wake]
+        if self.wake_words and words and words[0] in {w.lower() for w in self.wake_words}:
+            words = words[1:]
+        if words[:len(wake)] == wake:
+            return ''
+        return ('not started: %s moves the robot, so the instruction must open with "%s" ("%s %s")'
+                % (', '.join(dict.fromkeys(moving)), ' '.join(wake), ' '.join(wake), text.strip()))
+
+    def strip_motion_wake(self, text: str) -> tuple[str, bool]:
+        """``text`` without the motion wake phrase (kept after a wake word), and whether it was there."""
+        tokens = text.split()
+        lead = []
+        if tokens and self.wake_words and tokens[0].lower().strip(',') in {w.lower() for w in self.wake_words}:
+            lead, tokens = tokens[:1], tokens[1:]
+        n = len(self.motion_wake)
+        said = [t.lower().strip(",.!") for t in tokens[:n]]
+        if n and said == list(self.motion_wake):
+            return ' '.join(lead + tokens[n:]), True
+        return text, False
 
     def start_graph(self, graph) -> GraphRun:
         """Validate a UMRF graph (JSON text or dict) and start it. Raises UmrfError, changing nothing."""
@@ -161,9 +233,13 @@ class ActionEngine:
         try:
             if op == 'stop_actions':
                 timeout = min(max(float(msg.get('timeout', 15.0)), 0.0), 120.0)
-                result = self.stop_actions(str(msg.get('target', '')), exclude_graph=run.name, timeout=timeout)
+                result = self.stop_actions(str(msg.get('target', '')), exclude_graph=run.name, timeout=timeout,
+                                           motion_only=bool(msg.get('motion_only', False)))
             elif op == 'running_actions':
                 result = self.running_actions(exclude_graph=run.name)
+            elif op == 'halt':
+                self.halt(str(msg.get('reason', ''))[:200] or 'the stop action')
+                result = True
             else:
                 error = 'unknown request %r' % (op,)
         except (TypeError, ValueError, RuntimeError) as e:
@@ -220,15 +296,20 @@ class ActionEngine:
     def running_actions(self, exclude_graph: str | None = None) -> list[str]:
         return ['%s/%s' % (r.name, n.key) for r, n in self._running_nodes(exclude_graph)]
 
-    def stop_actions(self, target: str, exclude_graph: str | None = None, timeout: float = 15.0) -> list[str]:
+    def stop_actions(self, target: str, exclude_graph: str | None = None, timeout: float = 15.0,
+                     motion_only: bool = False) -> list[str]:
         """Stop the running actions that ``target`` names best; returns 'graph/node' of those stopped.
 
         ``target`` may be an action name, a node key, a graph name, or the words that started the
         action ("showing the environment"); "everything"/"all" stops every running action.
+        ``motion_only``: every running action that moves the robot (``motion`` in its descriptor), whatever
+        the target says.
         """
         words = [w.lower().strip(".'") for w in TOKEN_RE.findall(target or '')]
         nodes = self._running_nodes(exclude_graph)
-        if any(w in EVERYTHING for w in words):
+        if motion_only:
+            chosen = [(r, n) for r, n in nodes if n.indexed.descriptor.motion]
+        elif any(w in EVERYTHING for w in words):
             chosen = nodes
         else:
             scored = []

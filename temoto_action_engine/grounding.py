@@ -8,7 +8,8 @@ are short imperative sentences, so a deterministic word grounder does the same j
 2. the sentence is split into clauses on "and", "then", commas and semicolons;
 3. in each clause the first word that is (an inflection of) an action's verb or alias picks the
    candidate actions;
-4. each candidate is scored as the original did: +2 for each of its subject words or parameter
+4. a verb that is also one of a parameter's words fills that parameter ("open the gripper");
+   each candidate is scored as the original did: +2 for each of its subject words or parameter
    words said, +2 for a token matching a parameter's pattern (a topic name, say), +1 when its
    wildcard parameter takes the leftover words; a candidate that declares subject words needs
    at least one of them, and every required input must be filled, by words or by the parent;
@@ -195,13 +196,21 @@ class Grounder:
             return None, 'in "%s" no word names an action (words not matched: %s)' % (
                 text, ', '.join(repr(w) for w in words)), words
         verb = clause[verb_at]
-        dependent = any(t.low in DEPENDENT_WORDS for t in clause)
+        said = {t.low for t in clause if t.low in DEPENDENT_WORDS}
+        if said and not previous:
+            # "go there" with nothing before it: "there" is the place pointed at, when an action of this verb
+            # takes it as a word of its own; "it" still refers to nothing
+            own = {w for n in self._verbs[verb.low] for gp in self.descriptors[n].grounding.parameters.values()
+                   for w in gp.words}
+            if not said <= own:
+                return None, 'in "%s", "it"/"there" refers to nothing said before' % text, []
+            content += [t for t in clause if t.low in said]
+            said = set()
+        dependent = bool(said)
         parent = len(previous) - 1 if dependent else None
-        if dependent and not previous:
-            return None, 'in "%s", "it"/"there" refers to nothing said before' % text, []
         parent_outputs = self.descriptors[previous[parent].action].outputs if parent is not None else {}
         words = [t for t in content if t is not verb]
-        cands = [self._score(self.descriptors[n], words, parent_outputs) for n in self._verbs[verb.low]]
+        cands = [self._score(self.descriptors[n], words, parent_outputs, verb) for n in self._verbs[verb.low]]
         viable = [c for c in cands if not c.missing and c.evidence]
         if not viable:
             reasons = []
@@ -218,16 +227,26 @@ class Grounder:
             return None, 'in "%s" the verb "%s" matched, but %s%s' % (
                 text, verb.low, '; '.join(reasons),
                 (' (words not matched: %s)' % ', '.join(repr(w) for w in bad)) if bad else ''), bad
-        best = max(viable, key=lambda c: (c.score, -len(c.unmatched), -len(c.from_parent)))
+        # a tie goes to the action that does not move the robot: "follow the hand" may mean the view's
+        best = max(viable, key=lambda c: (c.score, -len(c.unmatched), not c.action.motion, -len(c.from_parent)))
         return GroundedClause(text, best.action.name, best.inputs, parent, best.from_parent, best.score,
                               best.unmatched), None, []
 
     @staticmethod
-    def _score(desc: ActionDescriptor, words: list[Token], parent_outputs: dict) -> _Candidate:
+    def _score(desc: ActionDescriptor, words: list[Token], parent_outputs: dict, verb: Token | None = None
+               ) -> _Candidate:
         g = desc.grounding
         inputs: dict = {}
         score = 0
         subject_hit = False
+        by_verb = set()             # filled by the verb, which points at no action by itself ("close the door")
+        if verb is not None:        # a verb that is also a parameter's word fills it: "open the gripper"
+            for pname, gp in g.parameters.items():
+                hit = next((w for w in gp.words if verb.low in inflections(w)), None)
+                if hit is not None:
+                    inputs[pname] = hit
+                    by_verb.add(pname)
+                    break
         left: list[Token] = []
         subjects = {f: s for s in g.subjects for f in word_forms(s)}
         for t in words:
@@ -261,5 +280,6 @@ class Grounder:
         missing = [k for k, p in desc.inputs.items()
                    if p.required and p.default is None and k not in inputs and k not in from_parent]
         # An action nothing points at is not chosen by its verb alone, unless it takes no words at all.
-        evidence = subject_hit or bool(inputs) or bool(from_parent) or not (g.subjects or g.parameters)
+        evidence = subject_hit or bool(set(inputs) - by_verb) or bool(from_parent) or \
+            not (g.subjects or g.parameters) or g.bare
         return _Candidate(desc, inputs, from_parent, score, [t.low for t in left], missing, evidence)

@@ -4,6 +4,7 @@ Topics (``<ns>`` is the TeMoto namespace, param ``~temoto_namespace``, default `
 - ``/<ns>/human_chatter``          std_msgs/String, in: instructions (wake word if ``~wake_words``)
 - ``/<ns>/action_engine/feedback`` std_msgs/String, out: short sentences for the operator
 - ``/<ns>/action_engine/events``   std_msgs/String, out: one JSON object per state change
+- ``/<ns>/halt`` (and each robot's) std_msgs/String, out: "stop" for every motion node (temoto_core/halt.py)
 Services:
 - ``/<ns>/action_engine/start_graph``  StartGraph (UMRF graph JSON, or text to ground)
 - ``/<ns>/action_engine/stop_graph``   StopGraph
@@ -13,6 +14,8 @@ Parameters besides the namespace: ``~action_paths``, ``~wake_words``, ``~actions
 settings), ``~include_bundled_actions``, ``~stop_timeout_s`` (15: the grace a stopped graph gets
 before its worker is ended), ``~isolate_graphs`` (true: each graph in a worker process of its
 own), ``~spare_workers`` (1: workers started ahead, so a graph starts without waiting) and
+``~motion_wake_phrase`` ("robot please": an instruction heard on ``human_chatter``, where speech says what it
+heard, that asks for a motion action must open with it; a typed one through ``start_graph`` may),
 ``~journal`` (a path, or ``auto``; default none): with it, graphs that were running when the engine
 died are reported FAILED by its next start (``lost_graphs.py``).
 """
@@ -25,6 +28,7 @@ import time
 import rospy
 from std_msgs.msg import String
 from temoto_core import params, rospy_internals
+from temoto_core.halt import HALT_TYPE, halt_topic
 from temoto_core.node import after_init_node, clear_stale_registration, on_signals
 from temoto_core.rr.journal import Journal
 from temoto_core.rr.settings import journal_param
@@ -54,6 +58,14 @@ class ActionEngineNode:
         base = '/%s/action_engine' % self.namespace
         self.feedback_pub = rospy.Publisher(base + '/feedback', String, queue_size=50)
         self.events_pub = rospy.Publisher(base + '/events', String, queue_size=200)
+        # "stop" reaches the motion nodes of this namespace and of every robot namespace an action names for its
+        # Robot Manager (two hosts): publishers made now, so the first halt finds its subscribers connected
+        halt_namespaces = [self.namespace] + [
+            str(cfg.get('manager_namespaces', {}).get('robot_manager', '')).strip('/')
+            for cfg in actions_cfg.values() if isinstance(cfg, dict) and isinstance(cfg.get('manager_namespaces'), dict)]
+        self.halt_pubs = [rospy.Publisher(halt_topic(ns), HALT_TYPE, queue_size=5, tcp_nodelay=True)
+                          for ns in dict.fromkeys(n for n in halt_namespaces if n)]
+        motion_wake = params.strings('motion_wake_phrase', ['robot', 'please'], separator=' ')
         index = ActionIndex(paths, include_bundled=params.flag('include_bundled_actions', True))
         workers = None
         if params.flag('isolate_graphs', True):
@@ -63,7 +75,8 @@ class ActionEngineNode:
         self.journal = Journal(journal, run_id=str(rospy.get_param('/run_id', ''))) if journal else None
         self.engine = ActionEngine(index, namespace=self.namespace, wake_words=wake, action_config=actions_cfg,
                                    publish_event=self._publish_event, publish_feedback=self._publish_feedback,
-                                   workers=workers, records=GraphRecords(self.journal) if self.journal else None)
+                                   workers=workers, records=GraphRecords(self.journal) if self.journal else None,
+                                   publish_halt=self._publish_halt, motion_wake=tuple(motion_wake))
         if self.engine.lost:
             threading.Thread(target=self._report_lost, name='report-lost-graphs', daemon=True).start()
         self.engine.reindex()
@@ -91,6 +104,10 @@ class ActionEngineNode:
     def _publish_feedback(self, text: str) -> None:
         self.feedback_pub.publish(String(data=text))
 
+    def _publish_halt(self, reason: str) -> None:
+        for pub in self.halt_pubs:
+            pub.publish(HALT_TYPE(data=reason))
+
     def _publish_event(self, ev: dict) -> None:
         ev = dict(ev, stamp=rospy.get_time())
         self.events_pub.publish(String(data=json.dumps(ev, sort_keys=True, default=str)))
@@ -103,7 +120,7 @@ class ActionEngineNode:
         if len(text) > MAX_TEXT:
             self._publish_feedback('ignored an instruction of %d characters (at most %d)' % (len(text), MAX_TEXT))
             return
-        self.engine.say(text)
+        self.engine.say(text, require_motion_wake=True)
 
     def _start_graph(self, req):
         has_json, has_text = bool(req.graph_json.strip()), bool(req.text.strip())

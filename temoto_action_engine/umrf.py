@@ -54,11 +54,11 @@ PARAM_RE = re.compile(r'^[A-Za-z][A-Za-z0-9_]{0,62}$')
 WORD_RE = re.compile(r'^[a-z0-9][a-z0-9_\-]*$')
 
 DESCRIPTOR_FIELDS = {'name', 'description', 'effect', 'module', 'class_name', 'input_parameters',
-                     'output_parameters', 'grounding'}
+                     'output_parameters', 'grounding', 'motion'}
 # Fields of the original UMRF format that mean nothing for a descriptor file; tolerated, ignored.
 IGNORED_UMRF_FIELDS = {'package_name', 'notation', 'library_path', 'state', 'id', 'execute_first',
                        'parents', 'children', 'instance_id', 'type', 'actor', 'gui_attributes'}
-GROUNDING_FIELDS = {'verbs', 'aliases', 'subjects', 'parameters'}
+GROUNDING_FIELDS = {'verbs', 'aliases', 'subjects', 'parameters', 'bare'}
 GROUNDING_PARAM_FIELDS = {'words', 'any', 'pattern'}
 
 GRAPH_FIELDS = {'graph_name', 'graph_description', 'graph_state', 'actions', 'umrf_actions'}
@@ -128,6 +128,7 @@ class Grounding:
     verbs: tuple = ()
     subjects: tuple = ()
     parameters: dict = field(default_factory=dict)   # param name -> GroundingParam
+    bare: bool = False          # the verb alone is enough ("Robot please go"), though it takes words
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,9 @@ class ActionDescriptor:
     outputs: dict         # name -> ParamSpec
     grounding: Grounding
     source: str = ''      # the descriptor file
+    # it moves the robot: an instruction that asks for it must open with the motion wake phrase when it
+    # comes from chatter (speech), and ``stop`` halts it (docs/teleoperation.md)
+    motion: bool = False
 
     @property
     def asynchronous(self) -> bool:
@@ -150,13 +154,14 @@ class ActionDescriptor:
         g = self.grounding
         return {
             'name': self.name, 'description': self.description, 'effect': self.effect,
-            'module': self.module, 'class_name': self.class_name, 'source': self.source,
+            'module': self.module, 'class_name': self.class_name, 'source': self.source, 'motion': self.motion,
             'input_parameters': {k: p.to_json() for k, p in self.inputs.items()},
             'output_parameters': {k: p.to_json() for k, p in self.outputs.items()},
             'grounding': {'verbs': list(g.verbs), 'subjects': list(g.subjects),
                           'parameters': {k: {'words': list(p.words), 'any': p.any_word,
                                              'pattern': p.pattern}
-                                         for k, p in g.parameters.items()}},
+                                         for k, p in g.parameters.items()},
+                          'bare': g.bare},
         }
 
 
@@ -266,7 +271,11 @@ def _grounding(value, inputs: dict, problems: list[str]) -> Grounding:
             problems.append('%s needs "words", "any" or "pattern"' % here)
             continue
         params[pname] = GroundingParam(words, any_word, pattern)
-    return Grounding(verbs, subjects, params)
+    bare = value.get('bare', False)
+    if not isinstance(bare, bool):
+        problems.append('grounding.bare must be true or false')
+        bare = False
+    return Grounding(verbs, subjects, params, bare)
 
 
 def parse_descriptor(data: Any, source: str = '<descriptor>') -> ActionDescriptor:
@@ -296,10 +305,13 @@ def parse_descriptor(data: Any, source: str = '<descriptor>') -> ActionDescripto
     inputs = _params(data.get('input_parameters'), 'input_parameters', problems, inputs=True)
     outputs = _params(data.get('output_parameters'), 'output_parameters', problems, inputs=False)
     grounding = _grounding(data.get('grounding'), inputs, problems)
+    motion = data.get('motion', False)
+    if not isinstance(motion, bool):
+        problems.append('"motion" must be true or false, got %r' % (motion,))
     if problems:
         raise UmrfError(source, problems)
     return ActionDescriptor(name, description.strip(), effect, module, class_name, inputs, outputs,
-                            grounding, source)
+                            grounding, source, motion)
 
 
 # --------------------------------------------------------------------------- graphs

@@ -106,10 +106,15 @@ class EngineLink:
             self._closed = True
             self._cond.notify_all()
 
-    def stop_actions(self, target: str, exclude_graph: str | None = None, timeout: float | None = None) -> list[str]:
+    def stop_actions(self, target: str, exclude_graph: str | None = None, timeout: float | None = None,
+                     motion_only: bool = False) -> list[str]:
         timeout = self._stop_timeout if timeout is None else timeout
         return list(self._ask('stop_actions', timeout + REQUEST_MARGIN_S, target=target,
-                              exclude_graph=exclude_graph or self._graph, timeout=timeout) or [])
+                              exclude_graph=exclude_graph or self._graph, timeout=timeout,
+                              motion_only=motion_only) or [])
+
+    def halt(self, reason: str) -> None:
+        self._ask('halt', REQUEST_MARGIN_S, reason=reason)
 
     def running_actions(self, exclude_graph: str | None = None) -> list[str]:
         return list(self._ask('running_actions', REQUEST_MARGIN_S,

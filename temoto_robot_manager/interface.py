@@ -6,12 +6,17 @@ its own policy instead (``on_status=``): a robot that failed must stop what it m
 silently under it.
 """
 import dataclasses
-from typing import Callable, Dict, Optional, Sequence
+import json
+from typing import Callable, Dict, List, Optional, Sequence
 
 from temoto_core.errors import Subsystem
 from temoto_core.interface import ManagerInterface
 from temoto_core.rr import StatusEvent
-from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, RR_NAME
+from temoto_core.rr.deadlines import call_once
+from temoto_core.srv import GetRegistry
+from temoto_robot_manager.contract import LOAD_ROBOT, LOAD_ROBOT_TYPE, ROBOTS, RR_NAME
+
+INFO_TIMEOUT_S = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,3 +42,21 @@ class RobotManagerInterface(ManagerInterface):
     def release(self, resource_id: int) -> None:
         """Release a robot loaded through this interface: its parts stop unless someone else holds them."""
         self._unload(resource_id)
+
+    def robots(self, timeout: float = INFO_TIMEOUT_S) -> List[dict]:
+        """The described robots as the manager serves them (``temoto robots``): features, places, arms and
+        their frames, the gripper, the ROS namespace of their topics. Raises ``OSError`` or
+        ``rospy.ROSException`` when the manager does not answer, ``ValueError`` on a reply that is not JSON."""
+        namespace = (self.namespace or self.rr.namespace).strip('/')
+        reply = call_once('/%s/%s/%s' % (namespace, RR_NAME, ROBOTS), GetRegistry, GetRegistry._request_class(),
+                          timeout)
+        return list(json.loads(reply.json)['robots'])
+
+    def robot_with(self, feature: str, robot_name: str = '', timeout: float = INFO_TIMEOUT_S) -> dict:
+        """The robot ``robot_name`` (or the first) that has ``feature``; ``LookupError`` naming what exists."""
+        robots = [r for r in self.robots(timeout) if feature in r['features']]
+        found = next((r for r in robots if r['name'] == robot_name or not robot_name), None)
+        if found is None:
+            raise LookupError('no robot %s with %s (described with it: %s)'
+                              % (robot_name or 'at all', feature, ', '.join(r['name'] for r in robots) or 'none'))
+        return found

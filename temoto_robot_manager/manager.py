@@ -36,6 +36,7 @@ from diagnostic_msgs.msg import KeyValue
 from std_msgs.msg import String
 
 from temoto_core.errors import ErrorCode, Subsystem, TemotoError
+from temoto_core.halt import halt_topic
 from temoto_core.reliability import Reliability
 from temoto_core.rr import ResourceRegistrar, StatusEvent
 from temoto_core.rr.settings import journal_param
@@ -110,7 +111,8 @@ class RobotManager:
                     if arm.manipulator is not None:
                         args = ' '.join(a for a in (arm.manipulator.args, '_description:=%s' % robot.path,
                                                     '_robot:=%s' % robot.name, '_arm:=%s' % arm.name,
-                                                    '_owner_topic:=%s' % self.owner_topic(robot.name)) if a)
+                                                    '_owner_topic:=%s' % self.owner_topic(robot.name),
+                                                    '_halt_topic:=%s' % halt_topic(self.namespace)) if a)
                         parts.append(self._part(robot, 'manipulation.%s.manipulator' % arm.name,
                                                 dataclasses.replace(arm.manipulator, args=args),
                                                 '%s/move_arm/status' % arm.name, held))
@@ -240,7 +242,8 @@ class RobotManager:
         if nav.controller is not None:
             args = ' '.join(a for a in (nav.controller.args, '_description:=%s' % robot.path, '_robot:=%s' % robot.name,
                                         '_obstacle_topic:=%s' % served.topic,
-                                        '_obstacle_source_topic:=%s' % self.source_topic(robot.name)) if a)
+                                        '_obstacle_source_topic:=%s' % self.source_topic(robot.name),
+                                        '_halt_topic:=%s' % halt_topic(self.namespace)) if a)
             parts.append(self._part(robot, 'navigation.controller', dataclasses.replace(nav.controller, args=args),
                                     'move_base/status', held))
         return parts
@@ -308,9 +311,15 @@ class RobotManager:
             'reliability': round(self.reliability[r.name].value, 3),
             'places': sorted(r.navigation.places) if r.navigation else [],
             'place_poses': {k: list(v) for k, v in r.navigation.places.items()} if r.navigation else {},
+            'base_frame': r.navigation.base_frame if r.navigation else '',
             'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
+            'arm_frames': {a.name: {'base_frame': a.base_frame, 'tool_frame': a.tool_frame}
+                           for a in r.manipulation.values()},
             'gripper': {'action': r.gripper.action, 'arm': r.gripper.arm, 'positions': r.gripper.positions}
             if r.gripper else None,
+            # where the robot's relative topic names live (move_base, <arm>/servo_target): the manager's own
+            # ROS namespace, as its parts are started by the ER Manager next to it
+            'ros_namespace': rospy.get_namespace(),
             'loaded': [dict(entry, features=list(entry['features'])) for entry in loaded if entry['robot'] == r.name],
         } for r in self.robots.values()], 'problems': self.problems}, sort_keys=True)
 

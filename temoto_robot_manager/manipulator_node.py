@@ -21,7 +21,8 @@ A goal whose holder is gone (its client, or the Robot Manager that started this 
 is cancelled at once, and the arm holds.
 
 Private parameters: ``~description`` (a robot description file), ``~robot``, ``~arm`` (an arm of its
-manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 125, MoveIt Servo's).
+manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 125, MoveIt Servo's),
+``~halt_topic`` (default ``/temoto/halt``: the operator's "stop" aborts the goal and holds the arm).
 """
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import params
+from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
@@ -80,6 +82,7 @@ class ManipulatorNode:
         self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick
         self._new_target = False
         self._hold_now = ''                      # a streamer's hold, for the loop to send: the reason
+        self._halted_at = rospy.Time(0)          # the operator's last stop: a target stamped before it is dropped
         self._checked_at = 0.0                         # the servo's last self-collision check
         self._streaming = False                        # servo commands are being sent
         self._controller_seen = False                  # connected to the controller's status once
@@ -99,6 +102,8 @@ class ManipulatorNode:
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_hold' % name, String, self._on_servo_hold, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
+                         tcp_nodelay=True)
+        rospy.Subscriber(params.text('halt_topic', halt_topic('temoto')), HALT_TYPE, self._on_halt, queue_size=5,
                          tcp_nodelay=True)
         owner_topic = params.text('owner_topic', '')
         self._owner = rospy.Subscriber(owner_topic, String, lambda _m: None, queue_size=1) if owner_topic else None
@@ -134,6 +139,8 @@ class ManipulatorNode:
             pose.pose.position, pose.pose.orientation)
 
     def _on_servo_target(self, msg: PoseStamped) -> None:
+        if not msg.header.stamp.is_zero() and msg.header.stamp <= self._halted_at:
+            return                      # sent before the operator's stop, and overtaken by it
         try:
             target = self._in_base(msg)
         except (GoalRefused, ValueError) as err:
@@ -151,6 +158,23 @@ class ManipulatorNode:
             self._hold_now = msg.data.strip() or 'told to hold'
             self._new_target = True
             self.wake.notify()
+
+    def _on_halt(self, msg) -> None:
+        """The operator's "stop" (``temoto_core/halt.py``): the goal ends ABORTED and the controller holds the
+        arm; a servo stream is held as by ``servo_hold`` (from the loop's thread)."""
+        reason = reason_of(msg)
+        self._halted_at = rospy.Time.now()
+        with self.lock:
+            halted, self.active = self.active, None
+            self.target = None
+            self._hold_now = 'halted: %s' % reason
+            self._new_target = True
+            self.wake.notify()
+        if halted is not None:
+            self.controller.cancel_goal()
+            text = 'halted: %s; the arm holds' % reason
+            halted.set_aborted(self._result(MoveArmResult.PREEMPTED, text), text)
+        rospy.logwarn('manipulator: halted (%s)', reason)
 
     def _touches(self, q) -> Optional[str]:
         near = self.body.nearest(dict(zip(self.arm.joints, q)), 0.0)

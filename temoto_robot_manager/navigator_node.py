@@ -6,7 +6,9 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
   cancel stops the robot. Feedback is the base's pose; ``move_base/distance_remaining`` says how far
   is left;
 - ``move_base_simple/goal`` (``PoseStamped``): passed to the action server as move_base does;
-- ``~plan`` (``nav_msgs/Path``): the current plan, for RViz.
+- ``~plan`` (``nav_msgs/Path``): the current plan, for RViz;
+- ``~halt_topic`` (default ``/temoto/halt``, ``std_msgs/String``): the operator's "stop": zero at once,
+  and the goal ends ABORTED with the reason (``temoto_core/halt.py``).
 
 In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
 ``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
@@ -41,6 +43,7 @@ from sensor_msgs.msg import LaserScan, PointCloud2
 from std_msgs.msg import Float32, String
 
 from temoto_core import params
+from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok
 from temoto_core.rospy_internals import connection_header
 from temoto_core.wait import wait_for
@@ -85,6 +88,8 @@ class NavigatorNode:
         rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
         rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
+        rospy.Subscriber(params.text('halt_topic', halt_topic('temoto')), HALT_TYPE, self._on_halt, queue_size=5,
+                         tcp_nodelay=True)
         # the Robot Manager's latched topic: its connection is also how the navigator knows the manager lives
         self._owner = rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
                                        lambda msg: self.use_source(msg.data), queue_size=5)
@@ -246,6 +251,20 @@ class NavigatorNode:
             self.active = None
         handle.set_canceled(MoveBaseResult(), 'canceled: the robot stops')
         rospy.loginfo('navigator: goal %s canceled', handle.get_goal_id().id)
+
+    def _on_halt(self, msg) -> None:
+        """The operator's "stop" (``temoto_core/halt.py``): zero now, whoever drives; the goal ends ABORTED."""
+        reason = reason_of(msg)
+        with self.lock:
+            self._command(0.0, 0.0)
+            halted, self.active = self.active, None
+            if halted is not None:
+                self.nav.cancel()
+        if halted is not None:
+            halted.set_aborted(MoveBaseResult(), 'halted: %s' % reason)
+            self._publish_plan(None)
+        rospy.logwarn('navigator: halted (%s)%s', reason, ': goal %s aborted' % halted.get_goal_id().id
+                      if halted is not None else '')
 
     def _publish_plan(self, path: Optional[np.ndarray]) -> None:
         msg = Path()

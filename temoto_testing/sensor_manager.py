@@ -26,6 +26,9 @@ def start_er_manager(launcher, log_dir):
 # workers' simulations on 2 cores, where a healthy driver's first message once came later (a SICK, a fake
 # camera) and a test failed on a start-up it was not about. bench_sensor.py and bench_sim.py measure start-ups.
 GENEROUS_ALLOWANCE = 10.0
+# the operator's hand sources (the simulated Leap Motion), for a Sensor Manager's ~extra_catalogues
+HAND_CATALOGUE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_sensor_manager',
+                              'config', 'hands.yaml')
 
 
 def start_sensor_manager(launcher, first_data_timeout=20.0, extra=FAKE_CATALOGUE, name='temoto_sensor_manager',
@@ -159,13 +162,14 @@ def _answers(rr):
         return False
 
 
-def start_robot_stack(launcher, er_logs, **sim):
+def start_robot_stack(launcher, er_logs, extra='', **sim):
     """The sim (``sim`` overrides its parameters) with its base controller, and the ER, Sensor and Robot
-    Managers, as a module of tests shares them; returns the Robot Manager's process."""
+    Managers, as a module of tests shares them; returns the Robot Manager's process. The Sensor Manager has
+    the VaultBot's sensors and the catalogues in ``extra`` (``HAND_CATALOGUE``, say)."""
     start_sim(launcher, **sim)
     launcher.node('vaultbot_sim', 'base_controller')
     start_er_manager(launcher, er_logs)
-    start_sensor_manager(launcher, first_data_timeout=20.0, extra='',       # the VaultBot's sensors only
+    start_sensor_manager(launcher, first_data_timeout=20.0, extra=extra,
                          first_data_allowance=GENEROUS_ALLOWANCE)
     return start_robot_manager(launcher)
 

@@ -8,15 +8,14 @@ feedback topic, the events topic, RViz screenshots.
 import json
 import os
 import signal
-import threading
 
 import numpy as np
 import pytest
 import rospy
 from PIL import Image
-from std_msgs.msg import String
 
 from temoto_testing import wait_for, wait_receiving
+from temoto_testing.operator import Operator
 from temoto_core import master_lookup as er_master
 from temoto_output_manager.host_client import RvizHostClient, host_node_name
 from temoto_testing.sensor_manager import (NS, managers_idle, set_cable, start_context_manager, start_er_manager,
@@ -24,57 +23,6 @@ from temoto_testing.sensor_manager import (NS, managers_idle, set_cable, start_c
 
 ALL_RRS = ('temoto_context_manager', 'temoto_context_manager_trackers', 'temoto_sensor_manager',
            'temoto_er_manager', 'temoto_output_manager')
-
-
-class Operator:
-    """What the operator sees of the engine: its feedback and events, and its services."""
-
-    def __init__(self):
-        from temoto_action_engine.srv import ListGraphs, StartGraph, StopGraph
-        self.lock = threading.Lock()
-        self.feedback, self.events = [], []
-        self.subs = [rospy.Subscriber('/%s/action_engine/feedback' % NS, String, self._on_feedback),
-                     rospy.Subscriber('/%s/action_engine/events' % NS, String, self._on_event)]
-        base = '/%s/action_engine/' % NS
-        self.start = rospy.ServiceProxy(base + 'start_graph', StartGraph)
-        self.stop = rospy.ServiceProxy(base + 'stop_graph', StopGraph)
-        self.list = rospy.ServiceProxy(base + 'list_graphs', ListGraphs)
-
-    def _on_feedback(self, msg):
-        with self.lock:
-            self.feedback.append(msg.data)
-
-    def _on_event(self, msg):
-        with self.lock:
-            self.events.append(json.loads(msg.data))
-
-    def say(self, text: str) -> str:
-        resp = self.start(text=text)
-        assert resp.code == 0, resp.message
-        return resp.graph_name
-
-    def graph(self, name: str) -> dict:
-        return next(g for g in json.loads(self.list().json) if g['graph_name'] == name)
-
-    def of(self, kind: str, graph: str) -> list:
-        with self.lock:
-            return [e for e in self.events if e.get('event') == kind and e.get('graph') == graph]
-
-    def wait_event(self, kind: str, graph: str, timeout: float, what: str) -> list:
-        """The graph's ``kind`` events, once there is one. A graph that ends first fails the test at once
-        with its reason and the events it sent, rather than as a bare timeout."""
-        def seen():
-            got = self.of(kind, graph)
-            if not got and self.of('graph_finished', graph):
-                with self.lock:
-                    sent = [e for e in self.events if e.get('graph') == graph]
-                raise AssertionError('the graph ended before %s: %s' % (what, sent))
-            return got
-        return wait_for(seen, timeout, what)
-
-    def close(self):
-        for sub in self.subs:
-            sub.unregister()
 
 
 @pytest.fixture(scope='module')

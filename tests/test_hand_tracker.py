@@ -1,7 +1,6 @@
 """The operator's hand as a sensor: the simulated hand tracker replays a hand path at 100 Hz, is served by the
 Sensor Manager as a `hand` catalogue entry (temoto_sensor_manager/config/hands.yaml), and fails its holder
 when its cable is pulled. Real roscore, sim, ER and Sensor Managers across processes."""
-import os
 import threading
 
 import pytest
@@ -9,12 +8,10 @@ import pytest
 from temoto_core.msg import HandSample, ResourceStatus
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_testing import made_interfaces, wait_for
-from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, er_processes, managers_idle, set_cable,
+from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, HAND_CATALOGUE as HANDS, er_processes, managers_idle, set_cable,
                                            start_er_manager, start_sensor_manager, start_sim)
 from vaultbot_sim.hand_path import DEFAULT, HandPath
 
-HANDS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'temoto_sensor_manager',
-                     'config', 'hands.yaml')
 HANG = 60.0
 
 

@@ -1,0 +1,227 @@
+"""follow_hand: an arm's tool follows the operator's hand through a clutch, scaled by a dial.
+
+What it holds: the robot's manipulation (Robot Manager) and a hand source (the station's Sensor Manager,
+type ``hand``). What it runs: ``HandFollower`` (``temoto_robot_manager/hand_follower.py``), fed from the
+hand source's subscriber thread, so a sample becomes a servo target with no queue between them:
+
+- a grab after an open hand engages; the tool then follows the hand's motion relative to the grab, times
+  the dial's scale, on ``<arm>/servo_target`` (the hand's axes are taken as the arm base frame's);
+- a hand that goes (no sample for 2 of its periods, out of view, a sample not finite, its source FAILED)
+  holds the arm at once on ``<arm>/servo_hold``, from a loop that waits for exactly the follower's
+  deadline; the clutch then needs an open hand and a new grab;
+- a failed source is released and the best hand source that works is started in its place (the Sensor
+  Manager's ranking); when none works, the action ends FAILED, the arm held;
+- the robot's manipulation failing (a controller crashed) ends it FAILED, the arm held.
+
+The dial: ``/<ns>/dial`` (``std_msgs/Float32``, a scale from 0.01 to 10, stepped onto the 1-2-5 series) and
+``/<ns>/dial/step`` (``std_msgs/Int8``, clicks finer (-) or coarser (+)); the scale now is latched on
+``/<ns>/dial/scale``. A scale out of range is refused, naming the range, and the scale stays.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import rospy
+import tf2_ros
+from geometry_msgs.msg import PoseStamped
+from std_msgs.msg import Float32, Int8, String
+
+from temoto_action_engine.action_base import ActionError
+from temoto_action_engine.robot_action import RobotAction
+from temoto_core.errors import TemotoError
+from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
+from temoto_core.msg import HandSample
+from temoto_robot_manager.dial import Dial
+from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
+from temoto_robot_manager.obstacle_points import matrix_of
+
+HAND_TYPE = 'hand'
+HAND_TOPIC_KEY = 'hand_data'
+SAMPLE_PERIOD_S = 0.01          # a Leap Motion's 100 Hz (hands.yaml declares the same rate)
+TOOL_WAIT_S = 0.2               # the tool's pose from TF at a grab
+
+
+def _palm(msg: HandSample) -> np.ndarray:
+    p, q = msg.palm.position, msg.palm.orientation
+    x, y, z, w = q.x, q.y, q.z, q.w
+    n = x * x + y * y + z * z + w * w
+    m = np.eye(4)
+    if not np.isfinite(n) or n < 1e-9:
+        m[:3, :3] = np.nan
+    else:
+        s = 2.0 / n
+        m[:3, :3] = [[1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+                     [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
+                     [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]]
+    m[:3, 3] = (p.x, p.y, p.z)
+    return m
+
+
+def _pose(frame: str, m: np.ndarray) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.frame_id, msg.header.stamp = frame, rospy.Time.now()
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in m[:3, 3])
+    r = m[:3, :3]
+    w = np.sqrt(max(0.0, 1.0 + r[0, 0] + r[1, 1] + r[2, 2])) / 2.0
+    x = np.copysign(np.sqrt(max(0.0, 1.0 + r[0, 0] - r[1, 1] - r[2, 2])) / 2.0, r[2, 1] - r[1, 2])
+    y = np.copysign(np.sqrt(max(0.0, 1.0 - r[0, 0] + r[1, 1] - r[2, 2])) / 2.0, r[0, 2] - r[2, 0])
+    z = np.copysign(np.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0, r[1, 0] - r[0, 1])
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = float(x), float(y), float(z), float(w)
+    return msg
+
+
+class FollowHand(RobotAction):
+    def on_start(self):
+        info = self.hold_robot('manipulation')
+        arms = info.get('arm_frames') or {}
+        said = (self.input('arm') or '').strip().lower()
+        default = (info.get('gripper') or {}).get('arm') or next(iter(sorted(arms)), '')
+        self.arm = next((a for a in arms if said and a.startswith(said)), None) if said else default
+        if self.arm not in arms:
+            raise ActionError('%s has no %s arm (its arms: %s)' % (info['name'], said, ', '.join(sorted(arms))))
+        self.base_frame, self.tool_frame = arms[self.arm]['base_frame'], arms[self.arm]['tool_frame']
+        self.dial = Dial()
+        scale = self.input('scale')
+        if scale not in (None, ''):
+            try:
+                self.dial.set(float(scale))
+            except ValueError as err:
+                raise ActionError('scale %s: %s' % (scale, err)) from None
+        self.lock = threading.Lock()
+        self.halted = False
+        self.follower = HandFollower(self.dial, SAMPLE_PERIOD_S)
+        self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(5.0))
+        self._tf_listener = tf2_ros.TransformListener(self.tf)
+        self.pub_target = rospy.Publisher(self.robot_topic('%s/servo_target' % self.arm), PoseStamped,
+                                          queue_size=5, tcp_nodelay=True)
+        self.pub_hold = rospy.Publisher(self.robot_topic('%s/servo_hold' % self.arm), String, queue_size=5,
+                                        tcp_nodelay=True)
+        ns = self.context.namespace
+        self.pub_scale = rospy.Publisher('/%s/dial/scale' % ns, Float32, queue_size=1, latch=True)
+        self.pub_scale.publish(Float32(self.dial.scale))
+        self._subs = [rospy.Subscriber('/%s/dial' % ns, Float32, self._on_dial, queue_size=5),
+                      rospy.Subscriber('/%s/dial/step' % ns, Int8, self._on_dial_step, queue_size=5),
+                      rospy.Subscriber(halt_topic(ns), HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)]
+        self.hand = None
+        self._hand_sub = None
+        self._start_hand()
+        self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
+        self.feedback('the %s follows your hand at %gx: open your hand, then grab' % (self.arm, self.dial.scale))
+
+    # -- the hand source ----------------------------------------------------------------------------------------
+    def _start_hand(self) -> None:
+        try:
+            self.hand = self.station_sensor_manager.start_sensor(HAND_TYPE, [HAND_TOPIC_KEY], on_status=self.post)
+        except TemotoError as err:
+            raise ActionError('no hand source works: %s' % err) from None
+        if self._hand_sub is not None:
+            self._hand_sub.unregister()
+        self._hand_sub = rospy.Subscriber(self.hand.topic(HAND_TOPIC_KEY), HandSample, self._on_sample,
+                                          queue_size=5, tcp_nodelay=True)
+
+    def _hand_failed(self, event) -> None:
+        failed = self.hand
+        self._hold('the hand source %s failed: %s' % (failed.sensor_name, event.message))
+        self.event('hand_failed', hand=failed.sensor_name, message=event.message, origin=event.origin)
+        try:
+            self.station_sensor_manager.stop_sensor(failed.resource_id)
+        except TemotoError as err:         # its owner may be gone with it; what it held is released in cascade
+            self.log_warn('releasing the failed hand source: %s' % err)
+        try:
+            self._start_hand()
+        except ActionError as err:
+            self.fail('lost the hand (%s), and no other hand source works: %s' % (event.origin, err))
+            return
+        self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
+        self.feedback('the hand source failed (%s); now %s: open your hand, then grab again'
+                      % (event.origin, self.hand.sensor_name))
+
+    # -- samples, from the subscriber's thread ------------------------------------------------------------------
+    def _on_sample(self, msg: HandSample) -> None:
+        if not self.action_ok():
+            return
+        with self.lock:
+            if self.halted:
+                return
+            try:
+                command = self.follower.sample(time.monotonic(), _palm(msg), float(msg.grab_strength), msg.tracked,
+                                               self._tool_now)
+            except ActionError as err:         # no tool pose at the grab: nothing engages
+                command = self.follower.lost(str(err))
+                self.log_warn(str(err))
+            self._send(command)
+
+    def _on_halt(self, msg) -> None:
+        """The operator's "stop": no target after it, whatever the hand does; the action ends."""
+        with self.lock:
+            self.halted = True
+            self._send(self.follower.lost('halted: %s' % reason_of(msg)))
+        self.event('halted', reason=reason_of(msg))
+        self.request_stop()
+
+    def _tool_now(self) -> np.ndarray:
+        try:
+            t = self.tf.lookup_transform(self.base_frame, self.tool_frame, rospy.Time(0), rospy.Duration(TOOL_WAIT_S))
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
+            raise ActionError('where the %s is is not known: %s' % (self.tool_frame, err)) from None
+        return matrix_of(t.transform)
+
+    def _send(self, command) -> None:
+        """Publish a follower's command; called with self.lock held, so a hold is never overtaken."""
+        if command is None:
+            return
+        if command.kind == TARGET:
+            self.pub_target.publish(_pose(self.base_frame, command.pose))
+        elif command.kind == HOLD:
+            self.pub_hold.publish(String(command.why))
+
+    def _hold(self, why: str) -> None:
+        with self.lock:
+            self._send(self.follower.lost(why))
+
+    # -- the dial -----------------------------------------------------------------------------------------------
+    def _on_dial(self, msg: Float32) -> None:
+        self._turn(lambda: self.dial.set(float(msg.data)))
+
+    def _on_dial_step(self, msg: Int8) -> None:
+        self._turn(lambda: self.dial.step(int(msg.data)))
+
+    def _turn(self, change) -> None:
+        with self.lock:
+            try:
+                scale = change()
+            except ValueError as err:
+                self.feedback('dial refused: %s' % err)
+                return
+        self.pub_scale.publish(Float32(scale))
+        self.feedback('scale %gx' % scale)
+
+    # -- the loop: the hand's deadline and the resources' statuses ------------------------------------------------
+    def execute(self):
+        while self.action_ok():
+            with self.lock:
+                deadline = self.follower.deadline()
+            timeout = 0.5 if deadline is None else max(0.0, deadline - time.monotonic())
+            item = self.next_item(timeout)
+            if not self.action_ok():
+                break
+            if item is None:
+                with self.lock:
+                    self._send(self.follower.check(time.monotonic()))
+                continue
+            if self.hand is not None and item.resource_id == self.hand.resource_id and item.failed:
+                self._hand_failed(item)
+                continue
+            why = self.robot_event(item)
+            if why is not None:
+                self._hold(why)
+                self.fail(why)
+
+    def on_stop(self):
+        if hasattr(self, 'lock'):
+            self._hold('follow_hand stopped')
+            for sub in self._subs + ([self._hand_sub] if self._hand_sub is not None else []):
+                sub.unregister()

@@ -1,0 +1,189 @@
+"""The operator moves the robot through the action engine: a goal pointed with RViz's own tool, "Robot please
+go", "stop", the gripper, and the arm following the hand. Judged by the simulation's ground truth.
+
+Shared by the module: roscore, the sim in the lab with its base controller, the ER, Sensor (with the hand
+sources) and Robot Managers, the pointer, and the action engine, each in its own process.
+"""
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+import rospy
+import tf2_ros
+from geometry_msgs.msg import PointStamped, PoseStamped
+from std_msgs.msg import String
+from visualization_msgs.msg import Marker
+
+from temoto_robot_manager.description import load_file
+from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
+from temoto_testing import wait_for, wait_receiving
+from temoto_testing.motion import commanded_zero_after
+from temoto_testing.operator import Operator
+from temoto_testing.sensor_manager import (HAND_CATALOGUE, NS, er_processes, managers_idle, set_cable,
+                                           start_robot_stack)
+from vaultbot_sim.msg import ArmState, BaseState, GripperState
+
+HANG = 90.0
+PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot').navigation.places
+RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
+
+
+@pytest.fixture(scope='module')
+def stack(rospy_client, module_procs, tmp_path_factory):
+    start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), extra=HAND_CATALOGUE, hand_motion=False)
+    module_procs.node('temoto_robot_manager', 'pointer', params={'temoto_namespace': NS})
+    if rospy_client.has_param('/temoto_action_engine'):
+        rospy_client.delete_param('/temoto_action_engine')   # private params outlive a node on the shared master
+    module_procs.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
+                      params={'temoto_namespace': NS})
+    rospy_client.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=30)
+    operator = Operator()
+    chatter = rospy_client.Publisher('/%s/human_chatter' % NS, String, queue_size=5)
+    wait_receiving(operator.subs, 30, 'the engine\'s topics connected')
+    wait_for(lambda: chatter.get_num_connections() > 0, 30, 'the engine hearing chatter')
+    operator.chatter = chatter
+    yield operator
+    operator.close()
+
+
+@pytest.fixture
+def op(stack):
+    yield stack
+    for g in json.loads(stack.list().json):
+        if g['state'] in ('RUNNING', 'STOPPING'):
+            stack.stop(graph_name=g['graph_name'])
+    set_cable('sick', 'plugged')
+    set_cable('hand_tracker', 'plugged')
+    managers_idle(RRS, timeout=30)
+
+
+def said(op, text):
+    """Say ``text`` as speech does (on human_chatter); the graph it started, by its grounding feedback."""
+    before = len(op.feedback)
+    op.chatter.publish(String(text))
+    line = wait_for(lambda: next((f for f in op.feedback[before:] if f.startswith(('grounded', 'not started',
+                                                                                  'could not'))), None),
+                    20, 'the engine\'s answer to "%s"' % text)
+    return line
+
+
+def graph_of(line):
+    assert 'running as graph ' in line, line
+    return line.split('running as graph ')[1].split()[0].rstrip(';')
+
+
+def point(rospy, place=None, xy=None):
+    """RViz's "2D Nav Goal" (a place, with its heading) or "Publish Point" (``xy``)."""
+    if place is not None:
+        x, y, yaw = PLACES[place]
+        msg = PoseStamped()
+        msg.header.frame_id, msg.header.stamp = 'world', rospy.Time.now()
+        msg.pose.position.x, msg.pose.position.y = x, y
+        msg.pose.orientation.z, msg.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        pub = rospy.Publisher('/move_base_simple/goal', PoseStamped, queue_size=1)
+    else:
+        msg = PointStamped()
+        msg.header.frame_id, msg.header.stamp = 'world', rospy.Time.now()
+        msg.point.x, msg.point.y = xy
+        pub = rospy.Publisher('/clicked_point', PointStamped, queue_size=1)
+    wait_for(lambda: pub.get_num_connections() > 0, 20, 'the pointer listening')
+    pub.publish(msg)
+    return pub
+
+
+def ended(op, graph, key, timeout=HANG * 2):
+    return wait_for(lambda: op.node_state(graph, key) if op.node_state(graph, key) in ('FINISHED', 'FAILED')
+                    else None, timeout, '%s of %s to end' % (key, graph))
+
+
+def test_a_goal_pointed_in_rviz_is_kept_until_robot_please_go_drives_there(op, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    pointed = collect('/%s/pointed_goal' % NS, PoseStamped)
+    marker = collect('/%s/pointed_goal/marker' % NS, Marker)
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    point(rospy_client, 'drums')
+    wait_for(lambda: pointed.last() is not None and pointed.last().header.frame_id == 'world', 20,
+             'the pointed goal kept')
+    assert marker.last().action == Marker.ADD and marker.last().type == Marker.ARROW
+    assert not any('navigator' in str(p['command']) for p in er_processes()), 'pointing alone drives nothing'
+    # without the wake phrase, speech starts no motion
+    line = said(op, 'go')
+    assert 'not started' in line and 'robot please' in line, line
+    line = said(op, 'robot please go')
+    graph = graph_of(line)
+    ended(op, graph, 'navigate_0')
+    assert op.node_state(graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
+    end, (x, y, _) = truth.last(), PLACES['drums']
+    assert math.hypot(end.x - x, end.y - y) <= 0.10 and end.contacts == 0
+    # used: the goal left the scene, and "go" again has nowhere to go
+    wait_for(lambda: pointed.last().header.frame_id == '' and marker.last().action == Marker.DELETE, 20,
+             'the used goal gone from the scene')
+    graph = graph_of(said(op, 'robot please go'))
+    assert ended(op, graph, 'navigate_0') == 'FAILED'
+    assert op.heard('navigate failed', 'no goal is pointed'), op.feedback[-5:]
+    # a named place, and a point without heading: the robot faces it
+    graph = graph_of(said(op, 'robot please go home'))
+    assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
+    assert math.hypot(truth.last().x, truth.last().y) <= 0.10
+
+
+def test_stop_halts_a_drive_at_once_and_the_drive_ends_stopped(op, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    graph = graph_of(said(op, 'robot please go to the drums'))
+    wait_for(lambda: truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    t0 = rospy_client.get_time()
+    said(op, 'stop')
+    zero = commanded_zero_after(truth.msgs, t0, 5.0)
+    assert zero.header.stamp.to_sec() - t0 < 1.0, 'a hang, not a timing goal (bench_teleop measures it)'
+    assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
+    assert any(e.get('event') == 'halt' for e in op.events)
+    # the base stays at rest: nothing drives on after the stop
+    wait_for(lambda: abs(truth.last().linear) < 0.01, 10, 'the base at rest')
+    graph = graph_of(said(op, 'robot please go home'))
+    assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
+
+
+def test_the_gripper_closes_and_opens_when_told(op, collect):
+    gripper = collect('/vaultbot_sim/gripper_state', GripperState)
+    graph = graph_of(said(op, 'robot please close the gripper'))
+    assert ended(op, graph, 'gripper_0') == 'FINISHED', op.of('state', graph)
+    assert gripper.last().gap < 0.002
+    graph = graph_of(said(op, 'robot please open the gripper'))
+    assert ended(op, graph, 'gripper_0') == 'FINISHED', op.of('state', graph)
+    assert gripper.last().gap > 0.08
+    line = said(op, 'close the gripper')
+    assert 'not started' in line, 'no motion without the wake phrase: %s' % line
+
+
+def tool_y(buffer):
+    t = buffer.lookup_transform('left_base_link', 'left_tool0', rospy.Time(0), rospy.Duration(1.0))
+    return t.transform.translation.y
+
+
+def test_the_arm_follows_the_hand_and_holds_when_the_hand_is_unplugged(op, rospy_client, collect):
+    arms = collect('/vaultbot_sim/arm_states', ArmState)
+    buffer = tf2_ros.Buffer()
+    listener = tf2_ros.TransformListener(buffer)
+    try:
+        start = wait_for(lambda: tool_y(buffer), 20, 'the tool\'s pose')
+        graph = graph_of(said(op, 'robot please follow my hand'))
+        op.wait_event('following', graph, HANG, 'the arm following the hand')
+        # the default hand path: a grab, then 10 cm to the left over 2 s (1x)
+        wait_for(lambda: tool_y(buffer) - start > 0.05, 30, 'the tool following the hand to the left')
+        wait_for(lambda: any(a.arm == 'left_arm' and a.commanded_speed > 0.0 for a in arms.msgs[-20:]), 10,
+                 'the arm commanded to move')
+        t0 = time.monotonic()
+        set_cable('hand_tracker', 'unplugged', 'crash')
+        wait_for(lambda: [a for a in arms.msgs[-10:] if a.arm == 'left_arm'][-1].commanded_speed == 0.0, 5,
+                 'the arm held')
+        assert time.monotonic() - t0 < 2.0, 'a hang, not a timing goal (bench_teleop measures it)'
+        assert ended(op, graph, 'follow_hand_0') == 'FAILED'
+        assert op.heard('follow_hand failed', 'hand'), op.feedback[-5:]
+        held = np.array([tool_y(buffer)])
+        wait_for(lambda: all(a.speed < 1e-3 for a in arms.msgs[-10:] if a.arm == 'left_arm'), 10, 'the arm at rest')
+        assert abs(tool_y(buffer) - held[0]) < 0.02
+    finally:
+        listener.unregister()
