@@ -14,7 +14,10 @@ object the grounder can use:
 - at most one prepositional phrase: "with a hot standby" for a parameter whose pattern lists words.
 
 An utterance is an optional wake word, then one clause, or two joined by "and" or "then" (the grounder's
-separators). Words outside the recogniser's dictionary get espeak-ng's pronunciation (``phonemes.py``);
+separators). An action that moves the robot (``motion`` in its descriptor) has no clause of its own: it is
+said only after the motion wake phrase ("robot please go", "robot please close the gripper"), which the
+engine also demands of what speech hears, and which the recogniser holds to a stricter margin. An
+action whose verb alone grounds it (``bare``: "stop", "go") may be said with no object. Words outside the recogniser's dictionary get espeak-ng's pronunciation (``phonemes.py``);
 words that cannot be said (topic names, robot names with digits) are left out, and listed.
 """
 from __future__ import annotations
@@ -31,6 +34,7 @@ LOCATIVES = ('on', 'in')
 EVERYTHING = ('everything', 'all')
 JOINERS = ('and', 'then')
 POLITE = 'please'
+MOTION_WAKE = ('robot', 'please')      # the paper's "Robot please go"; the action engine's default too
 SAYABLE = re.compile(r'[a-z]+$')
 ENUM_PATTERN = re.compile(r'^\^?\(?([a-z]+(?:\|[a-z]+)+)\)?\$?$')     # "cold|warm|hot", "^(a|b)$"
 
@@ -79,6 +83,8 @@ class _ActionWords:
         self.any_words = False
         self.enums: Dict[str, List[str]] = {}
         self.left_out: List[str] = []
+        self.motion = bool(action.get('motion'))         # said only after the motion wake phrase
+        self.bare = bool(grounding.get('bare'))          # the verb alone is a clause ("stop", "go")
         params = grounding.get('parameters') or {}
         self.said = {w.lower() for w in list(grounding.get('verbs', [])) + list(grounding.get('subjects', [])) +
                      [w for spec in params.values() for w in (spec.get('words') or [])]}
@@ -102,9 +108,11 @@ class _ActionWords:
         return self.subjects or sorted(set(self.param_words))
 
 
-def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: Iterable[str] = ()) -> Grammar:
+def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: Iterable[str] = (),
+          motion_wake: Sequence[str] = MOTION_WAKE) -> Grammar:
     """The grammar of ``actions`` (descriptor JSON, as ``list_actions`` sends it); with ``wake_words`` an
-    utterance must open with one of them. ``unsayable``: words the recogniser has no pronunciation for."""
+    utterance must open with one of them. ``unsayable``: words the recogniser has no pronunciation for.
+    An action that moves the robot (``motion``) is said only after ``motion_wake`` ("robot please go")."""
     unsayable = set(unsayable)
     described = [a for a in (_ActionWords(a, unsayable) for a in actions) if a.verbs]
     det = '[%s]' % _alt(DETERMINERS)
@@ -116,13 +124,16 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
         elif a.objects():
             pps = ['with %s %s%s' % (det, _alt(words), ' [%s]' % pname if SAYABLE.match(pname) else '')
                    for pname, words in sorted(a.enums.items())]
-            body = ' %s%s %s%s' % ('[me] ' if a.subjects else '', det, _alt(a.objects()),
-                                   ' [%s]' % _alt(pps) if pps else '')
+            # a place a motion goes to: "go to the shelf"
+            body = ' %s%s%s %s%s' % ('[me] ' if a.subjects else '', '[to] ' if a.motion and not a.subjects else '',
+                                     det, _alt(a.objects()), ' [%s]' % _alt(pps) if pps else '')
         elif a.any_words:
             others = [_clause_of_other(b) for b in described if b is not a and b.objects() and not b.takes_parent]
             body = ' ' + _alt(list(EVERYTHING) + [o for o in others if o])
         else:
             body = ''
+        if a.bare and body:
+            body = ' [%s]' % body.strip()
         rules.append('<%s> = %s%s;' % (_rule_name(a.name), _alt(a.verbs), body))
     for a in described:
         a.left_out += ['the word %r (no pronunciation)' % w for w in sorted(unsayable & a.said)]
@@ -130,26 +141,49 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
     if not rules:
         return Grammar('', set(), [], left_out)
     wake = _sayable(wake_words, unsayable)
-    clause = '[%s] <clause>' % POLITE
-    body = ['public <utterance> = %s%s [%s %s];' % ('%s ' % _alt(wake) if wake else '', clause, _alt(JOINERS), clause),
-            '<clause> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in described)] + rules
+    still = [a for a in described if not a.motion]
+    moving = [a for a in described if a.motion]
+    motion_wake = [w for w in (w.lower() for w in motion_wake) if SAYABLE.match(w) and w not in unsayable]
+    if not motion_wake:
+        moving = []                     # nothing can be said before a motion: none can be said at all
+    lead = '%s ' % _alt(wake) if wake else ''
+    joined = '%s [%s %s]'
+    forms = []
+    if still:
+        forms.append(joined % ('[%s] <clause>' % POLITE, _alt(JOINERS), '<clause>'))
+    if moving:
+        either = '(<motion> | <clause>)' if still else '<motion>'
+        forms.append(joined % ('%s %s' % (' '.join(motion_wake), either), _alt(JOINERS), either))
+    body = ['public <utterance> = %s%s;' % (lead, forms[0] if len(forms) == 1 else _alt(forms))]
+    if still:
+        body.append('<clause> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in still))
+    if moving:
+        body.append('<motion> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in moving))
+    body += rules
     text = '\n'.join(body)
     words = set(re.findall(r'[a-z]+', re.sub(r'<[^>]*>|^public ', ' ', text, flags=re.M)))
     return Grammar('#JSGF V1.0;\ngrammar temoto;\n' + text + '\n', words, [a.name for a in described], left_out)
 
 
-def phrases(actions: Sequence[dict]) -> List[str]:
+def phrases(actions: Sequence[dict], motion_wake: Sequence[str] = MOTION_WAKE) -> List[str]:
     """The plain instructions the grammar of ``actions`` takes: each verb with each object ("track the hand"),
-    and "<verb> everything" for an action whose parameter takes any words. Actions that only take their
-    parent's output ("show it") are said after another clause, so they have none of their own."""
+    "<verb> everything" for an action whose parameter takes any words, and the verb alone for one that
+    needs no words ("stop"). A motion's opens with the motion wake phrase ("robot please close the
+    gripper"). Actions that only take their parent's output ("show it") are said after another clause, so
+    they have none of their own."""
     out: List[str] = []
     for a in (_ActionWords(a, set()) for a in actions):
         if a.takes_parent:
             continue
+        said: List[str] = []
         if a.objects():
-            out += ['%s the %s' % (v, o) for v in a.verbs for o in a.objects()]
+            said += ['%s the %s' % (v, o) for v in a.verbs for o in a.objects()]
         elif a.any_words:
-            out += ['%s everything' % v for v in a.verbs]
+            said += ['%s everything' % v for v in a.verbs]
+        if a.bare:
+            said += list(a.verbs)
+        wake = ' '.join(motion_wake)
+        out += ['%s %s' % (wake, p) for p in said] if a.motion else said
     return out
 
 

@@ -14,7 +14,7 @@ Topics (``<ns>`` is the TeMoto namespace, ``~temoto_namespace``, default ``temot
 
 Parameters: ``~source`` (``topic``, or ``microphone``: the ALSA device ``~microphone`` read through sox),
 ``~wake_words`` (','-separated; an utterance must start with one), ``~min_margin`` (the rejection
-threshold, ``recognizer.py``), ``~speak`` (false: announcements only on the topic), ``~voice``,
+threshold, ``recognizer.py``), ``~min_motion_margin`` (the stricter one for an utterance that moves the robot), ``~speak`` (false: announcements only on the topic), ``~voice``,
 ``~speed``, ``~wav_dir`` (each announcement also written there as a WAV file), ``~grammar_poll_s`` (how
 often the engine's action index is read for new plugins).
 """
@@ -37,7 +37,7 @@ from temoto_core import params
 from temoto_speech.announcer import Announcer, sentence
 from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
 from temoto_speech.msg import AudioData
-from temoto_speech.recognizer import MIN_MARGIN, Recognizer
+from temoto_speech.recognizer import MIN_MARGIN, MIN_MOTION_MARGIN, Recognizer
 from temoto_speech.voice import DEFAULT_SPEED, DEFAULT_VOICE
 
 NODE_NAME = 'temoto_speech'
@@ -62,7 +62,8 @@ class SpeechNode:
                                    audible=params.flag('speak', True),
                                    wav_dir=params.text('wav_dir', ''),
                                    on_error=lambda text: rospy.logwarn('%s: %s', NODE_NAME, text))
-        self.recognizer = Recognizer([], self.wake_words, params.number('min_margin', MIN_MARGIN))
+        self.recognizer = Recognizer([], self.wake_words, params.number('min_margin', MIN_MARGIN),
+                                     params.number('min_motion_margin', MIN_MOTION_MARGIN))
         self._index_digest = ''
         self.utterances = Utterances()
         self._audio_lock = threading.Lock()
