@@ -32,7 +32,7 @@ EVERYTHING = {'everything', 'all', 'every', 'anything'}
 STOP_ACTION = 'stop'
 MOTION_WAKE = ('robot', 'please')        # the paper's "Robot please go"
 # words that, said after "stop" (or alone), mean the robot: "stop", "stop stop", "stop the robot", "stop moving"
-HALT_WORDS = EVERYTHING | {'stop', 'robot', 'moving', 'motion', 'now', 'driving', 'arm', 'arms', 'base'}
+HALT_WORDS = EVERYTHING | {'stop', 'robot', 'moving', 'motion', 'now', 'right', 'driving', 'arm', 'arms', 'base'}
 
 
 class ActionEngine:

@@ -28,12 +28,14 @@ from .umrf import ActionDescriptor
 SEPARATORS = {'and', 'then', ',', ';'}
 DEPENDENT_WORDS = {'it', 'them', 'there'}
 STOPWORDS = {
-    'a', 'an', 'the', 'please', 'kindly', 'can', 'could', 'would', 'will', 'you', 'me', 'my', 'i',
+    'a', 'an', 'the', 'please', 'kindly', 'can', 'could', 'would', 'will', 'you', 'me', 'i',
     'us', 'we', 'our', 'your', 'to', 'on', 'in', 'at', 'of', 'for', 'with', 'from', 'into', 'onto',
     'up', 'now', 'also', 'just', 'some', 'this', 'that', 'these', 'those', 'is', 'are', 'be', 'let',
-    'lets', "let's", 'go', 'ahead', 'all', 'again', 'over', 'here', 'right', 'away', 'do', 'start',
+    'lets', "let's", 'go', 'ahead', 'all', 'again', 'over', 'here', 'away', 'do', 'start',
     'starting',
 }
+# "my" is not a stopword: "follow my hand" is the operator's own hand (follow_hand lists it as a subject word),
+# where "follow the hand" may be a tracked one (a tie goes to the action that does not move)
 TOKEN_RE = re.compile(r"[A-Za-z0-9_/~][A-Za-z0-9_/~\-\.']*|[,;]")
 
 

@@ -29,6 +29,7 @@ from typing import Dict, Iterable, List, Optional, Sequence, Set
 from temoto_action_engine.grounding import inflections
 
 DETERMINERS = ('the', 'a')
+POSSESSIVE = 'my'
 PRONOUNS = ('it', 'them')
 LOCATIVES = ('on', 'in')
 EVERYTHING = ('everything', 'all')
@@ -78,7 +79,10 @@ class _ActionWords:
         self.unsayable = unsayable
         grounding = action.get('grounding') or {}
         self.verbs = _sayable(grounding.get('verbs', []), unsayable)
-        self.subjects = _sayable(grounding.get('subjects', []), unsayable)
+        # "my" as a subject word ("follow my hand") is said as a determiner, before the object
+        said = _sayable(grounding.get('subjects', []), unsayable)
+        self.possessive = POSSESSIVE in said
+        self.subjects = [w for w in said if w != POSSESSIVE]
         self.param_words: List[str] = []
         self.any_words = False
         self.enums: Dict[str, List[str]] = {}
@@ -126,7 +130,8 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
                    for pname, words in sorted(a.enums.items())]
             # a place a motion goes to: "go to the shelf"
             body = ' %s%s%s %s%s' % ('[me] ' if a.subjects else '', '[to] ' if a.motion and not a.subjects else '',
-                                     det, _alt(a.objects()), ' [%s]' % _alt(pps) if pps else '')
+                                     '[%s]' % _alt(DETERMINERS + (POSSESSIVE,)) if a.possessive else det,
+                                     _alt(a.objects()), ' [%s]' % _alt(pps) if pps else '')
         elif a.any_words:
             others = [_clause_of_other(b) for b in described if b is not a and b.objects() and not b.takes_parent]
             body = ' ' + _alt(list(EVERYTHING) + [o for o in others if o])
