@@ -14,7 +14,7 @@ FULL = {'name': 'wave', 'description': 'Wave an arm at the operator.', 'effect':
         'module': 'wave.py', 'class_name': 'Wave',
         'input_parameters': {'arm': {'pvf_type': 'string', 'pvf_required': False}},
         'output_parameters': {'topic': {'pvf_type': 'string'}},
-        'grounding': {'verbs': ['wave'], 'subjects': ['operator']}}
+        'grounding': {'verbs': ['wave'], 'subjects': ['operator']}, 'motion': True}
 
 
 def documented_fields() -> dict:
