@@ -1,5 +1,6 @@
 """What several benchmarks share: a master of their own, a clean environment for the commands they time,
 percentiles, and the CPU a set of processes uses over a window."""
+import json
 import os
 import subprocess
 import sys
@@ -72,3 +73,13 @@ def stop_hogs(hogs: Iterable[subprocess.Popen]) -> None:
     for proc in hogs:
         proc.kill()
         proc.wait()
+
+
+def write_results(name: str, results: dict) -> str:
+    """``bench/results/<name>.json``, the figures a benchmark measured; returns the path."""
+    folder = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench', 'results')
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, '%s.json' % name)
+    with open(path, 'w') as f:
+        json.dump(results, f, indent=1, default=str)
+    return path

@@ -3,6 +3,8 @@
 
 import pytest
 
+from temoto_action_engine.grounding import Grounder
+from temoto_action_engine.indexer import ActionIndex
 from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_testing import made_interfaces
 from temoto_testing.sensor_manager import managers_idle
@@ -17,3 +19,17 @@ def rmi(stack):
     with made_interfaces(RobotManagerInterface) as make:
         yield make
     managers_idle(ROBOT_STACK, timeout=30)
+
+
+@pytest.fixture(scope='module')
+def index():
+    """The bundled actions, indexed without a problem."""
+    idx = ActionIndex([]).reindex()
+    assert idx.problems == []
+    return idx
+
+
+@pytest.fixture(scope='module')
+def grounder(index):
+    """A grounder of the bundled actions."""
+    return Grounder(index.descriptors())

@@ -2,20 +2,7 @@
 import pytest
 
 from temoto_action_engine.grounding import Grounder, inflections
-from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.umrf import parse_graph
-
-
-@pytest.fixture(scope='module')
-def index():
-    idx = ActionIndex([]).reindex()
-    assert idx.problems == []
-    return idx
-
-
-@pytest.fixture(scope='module')
-def grounder(index):
-    return Grounder(index.descriptors())
 
 
 def shape(graph):

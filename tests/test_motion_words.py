@@ -21,18 +21,6 @@ STR = {'pvf_type': 'string'}
 OPT = {'pvf_type': 'string', 'pvf_required': False}
 
 
-@pytest.fixture(scope='module')
-def index():
-    idx = ActionIndex([]).reindex()
-    assert idx.problems == []
-    return idx
-
-
-@pytest.fixture(scope='module')
-def grounder(index):
-    return Grounder(index.descriptors())
-
-
 def grounded(grounder, index, text):
     r = grounder.ground(text)
     assert r.ok, r.message

@@ -74,6 +74,11 @@ def _pose(frame: str, m: np.ndarray) -> PoseStamped:
 
 
 class FollowHand(RobotAction):
+    lock = None                  # set once on_start has what a hold needs
+    hand = None
+    _subs: list = []
+    _hand_sub = None
+
     def on_start(self):
         info = self.hold_robot('manipulation')
         arms = info.get('arm_frames') or {}
@@ -105,8 +110,6 @@ class FollowHand(RobotAction):
         self._subs = [rospy.Subscriber('/%s/dial' % ns, Float32, self._on_dial, queue_size=5),
                       rospy.Subscriber('/%s/dial/step' % ns, Int8, self._on_dial_step, queue_size=5),
                       rospy.Subscriber(halt_topic(ns), HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)]
-        self.hand = None
-        self._hand_sub = None
         self._start_hand()
         self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
         self.feedback('the %s follows your hand at %gx: open your hand, then grab' % (self.arm, self.dial.scale))
@@ -221,7 +224,7 @@ class FollowHand(RobotAction):
                 self.fail(why)
 
     def on_stop(self):
-        if hasattr(self, 'lock'):
+        if self.lock is not None:
             self._hold('follow_hand stopped')
-            for sub in self._subs + ([self._hand_sub] if self._hand_sub is not None else []):
-                sub.unregister()
+        for sub in self._subs + ([self._hand_sub] if self._hand_sub is not None else []):
+            sub.unregister()

@@ -1,0 +1,250 @@
+"""bench_teleop.py: the operator's motion paths across processes, judged by the simulation's ground truth.
+
+The whole stack as `demo.launch` runs it (the sim, its base controller, the ER, Sensor (with the hand source)
+and Robot Managers, the pointer, the action engine), each in its own process, driven through the engine's
+start_graph service as `temoto say` does. Figures:
+
+- **stop given as text → zero commanded** (``vaultbot_sim/base_state``), from the moment the text is sent, while
+  the robot drives to a place, and the robot at rest. Beside it, in the same run, the path there was before
+  the halt topic: stopping the navigate graph, whose goal's client then goes.
+- **the hand unplugged → the arm commanded zero** (``vaultbot_sim/arm_states``), from the hand's last sample,
+  while the arm follows a hand moving steadily.
+- **hand sample → servo command**: a still, grabbing hand steps 1 cm; from the sample that carries the step
+  (its stamp) to the first servo command that moves the arm (its stamp). The hand was still, so nothing else
+  can have moved it.
+- **tracking at 0.1x**: the tool (TF from the sim's joint states) against the scaled hand's target, RMS,
+  while the hand moves steadily.
+
+Prints a markdown table and writes bench/results/teleop.json.
+"""
+import argparse
+import math
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs, write_results  # noqa: E402
+
+HANG = 90.0
+STEP_M = 0.01                 # the still hand's step, for the latency
+RAMP_M, RAMP_S = 0.10, 2.0    # the steady hand, for tracking and for the unplug: 5 cm/s
+# a grab, a step out and back with the hand still between, then a steady sweep out and back; looped
+HAND_PATH = """# t x y z grab (vaultbot_sim/hand_path.py)
+0.0 0 0 0.2 0
+0.3 0 0 0.2 0
+0.4 0 0 0.2 1
+1.5 0 0 0.2 1
+1.501 0 {step} 0.2 1
+2.5 0 {step} 0.2 1
+2.501 0 0 0.2 1
+3.5 0 0 0.2 1
+{r1} 0 {ramp} 0.2 1
+{r2} 0 0 0.2 1
+{r3} 0 0 0.2 0
+""".format(step=STEP_M, ramp=RAMP_M, r1=3.5 + RAMP_S, r2=3.5 + 2 * RAMP_S, r3=3.6 + 2 * RAMP_S)
+LOOP_S = 3.6 + 2 * RAMP_S
+
+
+def stack(launcher, work):
+    import rospy
+    from temoto_testing.operator import Operator
+    from temoto_testing.sensor_manager import NS, start_robot_stack
+    path = os.path.join(work, 'hand_path.txt')
+    with open(path, 'w') as f:
+        f.write(HAND_PATH)
+    catalogue = os.path.join(work, 'hands.yaml')
+    with open(catalogue, 'w') as f:
+        f.write('sensors:\n  - {name: sim_hand_tracker, type: hand, package: vaultbot_sim, executable: '
+                'hand_tracker_driver, args: "_path:=%s", reliability: 0.8, rate: 100, stall_timeout: 0.2,\n'
+                '     output_topics: {hand_data: {topic: hand/sample, remap: hand/sample}}}\n' % path)
+    start_robot_stack(launcher, os.path.join(work, 'er_logs'), extra=catalogue, hand_motion=False)
+    launcher.node('temoto_robot_manager', 'pointer', params={'temoto_namespace': NS})
+    launcher.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
+                  params={'temoto_namespace': NS})
+    rospy.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=60)
+    return Operator()
+
+
+def graph_end(op, graph, key, timeout=HANG * 2):
+    from temoto_core.wait import wait_for
+    return wait_for(lambda: op.node_state(graph, key) if op.node_state(graph, key) in ('FINISHED', 'FAILED')
+                    else None, timeout, '%s of %s to end' % (key, graph))
+
+
+def bench_stops(op, trials):
+    import rospy
+    from temoto_core.wait import wait_for
+    from vaultbot_sim.msg import BaseState
+    states = []
+    rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+    wait_for(lambda: states, HANG, 'the base state')
+    out = {'halt': [], 'halt_rest': [], 'graph_stop': [], 'graph_stop_rest': [], 'ended': []}
+    places = ['shelf', 'drums', 'table', 'home']
+
+    def zero_after(t0):
+        return wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-30:]
+                                      if s.header.stamp.to_sec() > t0 and s.commanded_linear == 0.0
+                                      and s.commanded_angular == 0.0), None), HANG, 'zero commanded')
+
+    def at_rest():
+        wait_for(lambda: states[-1].linear == 0.0 and states[-1].angular == 0.0, HANG, 'at rest')
+        return states[-1].header.stamp.to_sec()
+
+    for k in range(2 * trials):
+        by_halt = k % 2 == 0                     # the two paths alternate, so the machine's noise hits both
+        graph = op.say('robot please go to the %s' % places[k % len(places)])
+        wait_for(lambda: states[-1].commanded_linear > 0.3 or op.node_state(graph, 'navigate_0') in
+                 ('FINISHED', 'FAILED'), HANG, 'the base driving')
+        if states[-1].commanded_linear <= 0.3:
+            continue                             # arrived or failed before it drove fast: no trial
+        t0 = time.time()
+        if by_halt:
+            op.say('stop')
+        else:
+            op.stop(graph_name=graph)
+        z = zero_after(t0)
+        rest = at_rest()
+        out['halt' if by_halt else 'graph_stop'].append(z - t0)
+        out['halt_rest' if by_halt else 'graph_stop_rest'].append(rest - t0)
+        out['ended'].append(graph_end(op, graph, 'navigate_0'))
+    return out
+
+
+def bench_hand(op, trials, loops):
+    import numpy as np
+    import rospy
+    import tf2_ros
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import String
+    from temoto_core.msg import HandSample
+    from temoto_core.wait import wait_for
+    from temoto_testing.sensor_manager import set_cable
+    from trajectory_msgs.msg import JointTrajectory
+    from vaultbot_sim.msg import ArmState
+
+    samples, commands, arms, targets, holds = [], [], [], [], []
+    rospy.Subscriber('/hand/sample', HandSample, samples.append, queue_size=500, tcp_nodelay=True)
+    rospy.Subscriber('/left_arm/servo_command', JointTrajectory, commands.append, queue_size=500, tcp_nodelay=True)
+    rospy.Subscriber('/vaultbot_sim/arm_states', ArmState, lambda m: m.arm == 'left_arm' and arms.append(m),
+                     queue_size=500, tcp_nodelay=True)
+    rospy.Subscriber('/left_arm/servo_target', PoseStamped, targets.append, queue_size=500, tcp_nodelay=True)
+    rospy.Subscriber('/left_arm/servo_hold', String, lambda m: holds.append(m.data), queue_size=50)
+    buffer = tf2_ros.Buffer(cache_time=rospy.Duration(60.0))
+    listener = tf2_ros.TransformListener(buffer)
+    out = {'latency': [], 'unplug': [], 'tracking_mm': [], 'ended': [], 'stale_holds': 0, 'following_s': 0.0}
+
+    def follow(scale):
+        set_cable('hand_tracker', 'plugged')
+        graph = op.say('robot please follow my hand at %s' % scale)
+        op.wait_event('following', graph, HANG, 'the arm following the hand')
+        return graph
+
+    # latency and tracking, at 1x for the step (a clear start) and 0.1x for the sweep (the issue's figure)
+    for scale in ('1', '0.1'):
+        graph = follow(scale)
+        t0 = rospy.get_time()
+        n0, c0, g0, h0 = len(samples), len(commands), len(targets), len(holds)
+        wait_for(lambda: rospy.get_time() - t0 > loops * LOOP_S, loops * LOOP_S + HANG, 'the hand\'s loops')
+        out['stale_holds'] += sum('periods' in h for h in holds[h0:])     # a late sample, not a lost hand
+        out['following_s'] += rospy.get_time() - t0
+        sampled, sent, aimed = samples[n0:], commands[c0:], targets[g0:]
+        op.stop(graph_name=graph)
+        graph_end(op, graph, 'follow_hand_0')
+        if scale == '1':
+            for prev, cur in zip(sampled, sampled[1:]):
+                if cur.grab_strength > 0.9 and abs(cur.palm.position.y - prev.palm.position.y) > STEP_M / 2:
+                    t = cur.header.stamp.to_sec()
+                    first = next((c for c in sent if c.header.stamp.to_sec() >= t
+                                  and max(abs(v) for v in c.points[0].velocities) > 0.02), None)
+                    before = [c for c in sent if t - 0.2 <= c.header.stamp.to_sec() < t]
+                    still = before and all(max(abs(v) for v in c.points[0].velocities) < 0.005 for c in before)
+                    if first is not None and still:
+                        out['latency'].append(first.header.stamp.to_sec() - t)
+        else:
+            ramp_v = 0.1 * RAMP_M / RAMP_S
+            for a, b, c in zip(aimed, aimed[10:], aimed[30:]):       # steady: the same speed 0.1 s and 0.3 s on
+                dt1 = b.header.stamp.to_sec() - a.header.stamp.to_sec()
+                dt2 = c.header.stamp.to_sec() - a.header.stamp.to_sec()
+                if dt1 <= 0 or dt2 <= 0:
+                    continue
+                v1 = abs(b.pose.position.y - a.pose.position.y) / dt1
+                v2 = abs(c.pose.position.y - a.pose.position.y) / dt2
+                if not (0.8 * ramp_v <= v1 <= 1.2 * ramp_v and 0.8 * ramp_v <= v2 <= 1.2 * ramp_v):
+                    continue
+                try:
+                    t = buffer.lookup_transform('left_base_link', 'left_tool0', b.header.stamp)
+                except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
+                    continue
+                p = t.transform.translation
+                e = np.hypot(np.hypot(p.x - b.pose.position.x, p.y - b.pose.position.y), p.z - b.pose.position.z)
+                out['tracking_mm'].append(1e3 * float(e))
+    # the hand unplugged while the arm follows the sweep
+    for _ in range(trials):
+        graph = follow('1')
+        wait_for(lambda: arms and arms[-1].commanded_speed > 0.05, HANG, 'the arm following the sweep')
+        set_cable('hand_tracker', 'unplugged', 'crash')
+        cut = time.time()
+        last = wait_for(lambda: max((s.header.stamp.to_sec() for s in samples[-50:]), default=None)
+                        if time.time() - cut > 0.2 else None, 5.0, 'the hand\'s last sample')
+        zero = wait_for(lambda: next((a.header.stamp.to_sec() for a in arms[-50:] if a.header.stamp.to_sec() > last
+                                      and a.commanded_speed == 0.0), None), 5.0, 'the arm commanded zero')
+        out['unplug'].append(zero - last)
+        out['ended'].append(graph_end(op, graph, 'follow_hand_0'))
+    set_cable('hand_tracker', 'plugged')
+    listener.unregister()
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--trials', type=int, default=20, help='stops of each kind, and unplugs of the hand')
+    p.add_argument('--loops', type=int, default=8, help='loops of the hand path for the latency and tracking')
+    p.add_argument('--hogs', type=int, default=0)
+    args = p.parse_args()
+    import rospy
+    master, launcher = loopback_master('bench_teleop_')
+    hogs = cpu_hogs(args.hogs)
+    results = {'hogs': args.hogs}
+    try:
+        rospy.init_node('bench_teleop', anonymous=True, disable_signals=True)
+        op = stack(launcher, launcher.workdir)
+        print('bench_teleop: stops x %d ...' % (2 * args.trials), file=sys.stderr, flush=True)
+        s = results['stops'] = bench_stops(op, args.trials)
+        print('bench_teleop: the hand ...', file=sys.stderr, flush=True)
+        h = results['hand'] = bench_hand(op, args.trials, args.loops)
+        op.close()
+    finally:
+        stop_hogs(hogs)
+        launcher.stop_all()
+        master.stop()
+    ms = lambda v: '%.1f ms' % (v * 1e3)  # noqa: E731
+    rows = [
+        ('"stop" given as text while driving → zero commanded, p50 / p99 (n=%d)' % len(s['halt']),
+         '%s / %s (max %s)' % (ms(pct(s['halt'], 50)), ms(pct(s['halt'], 99)), ms(max(s['halt']))), '≤ 50 ms p99'),
+        ('… the robot at rest, p50 / p99', '%s / %s' % (ms(pct(s['halt_rest'], 50)), ms(pct(s['halt_rest'], 99))),
+         'reported (braking)'),
+        ('before the halt topic: the navigate graph stopped → zero commanded, p50 / p99 (n=%d)'
+         % len(s['graph_stop']), '%s / %s' % (ms(pct(s['graph_stop'], 50)), ms(pct(s['graph_stop'], 99))),
+         'for comparison'),
+        ('… ratio of the medians (graph stop / halt)', '%.1f x' % (pct(s['graph_stop'], 50) / pct(s['halt'], 50)),
+         '-'),
+        ('navigate actions that ended FAILED after a stop', str(sum(e == 'FAILED' for e in s['ended'])), '0'),
+        ('hand sample → servo command that moves the arm, one host, p50 / p95 (n=%d)' % len(h['latency']),
+         '%s / %s' % (ms(pct(h['latency'], 50)), ms(pct(h['latency'], 95))), '≤ 15 ms p95'),
+        ('tool against the scaled hand, steady motion at 0.1x, RMS (n=%d)' % len(h['tracking_mm']),
+         '%.2f mm' % math.sqrt(sum(e * e for e in h['tracking_mm']) / len(h['tracking_mm'])), '≤ 2 mm'),
+        ('holds for a sample 2 periods late while a hand was followed (%.0f s)' % h['following_s'],
+         str(h['stale_holds']), 'reported (each needs a new grab)'),
+        ('hand unplugged while following → the arm commanded zero, from its last sample, p50 / max (n=%d)'
+         % len(h['unplug']), '%s / %s' % (ms(pct(h['unplug'], 50)), ms(max(h['unplug']))),
+         '≤ 2 periods + 20 ms = 40 ms'),
+    ]
+    print_table('Teleoperation (%d CPU hogs)' % args.hogs, rows)
+    write_results('teleop', results)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
