@@ -35,6 +35,8 @@ def pct(values: Sequence[float], p: float) -> float:
     """The ``p``-th percentile (0..100) of ``values``: the nearest rank on (n - 1), no interpolation, so
     every figure printed is one that was measured."""
     ordered = sorted(values)
+    if not ordered:
+        return float('nan')
     return ordered[min(len(ordered) - 1, int(round(p / 100.0 * (len(ordered) - 1))))]
 
 
