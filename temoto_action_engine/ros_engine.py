@@ -61,8 +61,8 @@ class ActionEngineNode:
         # "stop" reaches the motion nodes of this namespace and of every robot namespace an action names for its
         # Robot Manager (two hosts): publishers made now, so the first halt finds its subscribers connected
         halt_namespaces = [self.namespace] + [
-            str(cfg.get('manager_namespaces', {}).get('robot_manager', '')).strip('/')
-            for cfg in actions_cfg.values() if isinstance(cfg, dict) and isinstance(cfg.get('manager_namespaces'), dict)]
+            str(cfg['manager_namespaces'].get('robot_manager', '')).strip('/') for cfg in actions_cfg.values()
+            if isinstance(cfg, dict) and isinstance(cfg.get('manager_namespaces'), dict)]
         self.halt_pubs = [rospy.Publisher(halt_topic(ns), HALT_TYPE, queue_size=5, tcp_nodelay=True)
                           for ns in dict.fromkeys(n for n in halt_namespaces if n)]
         motion_wake = params.strings('motion_wake_phrase', ['robot', 'please'], separator=' ')

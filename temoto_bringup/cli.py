@@ -25,7 +25,8 @@ COMMANDS = {
     'listen': ('temoto_speech.cli:listen_main', 'what the speech node hears; or send it a WAV file (--wav)'),
     'actions': ('temoto_action_engine.cli:actions_main', 'list the indexed actions'),
     'graphs': ('temoto_action_engine.cli:graphs_main', 'list or stop running action graphs'),
-    'demo': ('temoto_demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration'),
+    'demo': ('temoto_demo.cli:demo_main', 'run the paper\'s sensor-failover demonstration (\'demo teleop\': the '
+                                          'operator moves the robot)'),
     'record': ('temoto_demo.cli:record_main', 'record the failover topic set to a bag'),
     'report': ('temoto_demo.cli:report_main', 'make the report of a recorded run from its bag'),
     'replay': ('temoto_demo.replay:replay_main', 'show the views of a recorded run again in RViz'),

@@ -1,5 +1,6 @@
 """``temoto demo``, ``temoto record``, ``temoto report``.
 
+    temoto demo teleop [--live] [--voice] [--stage-timeout S] [--out runs/<timestamp>]
     temoto demo [--live] [--stage-timeout S] [--d435-mode crash|stall] [--hokuyo-mode crash|stall]
                 [--priority rgbd,arm_cloud,base_scan] [--kill-managers [--seed N]] [--hosts 2 [--robot NS]]
                 [--out runs/<timestamp>]
@@ -101,7 +102,31 @@ def record_main(argv: Optional[List[str]] = None) -> int:
     return 0
 
 
+def teleop_main(argv: Optional[List[str]] = None) -> int:
+    from .scenario import DemoOptions               # lazy: rospy, RViz clients, the recorder
+    from .teleop import run_teleop
+    p = argparse.ArgumentParser(prog='temoto demo teleop', description='The operator moves the robot: a goal '
+                                'pointed in RViz, "robot please go", the SICK unplugged on the way, the arm '
+                                'following the hand, the gripper, the arm\'s controller crashing; recorded.')
+    p.add_argument('--live', action='store_true', help='show RViz on $DISPLAY (default: headless under Xvfb)')
+    p.add_argument('--voice', action='store_true', help='say the instructions (espeak-ng) to the speech node')
+    p.add_argument('--stage-timeout', type=float, default=30.0, help='seconds each stage may take (default 30)')
+    p.add_argument('--out', default='', help='run folder (default: runs/<timestamp>)')
+    p.add_argument('--no-report', action='store_true', help='skip the report')
+    args = p.parse_args(argv)
+    if args.stage_timeout <= 0:
+        p.error('--stage-timeout must be positive')
+    if args.live and not os.environ.get('DISPLAY'):
+        p.error('--live needs a DISPLAY')
+    out = args.out or default_run_dir()
+    return run_teleop(DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
+                                  report=not args.no_report, voice=args.voice))
+
+
 def demo_main(argv: Optional[List[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ['teleop']:
+        return teleop_main(argv[1:])
     from .scenario import DemoOptions, PRIORITY_ENTRIES, run_demo     # lazy: rospy, RViz clients, the recorder
     p = argparse.ArgumentParser(prog='temoto demo', description='The paper\'s section 4: sensor failover, recorded.')
     p.add_argument('--live', action='store_true', help='show RViz on $DISPLAY (default: headless under Xvfb)')

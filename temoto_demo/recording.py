@@ -37,14 +37,17 @@ class Recording:
     """Start with :meth:`start`; :meth:`stop` returns the closed bag's path."""
 
     def __init__(self, bag_path: str, env: Dict[str, str], namespace: str = T.DEFAULT_NS,
-                 log_dir: Optional[str] = None, streams: Optional[List[str]] = None, robot: str = '') -> None:
-        """``robot``: the ROS namespace the robot (its simulation) runs in; '' for the root."""
+                 log_dir: Optional[str] = None, streams: Optional[List[str]] = None, robot: str = '',
+                 extra: Optional[List[str]] = None) -> None:
+        """``robot``: the ROS namespace the robot (its simulation) runs in; '' for the root. ``extra``: more
+        topics recorded by name, whenever they exist (the recorder looks for new ones every second)."""
         self.bag_path = os.path.abspath(bag_path)
         self.env = env
         self.namespace = namespace
         self.robot = robot
         self.log_dir = log_dir or os.path.dirname(self.bag_path)
         self.streams = list(streams if streams is not None else T.DEFAULT_STREAMS)
+        self.extra = list(extra or [])
         self.relay: Optional[LoggedChild] = None
         self.recorder: Optional[LoggedChild] = None
 
@@ -70,8 +73,8 @@ class Recording:
             return _registered(master, RELAY_NODE)
 
         wait_for(relay_ready, timeout, 'the stream relay to register')
-        argv = [RECORDER, '-O', self.bag_path, '--lz4', '-e'] + T.record_regexes(self.namespace, self.robot) + \
-               ['__name:=' + RECORDER_NODE.lstrip('/')]
+        argv = [RECORDER, '-O', self.bag_path, '--lz4', '-e'] + \
+            T.record_regexes(self.namespace, self.robot, self.extra) + ['__name:=' + RECORDER_NODE.lstrip('/')]
         self.recorder = LoggedChild(argv, self.env, os.path.join(self.log_dir, 'record.log'), 'record')
 
         def recorder_ready():

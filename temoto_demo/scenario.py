@@ -282,10 +282,14 @@ class Demo:
         self.progress.line('simulation, managers and action engine up (%d nodes)'
                            % sum(len(stack.running) for stack in self.stacks))
         self.recording = Recording(self.bag_path, env, self.opts.namespace, os.path.join(self.opts.out_dir, 'logs'),
-                                   robot=self._robot_ns)
+                                   robot=self._robot_ns, extra=self.recorded_extra())
         self.recording.start()
         self._wait_connected(env)
         self.progress.line('recording %s' % _rel(self.bag_path))
+
+    def recorded_extra(self) -> List[str]:
+        """Topics this scenario records besides the failover set (none: the paper's demo)."""
+        return []
 
     def _stack(self, launch: str, env: Dict[str, str], logs: str, launch_args: List[str],
                overrides: Optional[dict] = None, wrap=None):

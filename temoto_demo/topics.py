@@ -121,17 +121,42 @@ def fixed_topics(ns: str = DEFAULT_NS, robot: str = '') -> Dict[str, str]:
     }
 
 
-def record_regexes(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
-    """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``)."""
-    exact = ['^%s$' % t.replace('.', r'\.') for t in list(fixed_topics(ns, robot)) + speech_topics(ns)]
+def record_regexes(ns: str = DEFAULT_NS, robot: str = '', extra: List[str] = ()) -> List[str]:
+    """The recorder's topic set, as anchored regular expressions (the C++ recorder's ``-e``); ``extra``: more
+    topics by name (``teleop_topics``)."""
+    exact = ['^%s$' % t.replace('.', r'\.') for t in list(fixed_topics(ns, robot)) + speech_topics(ns) + list(extra)]
     return exact + ['^%s$' % status_regex(ns), '^%s/.*' % STREAMS_PREFIX]
+
+
+def motion_inputs(ns: str = DEFAULT_NS) -> List[str]:
+    """Anchored patterns of the topics that move a live robot: RViz's pointing tools, the halt, the hand and
+    its dial, the arms' servo streams, the base's velocity. A bag keeps them under inert names, so that a
+    replay never drives, points or follows a hand on a live system."""
+    ns = ns.strip('/')
+    return [r'^/move_base_simple/goal$', r'^/clicked_point$', r'^/%s/halt$' % ns, r'^(/[^/]+)?/%s/halt$' % ns,
+            r'^/%s/pointed_goal/used$' % ns, r'^/%s/dial(/step)?$' % ns, r'^(/[^/]+)*/servo_(target|hold)$',
+            r'^(/[^/]+)*/hand/sample$', r'^/virtual_hand/(sample|feedback)$', r'^(/[^/]+)*/cmd_vel$',
+            r'^(/[^/]+)*/move_base/(goal|cancel)$']
+
+
+def teleop_topics(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
+    """What ``temoto demo teleop`` records besides the failover set: the sim's ground truth of the base, the
+    arms and the gripper, the map and the plan, the pointed goal, the hand, the servo stream, and the halt."""
+    ns = ns.strip('/')
+    return [of_robot(robot, 'vaultbot_sim/base_state'), of_robot(robot, 'vaultbot_sim/arm_states'),
+            of_robot(robot, 'vaultbot_sim/gripper_state'), of_robot(robot, 'map'),
+            of_robot(robot, 'vaultbot_navigator/plan'), '/move_base_simple/goal', '/%s/pointed_goal' % ns,
+            '/%s/pointed_goal/marker' % ns, '/%s/halt' % ns, '/hand/sample', '/virtual_hand/sample',
+            of_robot(robot, 'left_arm/servo_target'), of_robot(robot, 'left_arm/servo_hold'),
+            of_robot(robot, 'left_arm/servo_status'), '/%s/dial/scale' % ns]
 
 
 def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
     """Whether a recorded topic, played back under its own name, would drive a live stack or be taken by it
     for its own news (announced, shown as the state of a graph or a display)."""
     heeded = (chatter(ns), action_events(ns), action_feedback(ns), display_events(ns)) + tuple(speech_topics(ns))
-    return topic in heeded or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None
+    return topic in heeded or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None \
+        or any(re.match(p, topic) for p in motion_inputs(ns))
 
 
 def inert_name(topic: str) -> str:
