@@ -164,9 +164,15 @@ class ActionBase:
         resources are released, and the graph reports FAILED with the reason.
         """
         with self._cond:
-            if self._failure is None:
+            first = self._failure is None
+            if first:
                 self._failure = reason
         self.log_err('failing: %s' % reason)
+        if first:
+            # said now: the node's FAILED state comes only once what it holds is released, which for a robot's
+            # feature means stopping its processes (seconds); the operator must not wait for that to hear it
+            self.event('failing', reason=reason)
+            self.feedback('failing: %s' % reason)
         self.request_stop()
 
     @property

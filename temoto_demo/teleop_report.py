@@ -180,7 +180,8 @@ class TeleopFigures:
     tracking_rms_mm: Optional[float] = None       # the tool against the servo target (the scaled hand)
     hand_to_target_scale: Optional[float] = None  # the target's motion over the hand's, while engaged
     arm_zero_ms: Optional[float] = None           # the arm's controller crashed → the arm commanded zero
-    failed_s: Optional[float] = None              # → follow_hand FAILED at the engine
+    failing_s: Optional[float] = None             # → follow_hand says it fails (its first word)
+    failed_s: Optional[float] = None              # → follow_hand FAILED, its resources released
     announced: str = ''
     halts: int = 0
 
@@ -212,19 +213,30 @@ def figures(run: TeleopRun) -> TeleopFigures:
             errors.append(float(np.linalg.norm(tool - np.array([x, y, z]))))
     if errors:
         f.tracking_rms_mm = 1e3 * float(np.sqrt(np.mean(np.square(errors))))
-    engaged = [h for h in run.hand if h[4] >= 0.8]
-    if len(engaged) > 1 and len(run.targets) > 1:
-        hand_span = max(h[2] for h in engaged) - min(h[2] for h in engaged)
-        target_span = max(g[2] for g in run.targets) - min(g[2] for g in run.targets)
-        f.hand_to_target_scale = target_span / hand_span if hand_span > 1e-6 else None
+    # the dial's scale as the run shows it: within each grab, the slope of the target's y against the hand's y
+    # at its time (the clutch maps the hand's motion since that grab, so the two move by the dial's ratio)
+    if run.hand and len(run.targets) > 10:
+        times = [h[0] for h in run.hand]
+        grab_of = np.cumsum([0] + [h[4] >= 0.8 > p[4] for p, h in zip(run.hand, run.hand[1:])])   # which grab
+        grabs: Dict[int, list] = {}
+        for g in run.targets:
+            i = int(np.searchsorted(times, g[0], side='right')) - 1
+            if i >= 0 and run.hand[i][4] >= 0.8:
+                grabs.setdefault(int(grab_of[i]), []).append((run.hand[i][2], g[2]))
+        slopes = [float(np.polyfit(*zip(*pairs), 1)[0]) for pairs in grabs.values()
+                  if len(pairs) > 10 and np.ptp([p[0] for p in pairs]) > 5e-3]
+        f.hand_to_target_scale = float(np.median(slopes)) if slopes else None
     arm = _first(run.unplugs, lambda u: u[1] == ARM)
     if arm is not None:
         zero = _first(run.arm, lambda a: a[0] > arm[0] and a[1] == 0.0)
         f.arm_zero_ms = None if zero is None else 1e3 * (zero[0] - arm[0])
+        failing = _first(run.actions, lambda e: e['t'] > arm[0] and e.get('event') == 'failing'
+                         and e.get('action') == 'follow_hand')
+        f.failing_s = None if failing is None else failing['t'] - arm[0]
         failed = _first(run.actions, lambda e: e['t'] > arm[0] and e.get('event') == 'state'
                         and e.get('action') == 'follow_hand' and e.get('state') == 'FAILED')
         f.failed_s = None if failed is None else failed['t'] - arm[0]
-        said = _first(run.feedback, lambda x: x[0] > arm[0] and 'follow_hand failed' in x[1])
+        said = _first(run.feedback, lambda x: x[0] > arm[0] and x[1].startswith('follow_hand: failing'))
         f.announced = said[1] if said else ''
     f.halts = len(run.halts)
     return f
@@ -379,7 +391,8 @@ def write_teleop_report(bag_path: str, out_dir: Optional[str] = None,
          % ('-' if f.hand_to_target_scale is None else '%.3f' % f.hand_to_target_scale),
          '| the arm\'s controller crashed → the arm commanded zero | %s | the motors\' watchdog: 50 ms |'
          % _ms(f.arm_zero_ms),
-         '| … follow_hand FAILED at the engine | %s | 1 s |' % _ms(f.failed_s, 's'),
+         '| … follow_hand says it fails (the operator hears it) | %s | 1 s |' % _ms(f.failing_s, 's'),
+         '| … follow_hand FAILED, the arm\'s processes released | %s | - |' % _ms(f.failed_s, 's'),
          '| … said to the operator | %s | - |' % (('"%s"' % f.announced[:120]) if f.announced else '-'), '']
     L += ['## The drive', '', '![path](path.png)', '',
           '## The hand and the end-effector', '', '![hand](hand.png)', '',

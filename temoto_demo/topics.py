@@ -154,6 +154,8 @@ def teleop_topics(ns: str = DEFAULT_NS, robot: str = '') -> List[str]:
 def acts_on_a_live_system(topic: str, ns: str = DEFAULT_NS) -> bool:
     """Whether a recorded topic, played back under its own name, would drive a live stack or be taken by it
     for its own news (announced, shown as the state of a graph or a display)."""
+    if topic.startswith(INERT_PREFIX + '/'):
+        return False                    # kept apart already
     heeded = (chatter(ns), action_events(ns), action_feedback(ns), display_events(ns)) + tuple(speech_topics(ns))
     return topic in heeded or is_device_states(topic) or re.match('^%s$' % status_regex(ns), topic) is not None \
         or any(re.match(p, topic) for p in motion_inputs(ns))

@@ -18,6 +18,7 @@ from typing import Callable, Deque, Optional
 from .voice import VoiceError, speak, synthesize
 
 QUEUE = 5          # sentences waiting at most; older ones are dropped (a flapping cable says enough)
+FAILURES_KEPT = 100   # actions whose failure was said, so that their FAILED state is not said again
 
 
 def _label(ev: dict) -> str:
@@ -51,9 +52,25 @@ def sentence(ev: dict) -> Optional[str]:
         return 'tracking the %s' % ev.get('object', 'object')
     if kind == 'display_failed':
         return 'a display failed'
-    if kind == 'state' and ev.get('state') == 'FAILED':
+    if kind in ('failing', 'state') and (kind == 'failing' or ev.get('state') == 'FAILED'):
         return '%s failed' % _words(ev.get('action', 'an action'))
     return None
+
+
+class Sentences:
+    """``sentence`` over a stream of events, each failure said once: an action that fails says so at once
+    (``failing``) and again when it has released what it held (its state FAILED); the second is not said."""
+
+    def __init__(self) -> None:
+        self._failing: Deque[tuple] = collections.deque(maxlen=FAILURES_KEPT)
+
+    def of(self, ev: dict) -> Optional[str]:
+        key = (ev.get('graph'), ev.get('action'), ev.get('instance_id'))
+        if ev.get('event') == 'failing':
+            self._failing.append(key)
+        elif ev.get('event') == 'state' and ev.get('state') == 'FAILED' and key in self._failing:
+            return None
+        return sentence(ev)
 
 
 class Announcer:

@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from temoto_action_engine.srv import ListActions
 from temoto_core.node import init_node, spin
 from temoto_core import params
-from temoto_speech.announcer import Announcer, sentence
+from temoto_speech.announcer import Announcer, Sentences
 from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
 from temoto_speech.msg import AudioData
 from temoto_speech.recognizer import MIN_MARGIN, MIN_MOTION_MARGIN, Recognizer
@@ -56,6 +56,7 @@ class SpeechNode:
         self.heard = rospy.Publisher(base + '/heard', String, queue_size=20)
         self.grammar_pub = rospy.Publisher(base + '/grammar', String, queue_size=1, latch=True)
         announcements = rospy.Publisher(base + '/announcements', String, queue_size=20)
+        self.sentences = Sentences()
         self.announcer = Announcer(lambda text: announcements.publish(String(text)),
                                    params.text('voice', DEFAULT_VOICE, empty=False),
                                    params.number('speed', DEFAULT_SPEED, minimum=1, integer=True),
@@ -165,7 +166,7 @@ class SpeechNode:
         except ValueError:
             rospy.logwarn('%s: an event that is not JSON: %r', NODE_NAME, msg.data[:200])
             return
-        text = sentence(ev) if isinstance(ev, dict) else None
+        text = self.sentences.of(ev) if isinstance(ev, dict) else None
         if text:
             self.announcer.say(text)
 

@@ -15,7 +15,7 @@ from temoto_testing.action_engine import write_plugin
 from temoto_core.master import connected
 from temoto_core.wait import wait_for
 from temoto_speech import grammar
-from temoto_speech.announcer import Announcer, sentence
+from temoto_speech.announcer import Announcer, Sentences, sentence
 from temoto_speech.audio import Utterances, write_wav
 from temoto_speech.phonemes import to_arpabet
 from temoto_speech.voice import synthesize_pcm
@@ -189,6 +189,16 @@ def test_espeak_mnemonics_become_arpabet_and_events_become_short_sentences():
         'switching to the arm LIDAR stitched cloud'
     assert sentence({'event': 'state', 'action': 'track_object', 'state': 'FAILED'}) == 'track object failed'
     assert sentence({'event': 'state', 'action': 'track_object', 'state': 'RUNNING'}) is None
+
+
+def test_a_failure_is_said_at_once_and_once():
+    said = Sentences()
+    failing = {'event': 'failing', 'graph': 'g', 'action': 'follow_hand', 'instance_id': 0, 'reason': 'x'}
+    failed = {'event': 'state', 'graph': 'g', 'action': 'follow_hand', 'instance_id': 0, 'state': 'FAILED'}
+    assert said.of(failing) == 'follow hand failed'
+    assert said.of(failed) is None                         # its state comes once it released what it held
+    other = dict(failed, graph='h')
+    assert said.of(other) == 'follow hand failed'          # another graph's failure, with no failing before
 
 
 def test_an_utterance_ends_at_a_silence_or_at_the_end_of_the_stream():
