@@ -1,6 +1,6 @@
 """``temoto demo``, ``temoto record``, ``temoto report``.
 
-    temoto demo teleop [--live] [--voice] [--stage-timeout S] [--out runs/<timestamp>]
+    temoto demo teleop [--live] [--voice | --hosts 2] [--stage-timeout S] [--out runs/<timestamp>]
     temoto demo [--live] [--stage-timeout S] [--d435-mode crash|stall] [--hokuyo-mode crash|stall]
                 [--priority rgbd,arm_cloud,base_scan] [--kill-managers [--seed N]] [--hosts 2 [--robot NS]]
                 [--out runs/<timestamp>]
@@ -113,14 +113,24 @@ def teleop_main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--stage-timeout', type=float, default=30.0, help='seconds each stage may take (default 30)')
     p.add_argument('--out', default='', help='run folder (default: runs/<timestamp>)')
     p.add_argument('--no-report', action='store_true', help='skip the report')
+    p.add_argument('--hosts', type=int, choices=(1, 2), default=1,
+                   help='2: the robot and the operator\'s station on two hosts (network namespaces; needs root); the '
+                   'link is cut while the arm follows the hand')
     args = p.parse_args(argv)
     if args.stage_timeout <= 0:
         p.error('--stage-timeout must be positive')
     if args.live and not os.environ.get('DISPLAY'):
         p.error('--live needs a DISPLAY')
+    if args.voice and args.hosts == 2:
+        p.error('--voice runs on one host; --hosts 2 does not take it yet')
+    if args.hosts == 2:
+        why = unavailable()
+        if why:
+            print('temoto demo teleop --hosts 2: %s' % why, file=sys.stderr)
+            return 2
     out = args.out or default_run_dir()
     return run_teleop(DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
-                                  report=not args.no_report, voice=args.voice))
+                                  report=not args.no_report, voice=args.voice, hosts=args.hosts))
 
 
 def demo_main(argv: Optional[List[str]] = None) -> int:

@@ -7,10 +7,16 @@ The stages, each waited on by an event or by the simulation's ground truth (neve
 3. "robot please go": the robot drives through the lab towards it;
 4. the SICK is unplugged on the way: the base stops (its obstacle source is stale), the source fails over to
    the stitched arm-LIDAR cloud, and the robot arrives;
-5. "robot please follow my hand at 0.1": the hand tracker's recorded path moves the camera arm at 0.1x;
+5. "robot please follow my hand at a tenth": the hand tracker's recorded path moves the camera arm at 0.1x;
 6. "robot please close the gripper";
 7. the camera arm's controller crashes: the arm is commanded zero, ``follow_hand`` ends FAILED, and the
    failure is said on the feedback topic (and aloud with ``--voice``).
+
+With ``--hosts 2`` the operator's station is a host of its own (its hand tracker, pointer, engine and RViz),
+and before stage 7 the link is cut while the arm follows the hand: the arm holds once its servo stream
+falls silent (the manipulator's 0.1 s), and the station hears the action fail within the owner liveness
+bound (1 s). The station cannot see the robot across the cut, so a second recorder on the robot's host
+keeps the robot's side (``robot.bag``: its arm's ground truth and servo stream); the report reads both.
 
 Everything is recorded to ``teleop.bag``, the inputs under inert names (``topics.motion_inputs``), and the
 report (``teleop_report.py``) is made from the bag alone.
@@ -30,22 +36,28 @@ import rospy
 from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import String
 
+import temoto_sensor_manager
+import yaml
+from temoto_core.processes import LoggedChild, stop_process_group
 from temoto_core.wait import wait_for
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from vaultbot_sim.msg import ArmState, BaseState
 
 from . import topics as T
-from .scenario import Demo, DemoOptions, StageTimeout, _interrupt, _rel
+from .recording import _subscribed_topics
+from .scenario import Demo, DemoOptions, StageTimeout, _interrupt, _rel, write_station_catalogue
 from .teleop_report import write_teleop_report
 
 PLACE = 'drums'                 # where the pointed goal is: 2.3 m ahead, past the SICK's unplug
-HAND_SCALE = '0.1'
+HAND_SCALE = 'a tenth'           # the dial at 0.1, said as words so that speech can say it too
 ARM = 'left_arm'                # the camera's arm, which carries the gripper
 DRIVING_MPS = 0.2               # the base counts as driving above this commanded speed
 ARRIVAL_TIMEOUT = 120.0         # the drive, with its stop and the obstacle source's failover
 FOLLOWED_TARGETS = 150          # servo targets sent while the grab holds: 1.5 s of the hand at 100 Hz
 ARM_MOVING = 0.005              # rad/s: the camera arm follows the grabbing hand (0.01 at 0.1x)
+RECORDER = '/usr/lib/rosbag/record'
+ROBOT_RECORDER = '/temoto_demo_robot_record'
 
 
 class TeleopDemo(Demo):
@@ -59,6 +71,74 @@ class TeleopDemo(Demo):
 
     def recorded_extra(self) -> List[str]:
         return T.teleop_topics(self.opts.namespace, self._robot_ns)
+
+    # ------------------------------------------------------------------ --hosts 2
+    def _station_catalogue(self, workdir: str) -> str:
+        """The station's scanner and the operator's hand sources, joined to the robot's simulation (its
+        cables)."""
+        path = write_station_catalogue(self.opts.robot, workdir)
+        with open(path) as f:
+            catalogue = yaml.safe_load(f)
+        with open(os.path.join(os.path.dirname(temoto_sensor_manager.__file__), 'config', 'hands.yaml')) as f:
+            hands = yaml.safe_load(f)['sensors']
+        for entry in hands:
+            if entry['executable'] == 'hand_tracker_driver':
+                entry['args'] = '_sim_ns:=/%s/vaultbot_sim' % self.opts.robot
+        catalogue['sensors'] += hands
+        with open(path, 'w') as f:
+            yaml.safe_dump(catalogue, f)
+        return path
+
+    def start(self) -> None:
+        super().start()
+        if self.hosts is not None:
+            self._start_robot_recorder()
+
+    def _start_robot_recorder(self) -> None:
+        robot = self._robot_ns
+        topics = [T.of_robot(robot, 'vaultbot_sim/arm_states'), T.of_robot(robot, '%s/servo_command' % ARM),
+                  T.of_robot(robot, '%s/servo_target' % ARM), T.of_robot(robot, 'vaultbot_sim/base_state')]
+        self.robot_bag = os.path.join(self.opts.out_dir, 'robot.bag')
+        argv = [RECORDER, '-O', self.robot_bag, '--lz4'] + topics + ['__name:=' + ROBOT_RECORDER.lstrip('/')]
+        env = self._env(self.hosts.robot)
+        self.robot_recorder = LoggedChild(self.hosts.argv(self.hosts.robot, argv), env,
+                                          os.path.join(self.opts.out_dir, 'logs', 'robot_record.log'), 'robot_record')
+        wait_for(lambda: set(topics) <= _subscribed_topics(self.master.uri, ROBOT_RECORDER), 15.0,
+                 'the robot\'s recorder to subscribe')
+        self.progress.line('recording the robot\'s side on its host: %s' % _rel(self.robot_bag))
+
+    def stop(self):
+        recorder = getattr(self, 'robot_recorder', None)
+        if recorder is not None:
+            if self.hosts is not None:
+                self.hosts.link(True)
+            stop_process_group(recorder.proc, sigint_grace=10.0)
+            self.robot_recorder = None
+        return super().stop()
+
+    def _cut_while_following(self) -> None:
+        """Cut the link while the arm follows the hand; the station must hear the action fail within 1 s."""
+        wait_for(lambda: self.arms and self.arms[-1].commanded_speed > ARM_MOVING, self.opts.stage_timeout,
+                 'the arm moving with the hand')
+        since = time.monotonic()
+        self._mark('link_down')
+        self.hosts.link(False)
+        failing = self.watcher.wait_action(lambda e: e.get('event') == 'failing' and e.get('action') == 'follow_hand',
+                                           since, self.opts.stage_timeout, 'follow_hand to fail across the cut')
+        self.results['cut_failing_s'] = failing['arrival'] - since
+        self.progress.line('link cut while following: the station heard follow_hand fail %.2f s later'
+                           % (failing['arrival'] - since))
+        healed = time.monotonic()
+        self._mark('link_up')
+        self.hosts.link(True)
+        self.watcher.wait_action(lambda e: e.get('event') == 'state' and e.get('action') == 'follow_hand'
+                                 and e.get('state') == 'FAILED', since, self.opts.stage_timeout,
+                                 'follow_hand to end FAILED once the link is back')
+        self.progress.line('link plugged back: follow_hand released what it held (%.2f s)'
+                           % (time.monotonic() - healed))
+        since = self.say('robot please follow my hand at %s' % HAND_SCALE)
+        self._action('following', since, 'the arm to follow the hand again')
+        self.progress.line('"follow my hand" again')
 
     def _init_rospy(self, env) -> None:
         super()._init_rospy(env)
@@ -176,7 +256,7 @@ class TeleopDemo(Demo):
         start = self.targets
         wait_for(lambda: self.targets - start >= FOLLOWED_TARGETS, self.opts.stage_timeout,
                  'the arm following the grabbing hand')
-        self.progress.line('"follow my hand at %s": the arm follows the hand' % HAND_SCALE)
+        self.progress.line('"follow my hand at %s": the arm follows the hand at 0.1x' % HAND_SCALE)
         # 6: the gripper
         since = self.say('robot please close the gripper')
         done = self.watcher.wait_action(lambda e: e.get('event') in ('grasped', 'gripper_reached'), since,
@@ -184,6 +264,8 @@ class TeleopDemo(Demo):
         self.progress.line('"close the gripper": %s' % ('holding an object' if done['event'] == 'grasped'
                                                         else 'closed'))
         self._screenshot('gripper')
+        if self.hosts is not None:
+            self._cut_while_following()
         # 7: the arm's controller crashes while the arm follows the hand
         wait_for(lambda: self.arms and self.arms[-1].commanded_speed > ARM_MOVING, self.opts.stage_timeout,
                  'the arm moving with the hand')

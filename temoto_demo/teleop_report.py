@@ -184,10 +184,42 @@ class TeleopFigures:
     failed_s: Optional[float] = None              # → follow_hand FAILED, its resources released
     announced: str = ''
     halts: int = 0
+    cut_hold_ms: Optional[float] = None           # --hosts 2, link cut while following: the last servo target
+                                                  # on the robot → the arm commanded zero (robot.bag)
+    cut_failing_s: Optional[float] = None         # … the link cut → the station hears follow_hand fail
 
 
 def _first(rows, pred):
     return next((r for r in rows if pred(r)), None)
+
+
+def robot_side(bag_path: str) -> Tuple[List[tuple], List[float]]:
+    """From ``robot.bag`` (--hosts 2, recorded on the robot's host): the camera arm's ground truth (t, commanded
+    speed) and the stamps of the servo targets that reached the robot."""
+    arm, targets = [], []
+    with AnyReader([Path(bag_path)]) as reader:
+        for conn, bag_ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic.endswith('/vaultbot_sim/arm_states') and msg.arm == ARM:
+                arm.append((_t(msg, bag_ns * 1e-9), msg.commanded_speed))
+            elif conn.topic.endswith('%s/servo_target' % ARM):
+                targets.append(_t(msg, bag_ns * 1e-9))
+    return sorted(arm), sorted(targets)
+
+
+def cut_figures(run: TeleopRun, f: 'TeleopFigures', robot_bag: str) -> None:
+    down = next((st['stamp'] for st in run.stages if st.get('stage') == 'link_down'), None)
+    if down is None:
+        return
+    failing = _first(run.actions, lambda e: e['t'] > down and e.get('event') == 'failing'
+                     and e.get('action') == 'follow_hand')
+    f.cut_failing_s = None if failing is None else failing['t'] - down
+    if os.path.exists(robot_bag):
+        arm, targets = robot_side(robot_bag)
+        zero = _first(arm, lambda a: a[0] > down and a[1] == 0.0)
+        last = max((t for t in targets if zero is not None and t <= zero[0]), default=None)
+        if zero is not None and last is not None:
+            f.cut_hold_ms = 1e3 * (zero[0] - last)
 
 
 def figures(run: TeleopRun) -> TeleopFigures:
@@ -365,6 +397,7 @@ def write_teleop_report(bag_path: str, out_dir: Optional[str] = None,
     os.makedirs(out_dir, exist_ok=True)
     run = load_teleop(bag_path, namespace)
     f = figures(run)
+    cut_figures(run, f, os.path.join(os.path.dirname(os.path.abspath(bag_path)), 'robot.bag'))
     images = [plot_path(run, os.path.join(out_dir, 'path.png')),
               plot_hand(run, os.path.join(out_dir, 'hand.png')),
               plot_timeline(run, os.path.join(out_dir, 'teleop_timeline.png'))]
@@ -393,7 +426,12 @@ def write_teleop_report(bag_path: str, out_dir: Optional[str] = None,
          % _ms(f.arm_zero_ms),
          '| … follow_hand says it fails (the operator hears it) | %s | 1 s |' % _ms(f.failing_s, 's'),
          '| … follow_hand FAILED, the arm\'s processes released | %s | - |' % _ms(f.failed_s, 's'),
-         '| … said to the operator | %s | - |' % (('"%s"' % f.announced[:120]) if f.announced else '-'), '']
+         '| … said to the operator | %s | - |' % (('"%s"' % f.announced[:120]) if f.announced else '-')]
+    if f.cut_failing_s is not None:
+        L += ['| two hosts, the link cut while following: the last servo target on the robot → the arm commanded '
+              'zero (robot.bag) | %s | 100 ms (the servo stream\'s timeout) |' % _ms(f.cut_hold_ms),
+              '| … the link cut → the station hears follow_hand fail | %s | 1 s |' % _ms(f.cut_failing_s, 's')]
+    L += ['']
     L += ['## The drive', '', '![path](path.png)', '',
           '## The hand and the end-effector', '', '![hand](hand.png)', '',
           '## Stops and failovers', '', '![timeline](teleop_timeline.png)', '',

@@ -16,6 +16,29 @@ import math
 from typing import List
 
 MINIMUM, MAXIMUM = 0.01, 10.0
+# where a running follow_hand listens, under /<ns>/: a scale set outright (std_msgs/Float32), clicks
+# (std_msgs/Int8: negative finer, positive coarser), and the scale now (Float32, latched)
+SET, STEP, SCALE = 'dial', 'dial/step', 'dial/scale'
+# scales said in words ("scale one tenth"), for speech and the CLI
+WORDS = {'hundredth': 0.01, 'tenth': 0.1, 'fifth': 0.2, 'half': 0.5, 'one': 1.0, 'double': 2.0, 'ten': 10.0}
+
+
+def topic(namespace: str, which: str) -> str:
+    """``/<namespace>/<which>`` for one of SET, STEP, SCALE."""
+    return '/%s/%s' % (namespace.strip('/'), which)
+
+
+def scale_of(word: str) -> float:
+    """A scale said as a word (``WORDS``) or a number; ValueError naming both when it is neither (the range is
+    checked by ``Dial``)."""
+    word = word.strip().lower()
+    if word in WORDS:
+        return WORDS[word]
+    try:
+        return float(word)
+    except ValueError:
+        raise ValueError('%r is no scale: give a number from %g to %g or one of %s'
+                         % (word, MINIMUM, MAXIMUM, ', '.join(sorted(WORDS, key=WORDS.get)))) from None
 _MANTISSAS = (1.0, 2.0, 5.0)
 
 
@@ -31,6 +54,7 @@ def _series() -> List[float]:
 
 
 STEPS = tuple(_series())
+SNAP = 1e-6          # relative: a value this near a step is that step (a float32 carries about 7 digits)
 
 
 class Dial:
@@ -50,6 +74,9 @@ class Dial:
         except (TypeError, ValueError):
             raise ValueError('scale %r is not a number; give one from %g to %g' % (value, MINIMUM, MAXIMUM)) \
                 from None
+        # a scale that came as a float32 (std_msgs/Float32: 0.05 arrives as 0.0500000007) is the step it means;
+        # left unsnapped, "finer" from it lands on 0.05 itself, and 0.01 falls below the range
+        value = next((s for s in STEPS if abs(value - s) <= SNAP * s), value) if math.isfinite(value) else value
         if not (math.isfinite(value) and MINIMUM <= value <= MAXIMUM):
             raise ValueError('scale %r is outside %g to %g' % (value, MINIMUM, MAXIMUM))
         return value
@@ -65,10 +92,10 @@ class Dial:
         if clicks == 0:
             return self._scale
         if clicks > 0:
-            above = [s for s in STEPS if s > self._scale * (1 + 1e-9)]
+            above = [s for s in STEPS if s > self._scale * (1 + SNAP)]
             ladder = above[:clicks]
         else:
-            below = [s for s in STEPS if s < self._scale * (1 - 1e-9)]
+            below = [s for s in STEPS if s < self._scale * (1 - SNAP)]
             ladder = below[::-1][:-clicks]
         if ladder:
             self._scale = ladder[-1]

@@ -86,6 +86,7 @@ class _ActionWords:
         self.param_words: List[str] = []
         self.any_words = False
         self.enums: Dict[str, List[str]] = {}
+        self.phrases: Dict[str, List[str]] = {}      # parameter -> its words, said after the subject
         self.left_out: List[str] = []
         self.motion = bool(action.get('motion'))         # said only after the motion wake phrase
         self.bare = bool(grounding.get('bare'))          # the verb alone is a clause ("stop", "go")
@@ -96,10 +97,15 @@ class _ActionWords:
             self.param_words += _sayable(spec.get('words') or [], unsayable)
             self.any_words |= bool(spec.get('any'))
             enum = _sayable(_enum_words(spec.get('pattern')), unsayable)
+            words = _sayable(spec.get('words') or [], unsayable)
             if enum:
                 self.enums[pname] = enum
-            elif spec.get('pattern'):
+            elif spec.get('pattern') and not words:
                 self.left_out.append('parameter %s (pattern %s: not a list of words)' % (pname, spec['pattern']))
+            # an action said with its subject takes its parameters' words in a phrase after it ("follow my hand
+            # at a tenth", "... with the right arm"); words that are its own verbs ("open") are said as the verb
+            if words and not set(words) & set(self.verbs):
+                self.phrases[pname] = words
 
         def said_in_words(name: str) -> bool:
             spec = params.get(name) or {}
@@ -128,6 +134,9 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
         elif a.objects():
             pps = ['with %s %s%s' % (det, _alt(words), ' [%s]' % pname if SAYABLE.match(pname) else '')
                    for pname, words in sorted(a.enums.items())]
+            if a.subjects:
+                pps += ['(at | with) %s %s%s' % (det, _alt(words), ' [%s]' % pname if SAYABLE.match(pname) else '')
+                        for pname, words in sorted(a.phrases.items()) if pname not in a.enums]
             # a place a motion goes to: "go to the shelf"
             body = ' %s%s%s %s%s' % ('[me] ' if a.subjects else '', '[to] ' if a.motion and not a.subjects else '',
                                      '[%s]' % _alt(DETERMINERS + (POSSESSIVE,)) if a.possessive else det,

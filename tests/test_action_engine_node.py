@@ -160,7 +160,7 @@ def test_cli_lists_actions_with_broken_plugins_and_graphs(engine, rospy_client, 
     assert cli.main(['actions', '--ns', NS, '--reindex', '--json']) == 0
     data = json.loads(capsys.readouterr().out)
     assert {a['name'] for a in data['actions']} == {'hold', 'emit', 'show', 'show_environment', 'stop',
-                                                    'track_object', 'navigate', 'gripper', 'follow_hand'}
+                                                    'track_object', 'navigate', 'gripper', 'follow_hand', 'dial'}
     assert [e['kind'] for e in data['errors']] == ['import_error']
     assert cli.say(['--ns', NS, 'hold', 'your', 'breath']) == 0
     assert 'graph: hold' in capsys.readouterr().out
@@ -177,7 +177,7 @@ def test_launch_file_loads_the_config(procs, rospy_client):
     procs.launch('temoto_action_engine', 'action_engine.launch', args=['temoto_namespace:=aelaunch'])
     rospy_client.wait_for_service('/aelaunch/action_engine/list_actions', timeout=20)
     data = json.loads(rospy_client.ServiceProxy('/aelaunch/action_engine/list_actions', ListActions)(reindex=False).json)
-    assert sorted(a['name'] for a in data['actions']) == ['follow_hand', 'gripper', 'navigate', 'show',
+    assert sorted(a['name'] for a in data['actions']) == ['dial', 'follow_hand', 'gripper', 'navigate', 'show',
                                                           'show_environment', 'stop', 'track_object']
     assert data['errors'] == []
     priority = rospy_client.get_param('/temoto_action_engine/actions/show_environment/sensor_priority')

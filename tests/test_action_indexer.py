@@ -47,7 +47,7 @@ def test_valid_plugin_is_indexed_with_its_class_and_descriptor(tmp_path):
 def test_bundled_actions_index_cleanly():
     idx = ActionIndex([]).reindex()
     assert idx.problems == []
-    assert set(idx) == {'show_environment', 'track_object', 'show', 'stop', 'navigate', 'gripper', 'follow_hand'}
+    assert set(idx) == {'show_environment', 'track_object', 'show', 'stop', 'navigate', 'gripper', 'follow_hand', 'dial'}
     assert idx.get('show_environment').asynchronous and not idx.get('stop').asynchronous
 
 

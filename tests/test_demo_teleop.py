@@ -39,7 +39,7 @@ def test_the_operator_drives_follows_grips_and_every_failure_stops_its_motion(te
     said = proc.stdout
     for stage in ('goal pointed (2D Nav Goal)', '"robot please go": driving', 'SICK unplugged: the base commanded zero',
                   'obstacles now from arm LIDAR stitched cloud', 'arrived at the pointed goal',
-                  '"follow my hand at 0.1": the arm follows', '"close the gripper"',
+                  '"follow my hand at a tenth": the arm follows the hand at 0.1x', '"close the gripper"',
                   'left_arm controller crashed: the arm commanded zero', 'follow_hand failing',
                   'no process left'):
         assert stage in said, stage

@@ -1,6 +1,8 @@
 """The teleoperation dial (temoto_robot_manager/dial.py): logarithmic steps, bounds, bad values refused."""
 import math
 
+import numpy as np
+
 import pytest
 
 from temoto_robot_manager.dial import MAXIMUM, MINIMUM, STEPS, Dial
@@ -33,3 +35,12 @@ def test_a_bad_scale_is_refused_naming_the_range_and_changes_nothing(bad):
         dial.set(bad)
     assert '0.01' in str(err.value) and '10' in str(err.value)
     assert dial.scale == 0.1
+
+
+@pytest.mark.parametrize('step', [0.01, 0.05, 0.2, 10.0])
+def test_a_scale_that_came_as_a_float32_is_the_step_it_means(step):
+    sent = float(np.float32(step))              # std_msgs/Float32 on the dial topic
+    dial = Dial(sent)
+    assert dial.scale == step
+    if step > 0.01:
+        assert dial.finer() < step and dial.scale == STEPS[STEPS.index(step) - 1]

@@ -6,13 +6,15 @@ sources) and Robot Managers, the pointer, and the action engine, each in its own
 """
 import json
 import math
+import subprocess
+import sys
 import time
 
 import pytest
 import rospy
 import tf2_ros
 from geometry_msgs.msg import PointStamped, PoseStamped
-from std_msgs.msg import String
+from std_msgs.msg import Float32, String
 from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerInit, Marker
 
 from temoto_core.msg import HandSample
@@ -225,3 +227,32 @@ def test_the_arm_follows_the_hand_holds_when_it_is_unplugged_and_fails_over_to_t
         assert not any(e['state'] == 'FAILED' for e in op.of('state', graph))
     finally:
         listener.unregister()
+
+
+def dial_cli(*args):
+    return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'dial'] + list(args), capture_output=True,
+                          text=True, timeout=HANG)
+
+
+def test_the_dial_turns_by_words_and_by_the_cli_and_refuses_what_it_cannot_be(op, collect):
+    scale = collect('/%s/dial/scale' % NS, Float32)
+    graph = graph_of(said(op, 'robot please follow my hand at a tenth'))
+    op.wait_event('following', graph, HANG, 'the arm following the hand')
+    wait_for(lambda: scale.last() is not None and scale.last().data == pytest.approx(0.1), 10, 'the dial at 0.1')
+    turned = graph_of(said(op, 'coarser'))                 # the dial moves nothing by itself: no wake phrase
+    assert ended(op, turned, 'dial_0') == 'FINISHED'
+    assert scale.last().data == pytest.approx(0.2)
+    out = dial_cli('0.05')
+    assert out.returncode == 0 and 'scale 0.05x' in out.stdout, out.stdout + out.stderr
+    out = dial_cli('finer', '2')
+    assert out.returncode == 0 and 'scale 0.01x' in out.stdout, out.stdout + out.stderr
+    out = dial_cli('20')
+    assert out.returncode == 2 and 'outside 0.01 to 10' in out.stderr, out.stderr
+    assert scale.last().data == pytest.approx(0.01)          # refused: unchanged
+    said(op, 'stop')
+    assert ended(op, graph, 'follow_hand_0') == 'FINISHED'
+    out = dial_cli('finer')
+    assert out.returncode == 1 and 'no hand is followed now' in out.stderr, out.stderr
+    failed = graph_of(said(op, 'finer'))
+    assert ended(op, failed, 'dial_0') == 'FAILED'
+    assert op.heard('dial failed', 'no hand is followed now'), op.feedback[-5:]

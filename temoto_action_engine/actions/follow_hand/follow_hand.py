@@ -33,6 +33,7 @@ from temoto_action_engine.robot_action import RobotAction
 from temoto_core.errors import TemotoError
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import HandSample
+from temoto_robot_manager import dial
 from temoto_robot_manager.dial import Dial
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 from temoto_robot_manager.obstacle_points import matrix_of
@@ -92,7 +93,7 @@ class FollowHand(RobotAction):
         scale = self.input('scale')
         if scale not in (None, ''):
             try:
-                self.dial.set(float(scale))
+                self.dial.set(dial.scale_of(scale))
             except ValueError as err:
                 raise ActionError('scale %s: %s' % (scale, err)) from None
         self.lock = threading.Lock()
@@ -105,10 +106,10 @@ class FollowHand(RobotAction):
         self.pub_hold = rospy.Publisher(self.robot_topic('%s/servo_hold' % self.arm), String, queue_size=5,
                                         tcp_nodelay=True)
         ns = self.context.namespace
-        self.pub_scale = rospy.Publisher('/%s/dial/scale' % ns, Float32, queue_size=1, latch=True)
+        self.pub_scale = rospy.Publisher(dial.topic(ns, dial.SCALE), Float32, queue_size=1, latch=True)
         self.pub_scale.publish(Float32(self.dial.scale))
-        self._subs = [rospy.Subscriber('/%s/dial' % ns, Float32, self._on_dial, queue_size=5),
-                      rospy.Subscriber('/%s/dial/step' % ns, Int8, self._on_dial_step, queue_size=5),
+        self._subs = [rospy.Subscriber(dial.topic(ns, dial.SET), Float32, self._on_dial, queue_size=5),
+                      rospy.Subscriber(dial.topic(ns, dial.STEP), Int8, self._on_dial_step, queue_size=5),
                       rospy.Subscriber(halt_topic(ns), HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)]
         self._start_hand()
         self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
