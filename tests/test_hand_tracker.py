@@ -67,3 +67,12 @@ def test_a_hand_source_is_served_as_a_sensor_at_100_hz_and_fails_its_holder_when
                       'FAILED at the holder')
     assert 'hand_tracker_driver' in failed.message or 'sim_hand_tracker' in failed.message, failed.message
     wait_for(lambda: not er_processes(), HANG, 'the driver gone')
+
+
+def test_the_tracker_on_the_station_needs_no_joint_states_of_the_robot(stack, collect):
+    """On the operator's station (two hosts) the robot's joint states are under its namespace; a tracker that
+    waited for them as the robot's sensors do never gave a sample, and the Sensor Manager failed it."""
+    samples = collect('/station_hand/sample', HandSample)
+    stack.node('vaultbot_sim', 'hand_tracker_driver', name='station_hand_tracker',
+               args=['joint_states:=/nobody/joint_states', 'hand/sample:=/station_hand/sample'])
+    wait_for(lambda: len(samples.msgs) >= 100, HANG, '100 samples with no joint states anywhere')

@@ -84,6 +84,8 @@ class DriverBase:
         self.frame_prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))    # its robot's TF frames
         self.scene = self.make_scene()
         self.cfg: tuple[dict, dict] = ({}, {})
+        if self.scene is None:
+            return      # it sees no lab (the operator's hand): where the robot is means nothing to it
         rospy.Subscriber('joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
                          tcp_nodelay=True)
         rospy.Subscriber(self.sim_ns + '/world_joint_states', JointState, self._on_js, self.world_hist,
