@@ -195,7 +195,8 @@ def _first(rows, pred):
 
 def robot_side(bag_path: str) -> Tuple[List[tuple], List[float]]:
     """From ``robot.bag`` (--hosts 2, recorded on the robot's host): the camera arm's ground truth (t, commanded
-    speed) and the stamps of the servo targets that reached the robot."""
+    speed) and when each servo target reached the robot. Arrival, not the target's stamp: over the cut link TCP
+    keeps the station's last targets and delivers them once the link is back, stamped before the cut."""
     arm, targets = [], []
     with AnyReader([Path(bag_path)]) as reader:
         for conn, bag_ns, raw in reader.messages():
@@ -203,7 +204,7 @@ def robot_side(bag_path: str) -> Tuple[List[tuple], List[float]]:
             if conn.topic.endswith('/vaultbot_sim/arm_states') and msg.arm == ARM:
                 arm.append((_t(msg, bag_ns * 1e-9), msg.commanded_speed))
             elif conn.topic.endswith('%s/servo_target' % ARM):
-                targets.append(_t(msg, bag_ns * 1e-9))
+                targets.append(bag_ns * 1e-9)
     return sorted(arm), sorted(targets)
 
 

@@ -139,15 +139,28 @@ class ManipulatorNode:
             pose.pose.position, pose.pose.orientation)
 
     def _on_servo_target(self, msg: PoseStamped) -> None:
-        if not msg.header.stamp.is_zero() and msg.header.stamp <= self._halted_at:
-            return                      # sent before the operator's stop, and overtaken by it
+        age = 0.0
+        if not msg.header.stamp.is_zero():
+            if msg.header.stamp <= self._halted_at:
+                return                  # sent before the operator's stop, and overtaken by it
+            # the stream's timeout counts from when the target was sent: over a link that was cut, TCP keeps a
+            # stream's targets and delivers them seconds late, once the link is back; they are not followed
+            age = max(0.0, rospy.get_time() - msg.header.stamp.to_sec())
+            if age > SERVO_TIMEOUT_S:
+                why = 'refusing servo targets sent %.0f ms ago (more than the stream\'s %.0f ms)' % (
+                    1e3 * age, 1e3 * SERVO_TIMEOUT_S)
+                rospy.logwarn_throttle(1.0, 'manipulator: %s', why)
+                with self.lock:
+                    self.pub_status.publish(String(why))
+                    self._said = why
+                return
         try:
             target = self._in_base(msg)
         except (GoalRefused, ValueError) as err:
             rospy.logerr_throttle(1.0, 'manipulator: servo target refused: %s' % err)
             return
         with self.lock:
-            self.target, self.target_at = target, time.monotonic()
+            self.target, self.target_at = target, time.monotonic() - age
             self._new_target = True
             self.wake.notify()
 

@@ -282,6 +282,34 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
     assert state == GoalStatus.SUCCEEDED, text
 
 
+def test_servo_targets_held_up_on_the_way_are_not_followed_late(arm, truth, collect):
+    """Over a link that was cut, TCP keeps a stream's targets and delivers them, seconds late, when the link is
+    back (the two-host teleop demo found it): they must not move the arm, since whoever sent them may have let
+    go meanwhile. A target sent now is followed."""
+    joints, states = truth
+    status = collect('/left_arm/servo_status', String)
+    start = tool_in_base(settled(joints))
+    pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=50)
+    wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator to subscribe to the servo targets')
+    target = start.copy()
+    target[1, 3] += 0.05
+    before = len(states.msgs)
+    for _ in range(25):                               # a burst, as a healed link delivers what it kept
+        late = target_message(target)
+        late.header.stamp = rospy.Time.now() - rospy.Duration(3.0)
+        pub.publish(late)
+    wait_for(lambda: any('refusing servo targets sent' in m.data for m in status.msgs), HANG,
+             'the status to say the late targets are refused')
+    moved = [m for m in states.msgs[before:] if m.arm == 'left_arm' and m.commanded_speed > 0.0]
+    assert moved == [], 'late targets moved the arm'
+    wait_for(lambda: pub.publish(target_message(target)) or next(
+        (m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0), None), HANG,
+        'the arm following a target sent now')
+    pub.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
 def test_temoto_robots_arm_moves_an_arm_and_refuses_what_cannot_be(arm, truth):
     joints, _ = truth
     unknown = temoto('arm', 'tail_arm', 'hold')
