@@ -35,6 +35,7 @@ LOCATIVES = ('on', 'in')
 EVERYTHING = ('everything', 'all')
 JOINERS = ('and', 'then')
 POLITE = 'please'
+BARE_PLACES = ('home', 'there')        # said with no article: "go home", "go there"
 MOTION_WAKE = ('robot', 'please')      # the paper's "Robot please go"; the action engine's default too
 SAYABLE = re.compile(r'[a-z]+$')
 ENUM_PATTERN = re.compile(r'^\^?\(?([a-z]+(?:\|[a-z]+)+)\)?\$?$')     # "cold|warm|hot", "^(a|b)$"
@@ -166,8 +167,14 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
     if still:
         forms.append(joined % ('[%s] <clause>' % POLITE, _alt(JOINERS), '<clause>'))
     if moving:
-        either = '(<motion> | <clause>)' if still else '<motion>'
-        forms.append(joined % ('%s %s' % (' '.join(motion_wake), either), _alt(JOINERS), either))
+        # one motion an utterance: a decoder that pads a short motion with a second clause ("go the home" heard
+        # as "go then go home") would otherwise start a motion nobody said (bench_speech.py)
+        wake_words = ' '.join(motion_wake)
+        form = '%s <motion> [%s <clause>]' % (wake_words, _alt(JOINERS)) if still else '%s <motion>' % wake_words
+        if still:
+            form = '%s (<motion> [%s <clause>] | <clause> [%s (<motion> | <clause>)])' % (
+                wake_words, _alt(JOINERS), _alt(JOINERS))
+        forms.append(form)
     body = ['public <utterance> = %s%s;' % (lead, forms[0] if len(forms) == 1 else _alt(forms))]
     if still:
         body.append('<clause> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in still))
@@ -190,8 +197,14 @@ def phrases(actions: Sequence[dict], motion_wake: Sequence[str] = MOTION_WAKE) -
         if a.takes_parent:
             continue
         said: List[str] = []
-        if a.objects():
+        if a.subjects:
             said += ['%s the %s' % (v, o) for v in a.verbs for o in a.objects()]
+        elif a.objects():
+            # a verb that is itself a parameter's word ("finer") is said alone; a place is gone to ("go to the
+            # shelf", "go home", "go there")
+            words = [o for o in a.objects() if o not in a.verbs]
+            said += ['%s %s' % (v, o if o in BARE_PLACES else ('to the %s' % o if a.motion else 'the %s' % o))
+                     for v in a.verbs if v not in a.objects() for o in words]
         elif a.any_words:
             said += ['%s everything' % v for v in a.verbs]
         if a.bare:

@@ -146,11 +146,16 @@ def test_the_grammar_says_a_motion_only_after_the_wake_phrase(index):
     actions = index.to_json()['actions']
     g = grammar.build(actions)
     top = g.jsgf.splitlines()[2]
-    assert top.startswith('public <utterance> = ([please] <clause>') and 'robot please (<motion> | <clause>)' in top
+    assert top.startswith('public <utterance> = ([please] <clause>')
+    # one motion an utterance, and only after the wake phrase
+    assert 'robot please (<motion> [(and | then) <clause>] | <clause> [(and | then) (<motion> | <clause>)])' in top
     assert '<motion> = <a_follow_hand> | <a_gripper> | <a_navigate>;' in g.jsgf
-    assert '<a_follow_hand> = (follow | mirror | move) [me] [(the | a | my)] (hand);' in g.jsgf
+    assert '<a_follow_hand> = (follow | mirror | move) [me] [(the | a | my)] (hand) [((at | with) [(the | a)] ' \
+        '(left | right) [arm] | (at | with) [(the | a)] (fifth | half | hundredth | tenth) [scale])];' in g.jsgf
     clause = next(line for line in g.jsgf.splitlines() if line.startswith('<clause> ='))
     assert 'navigate' not in clause and 'gripper' not in clause
     said = grammar.phrases(actions)
     assert 'robot please close the gripper' in said and 'stop' in said
+    assert 'robot please go to the shelf' in said and 'robot please go home' in said and 'finer' in said
+    assert not [p for p in said if ' the home' in p or ' the there' in p or p.startswith('finer the')]
     assert not [p for p in said if p.split()[0] in ('go', 'open', 'close', 'follow') and 'gripper' in p]
