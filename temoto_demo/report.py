@@ -96,6 +96,19 @@ def _stamp(msg, bag_t: float) -> float:
     return bag_t
 
 
+def action_event(data: str, bag_t: float) -> Optional[dict]:
+    """One of the action engine's JSON events, its time as ``t`` (its own stamp, else the bag's); None when it
+    is not a JSON object."""
+    try:
+        ev = json.loads(data)
+    except ValueError:
+        return None
+    if not isinstance(ev, dict):
+        return None
+    ev['t'] = float(ev.get('stamp') or bag_t)
+    return ev
+
+
 def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
     """Everything the report needs, read from the bag with ``rosbags``."""
     run = Run(bag=os.path.abspath(bag_path))
@@ -123,12 +136,8 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
                 run.display.append(DisplayEv(_stamp(msg, bag_t), msg.event, msg.display_name, msg.topic,
                                              float(msg.seconds_since_added), int(msg.frame_count)))
             elif topic == T.action_events(namespace):
-                try:
-                    ev = json.loads(msg.data)
-                except ValueError:
-                    continue
-                if isinstance(ev, dict):
-                    ev['t'] = float(ev.get('stamp') or bag_t)
+                ev = action_event(msg.data, bag_t)
+                if ev is not None:
                     run.actions.append(ev)
             elif T.is_device_states(topic):
                 t = _stamp(msg, bag_t)

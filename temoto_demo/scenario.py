@@ -29,7 +29,7 @@ import uuid
 import xml.etree.ElementTree as ElementTree
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional
 
 import rosgraph
 import rospy
@@ -745,25 +745,25 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def run_demo(opts: DemoOptions) -> int:
-    demo = Demo(opts)
+def run_stages(demo: Demo, name: str, report: Callable[[Demo], None]) -> int:
+    """Start ``demo``, run its scenario, stop everything, make its report (``report(demo)``, from the bag) and
+    write ``demo.json``; the exit code. ``name`` begins every line it prints (``temoto demo teleop``)."""
+    opts = demo.opts
     rc = 0
     # a SIGTERM (a CI job's timeout, kill) stops the run as Ctrl-C does: every process and namespace goes
     previous = signal.signal(signal.SIGTERM, _interrupt)
-    print('temoto demo: the paper\'s sensor failover; run folder %s (%s)'
-          % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
     try:
         demo.start()
         demo.scenario()
     except StageTimeout as e:
-        print('temoto demo: FAILED: %s' % e, file=sys.stderr, flush=True)
+        print('%s: FAILED: %s' % (name, e), file=sys.stderr, flush=True)
         demo.results['errors'].append(str(e))
         rc = 1
     except KeyboardInterrupt:
-        print('temoto demo: interrupted', file=sys.stderr, flush=True)
+        print('%s: interrupted' % name, file=sys.stderr, flush=True)
         rc = 130
     except Exception as e:
-        print('temoto demo: FAILED: %s: %s' % (type(e).__name__, e), file=sys.stderr, flush=True)
+        print('%s: FAILED: %s: %s' % (name, type(e).__name__, e), file=sys.stderr, flush=True)
         demo.results['errors'].append('%s: %s' % (type(e).__name__, e))
         rc = 1
     finally:
@@ -772,21 +772,31 @@ def run_demo(opts: DemoOptions) -> int:
         signal.signal(signal.SIGTERM, previous)
     if opts.report and os.path.exists(demo.bag_path):
         try:
-            rep = write_report(demo.bag_path, opts.out_dir, opts.namespace)
-            demo.results['failures'] = [f.as_dict() for f in rep.analysis.failures]
-            demo.progress.line('report %s' % _rel(rep.path))
-            for f in rep.analysis.failures:
-                gap = '-' if f.display_gap is None else '%.3f s' % f.display_gap
-                det = '-' if f.detection is None else '%.3f s' % f.detection
-                print('          %s (%s): FAILED detected in %s, display gap %s' % (f.device, f.mode, det, gap))
+            report(demo)
         except Exception as e:
-            print('temoto demo: report failed: %s: %s' % (type(e).__name__, e), file=sys.stderr)
+            print('%s: report failed: %s: %s' % (name, type(e).__name__, e), file=sys.stderr)
             rc = rc or 1
     demo.results.update(rc=rc, total_s=time.monotonic() - demo.progress.t0, progress=demo.progress.lines,
                         screenshots=demo.screenshots, bag=demo.bag_path)
     with open(os.path.join(opts.out_dir, 'demo.json'), 'w') as f:
         json.dump(demo.results, f, indent=2, default=str)
     for error in demo.results['errors']:       # what went wrong on the way is said, not only kept in demo.json
-        print('temoto demo: problem: %s' % error, file=sys.stderr, flush=True)
-    print('temoto demo: %s in %.1f s' % ('done' if rc == 0 else 'FAILED', demo.results['total_s']), flush=True)
+        print('%s: problem: %s' % (name, error), file=sys.stderr, flush=True)
+    print('%s: %s in %.1f s' % (name, 'done' if rc == 0 else 'FAILED', demo.results['total_s']), flush=True)
     return rc
+
+
+def run_demo(opts: DemoOptions) -> int:
+    demo = Demo(opts)
+    print('temoto demo: the paper\'s sensor failover; run folder %s (%s)'
+          % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
+
+    def report(demo: Demo) -> None:
+        rep = write_report(demo.bag_path, opts.out_dir, opts.namespace)
+        demo.results['failures'] = [f.as_dict() for f in rep.analysis.failures]
+        demo.progress.line('report %s' % _rel(rep.path))
+        for f in rep.analysis.failures:
+            gap = '-' if f.display_gap is None else '%.3f s' % f.display_gap
+            det = '-' if f.detection is None else '%.3f s' % f.detection
+            print('          %s (%s): FAILED detected in %s, display gap %s' % (f.device, f.mode, det, gap))
+    return run_stages(demo, 'temoto demo', report)

@@ -23,21 +23,18 @@ report (``teleop_report.py``) is made from the bag alone.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
-import signal
-import sys
 import time
 from typing import List
 
 import rosgraph
 import rospy
+import yaml
 from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import String
 
 import temoto_sensor_manager
-import yaml
 from temoto_core.processes import LoggedChild, stop_process_group
 from temoto_core.wait import wait_for
 from temoto_robot_manager.description import load_file
@@ -46,7 +43,7 @@ from vaultbot_sim.msg import ArmState, BaseState
 
 from . import topics as T
 from .recording import _subscribed_topics
-from .scenario import Demo, DemoOptions, StageTimeout, _interrupt, _rel, write_station_catalogue
+from .scenario import Demo, DemoOptions, _rel, run_stages, write_station_catalogue
 from .teleop_report import write_teleop_report
 
 PLACE = 'drums'                 # where the pointed goal is: 2.3 m ahead, past the SICK's unplug
@@ -294,41 +291,11 @@ class TeleopDemo(Demo):
 
 def run_teleop(opts: DemoOptions) -> int:
     demo = TeleopDemo(opts)
-    rc = 0
-    previous = signal.signal(signal.SIGTERM, _interrupt)
     print('temoto demo teleop: the operator moves the robot; run folder %s (%s)'
           % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
-    try:
-        demo.start()
-        demo.scenario()
-    except (StageTimeout, TimeoutError) as e:
-        print('temoto demo teleop: FAILED: %s' % e, file=sys.stderr, flush=True)
-        demo.results['errors'].append(str(e))
-        rc = 1
-    except KeyboardInterrupt:
-        print('temoto demo teleop: interrupted', file=sys.stderr, flush=True)
-        rc = 130
-    except Exception as e:
-        print('temoto demo teleop: FAILED: %s: %s' % (type(e).__name__, e), file=sys.stderr, flush=True)
-        demo.results['errors'].append('%s: %s' % (type(e).__name__, e))
-        rc = 1
-    finally:
-        if demo.stop():
-            rc = rc or 1
-        signal.signal(signal.SIGTERM, previous)
-    if opts.report and os.path.exists(demo.bag_path):
-        try:
-            rep = write_teleop_report(demo.bag_path, opts.out_dir, opts.namespace)
-            demo.results['report'] = rep.summary
-            demo.progress.line('report %s' % _rel(rep.path))
-        except Exception as e:
-            print('temoto demo teleop: report failed: %s: %s' % (type(e).__name__, e), file=sys.stderr)
-            rc = rc or 1
-    demo.results.update(rc=rc, total_s=time.monotonic() - demo.progress.t0, progress=demo.progress.lines,
-                        screenshots=demo.screenshots, bag=demo.bag_path)
-    with open(os.path.join(opts.out_dir, 'demo.json'), 'w') as f:
-        json.dump(demo.results, f, indent=2, default=str)
-    for error in demo.results['errors']:
-        print('temoto demo teleop: problem: %s' % error, file=sys.stderr, flush=True)
-    print('temoto demo teleop: %s in %.1f s' % ('done' if rc == 0 else 'FAILED', demo.results['total_s']), flush=True)
-    return rc
+
+    def report(demo: TeleopDemo) -> None:
+        rep = write_teleop_report(demo.bag_path, opts.out_dir, opts.namespace)
+        demo.results['report'] = rep.summary
+        demo.progress.line('report %s' % _rel(rep.path))
+    return run_stages(demo, 'temoto demo teleop', report)

@@ -30,6 +30,7 @@ from rosbags.highlevel import AnyReader
 matplotlib.use('Agg')       # drawn headless, before anything imports pyplot
 
 from . import topics as T   # noqa: E402
+from .report import action_event   # noqa: E402
 
 ARM = 'left_arm'
 ARM_BASE, TOOL = 'left_base_link', 'left_tool0'
@@ -124,12 +125,8 @@ def load_teleop(bag_path: str, namespace: str = T.DEFAULT_NS) -> TeleopRun:
                     times.append(_t(tr, bag_t))
                     mats.append(_matrix(tr.transform))
             elif topic == T.action_events(ns):
-                try:
-                    ev = json.loads(msg.data)
-                except ValueError:
-                    continue
-                if isinstance(ev, dict):
-                    ev['t'] = float(ev.get('stamp') or bag_t)
+                ev = action_event(msg.data, bag_t)
+                if ev is not None:
                     run.actions.append(ev)
             elif topic == T.action_feedback(ns):
                 run.feedback.append((bag_t, msg.data))

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from temoto_testing import SESSION_ENV, leftover_processes
+from temoto_testing.demo import run_demo_cli
 
 DEMO_TIMEOUT = 150          # hang catcher; the goal (< 90 s) is the benchmark's business
 MAX_GAP_S = 5.0
@@ -20,15 +20,8 @@ HANG_S = 5.0        # catches a FAILED that hangs, not a slow machine
 
 
 def run_demo(tmp_path_factory, *args):
-    token = 'test_demo_' + os.urandom(6).hex()
     out = tmp_path_factory.mktemp('demo') / 'run'
-    master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')
-    env = {k: v for k, v in os.environ.items() if k not in master_vars}
-    env[SESSION_ENV] = token
-    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'demo', '--out', str(out),
-                           '--stage-timeout', '40'] + list(args), env=env, capture_output=True, text=True,
-                          timeout=DEMO_TIMEOUT)
-    left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
+    proc, left = run_demo_cli(['--out', str(out), '--stage-timeout', '40'] + list(args), DEMO_TIMEOUT)
     return proc, out, left
 
 

@@ -1,34 +1,24 @@
 """``temoto demo teleop``, headless, as a user runs it; its assertions read the bag and the report made from it.
 
-Like test_demo.py: the demo starts its own roscore, so it runs as a subprocess with an environment that does
-not point at the test session's master, and with a token of its own, by which the census finds anything it
-leaves behind.
+Like test_demo.py, through ``temoto_testing.demo.run_demo_cli``: a subprocess with a master and a token of its
+own, by which the census finds anything it leaves behind.
 """
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from rosbags.highlevel import AnyReader
 
 from temoto_demo import topics as T
-from temoto_testing import SESSION_ENV, leftover_processes
+from temoto_testing.demo import run_demo_cli
 
 DEMO_TIMEOUT = 240          # hang catcher; the goal (< 90 s) is bench/BENCHMARKS' business
 
 
 def run_teleop(tmp_path_factory, *args):
-    token = 'test_teleop_' + os.urandom(6).hex()
     out = tmp_path_factory.mktemp('teleop') / 'run'
-    master_vars = ('ROS_MASTER_URI', 'ROS_IP', 'ROS_HOSTNAME', 'ROS_LOG_DIR', 'ROS_HOME', 'DISPLAY')
-    env = {k: v for k, v in os.environ.items() if k not in master_vars}
-    env[SESSION_ENV] = token
-    proc = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'demo', 'teleop', '--out', str(out),
-                           '--stage-timeout', '60'] + list(args), env=env, capture_output=True, text=True,
-                          timeout=DEMO_TIMEOUT)
-    left = [p for p in leftover_processes(token) if p[0] != os.getpid()]
+    proc, left = run_demo_cli(['teleop', '--out', str(out), '--stage-timeout', '60'] + list(args), DEMO_TIMEOUT,
+                              'test_teleop_')
     return proc, out, left
 
 
