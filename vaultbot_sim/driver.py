@@ -48,6 +48,9 @@ class DriverBase:
 
     device = ''
     default_rate = 10.0
+    # it renders the lab from the robot's pose, so it waits for the robot's joint states (a render worker's
+    # driver has no scene of its own here and still needs them)
+    sees_the_lab = True
 
     def __init__(self):
         # relative by default: a driver started in a robot's namespace finds that robot's simulation
@@ -84,8 +87,8 @@ class DriverBase:
         self.frame_prefix = str(rospy.get_param(self.sim_ns + '/frame_prefix', ''))    # its robot's TF frames
         self.scene = self.make_scene()
         self.cfg: tuple[dict, dict] = ({}, {})
-        if self.scene is None:
-            return      # it sees no lab (the operator's hand): where the robot is means nothing to it
+        if not self.sees_the_lab:
+            return      # the operator's hand tracker: where the robot is means nothing to it
         rospy.Subscriber('joint_states', JointState, self._on_js, self.robot_hist, queue_size=20,
                          tcp_nodelay=True)
         rospy.Subscriber(self.sim_ns + '/world_joint_states', JointState, self._on_js, self.world_hist,

@@ -121,6 +121,7 @@ class HandTrackerDriver(DriverBase):
     otherwise). It has a cable like the robot's devices (``hand_tracker``), so it can be unplugged."""
     device = 'hand_tracker'
     default_rate = 100.0
+    sees_the_lab = False                  # on the operator's station, where the robot's joint states may not be
 
     def __init__(self):
         self.pub = rospy.Publisher('hand/sample', HandSample, queue_size=10, tcp_nodelay=True)
