@@ -78,3 +78,17 @@ def test_on_two_hosts_a_cut_link_holds_the_following_arm_and_the_station_hears_i
     assert figures['cut_hold_ms'] is not None and figures['cut_hold_ms'] < 1000
     assert figures['cut_failing_s'] is not None and figures['cut_failing_s'] < 5.0
     assert figures['arrival_error_m'] <= 0.10 and figures['contacts'] == 0
+
+
+def test_spoken_the_same_run_is_heard_and_each_failure_said_once(tmp_path_factory):
+    """``--voice``: every instruction spoken (espeak-ng) to the speech node, the motions after "robot please";
+    the failure is announced at once, and not again when the action has released what it held."""
+    proc, out, left = run_teleop(tmp_path_factory, '--voice')
+    assert proc.returncode == 0, 'rc %s\nstdout:\n%s\nstderr:\n%s' % (proc.returncode, proc.stdout, proc.stderr[-4000:])
+    assert left == []
+    for heard in ('heard "robot please go"', 'heard "robot please follow my hand at a tenth"', 'follow_hand failing'):
+        assert heard in proc.stdout, heard
+    with AnyReader([Path(out / 'teleop.bag')]) as reader:
+        said = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic.endswith('/speech/announcements')])]
+    assert said.count('follow hand failed') == 1, said
