@@ -87,7 +87,8 @@ class Run:
     topics: Dict[str, Tuple[str, int]] = field(default_factory=dict)
 
 
-def _stamp(msg, bag_t: float) -> float:
+def stamp_of(msg, bag_t: float) -> float:
+    """A message's own header stamp (s), or ``bag_t`` when it has none."""
     header = getattr(msg, 'header', None)
     if header is not None:
         s = header.stamp.sec + header.stamp.nanosec * 1e-9
@@ -130,17 +131,17 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
                 st = msg.stamp.sec + msg.stamp.nanosec * 1e-9
                 run.ticks.setdefault(msg.frame_id, []).append(st if st > 0 else bag_t)
             elif status_re.match(topic):
-                run.statuses.append(Status(_stamp(msg, bag_t), topic, msg.manager_name, msg.server_name,
+                run.statuses.append(Status(stamp_of(msg, bag_t), topic, msg.manager_name, msg.server_name,
                                            int(msg.resource_id), int(msg.status_code), msg.message))
             elif topic == T.display_events(namespace):
-                run.display.append(DisplayEv(_stamp(msg, bag_t), msg.event, msg.display_name, msg.topic,
+                run.display.append(DisplayEv(stamp_of(msg, bag_t), msg.event, msg.display_name, msg.topic,
                                              float(msg.seconds_since_added), int(msg.frame_count)))
             elif topic == T.action_events(namespace):
                 ev = action_event(msg.data, bag_t)
                 if ev is not None:
                     run.actions.append(ev)
             elif T.is_device_states(topic):
-                t = _stamp(msg, bag_t)
+                t = stamp_of(msg, bag_t)
                 for d in msg.devices:
                     was = plugged.get(d.name)
                     if was is not None and was and not d.plugged:
@@ -151,7 +152,7 @@ def load_run(bag_path: str, namespace: str = T.DEFAULT_NS) -> Run:
             elif topic == T.chatter(namespace):
                 run.chatter.append((bag_t, msg.data))
             elif topic == T.SCREENSHOTS:
-                run.screenshots.append((_stamp(msg, bag_t), msg.header.frame_id, bytes(msg.data)))
+                run.screenshots.append((stamp_of(msg, bag_t), msg.header.frame_id, bytes(msg.data)))
             elif topic == T.STAGES:
                 try:
                     run.stages.append(json.loads(msg.data))

@@ -30,19 +30,10 @@ from rosbags.highlevel import AnyReader
 matplotlib.use('Agg')       # drawn headless, before anything imports pyplot
 
 from . import topics as T   # noqa: E402
-from .report import action_event   # noqa: E402
+from .report import action_event, stamp_of as _t   # noqa: E402
 
 ARM = 'left_arm'
 ARM_BASE, TOOL = 'left_base_link', 'left_tool0'
-
-
-def _t(msg, bag_t: float) -> float:
-    header = getattr(msg, 'header', None)
-    if header is not None:
-        s = header.stamp.sec + header.stamp.nanosec * 1e-9
-        if s > 0:
-            return s
-    return bag_t
 
 
 def _matrix(tr) -> np.ndarray:
