@@ -102,6 +102,16 @@ def record_main(argv: Optional[List[str]] = None) -> int:
     return 0
 
 
+def _no_two_hosts(p: argparse.ArgumentParser, args, prog: str) -> bool:
+    """``--hosts 2`` asked for and not possible here (said why), or refused with ``--voice``."""
+    if args.voice and args.hosts == 2:
+        p.error('--voice runs on one host; --hosts 2 does not take it yet')
+    why = unavailable() if args.hosts == 2 else ''
+    if why:
+        print('%s --hosts 2: %s' % (prog, why), file=sys.stderr)
+    return bool(why)
+
+
 def teleop_main(argv: Optional[List[str]] = None) -> int:
     from .scenario import DemoOptions               # lazy: rospy, RViz clients, the recorder
     from .teleop import run_teleop
@@ -121,13 +131,8 @@ def teleop_main(argv: Optional[List[str]] = None) -> int:
         p.error('--stage-timeout must be positive')
     if args.live and not os.environ.get('DISPLAY'):
         p.error('--live needs a DISPLAY')
-    if args.voice and args.hosts == 2:
-        p.error('--voice runs on one host; --hosts 2 does not take it yet')
-    if args.hosts == 2:
-        why = unavailable()
-        if why:
-            print('temoto demo teleop --hosts 2: %s' % why, file=sys.stderr)
-            return 2
+    if _no_two_hosts(p, args, 'temoto demo teleop'):
+        return 2
     out = args.out or default_run_dir()
     return run_teleop(DemoOptions(out_dir=os.path.abspath(out), live=args.live, stage_timeout=args.stage_timeout,
                                   report=not args.no_report, voice=args.voice, hosts=args.hosts))
@@ -169,13 +174,9 @@ def demo_main(argv: Optional[List[str]] = None) -> int:
     args = p.parse_args(argv)
     if args.unplug_all and (args.hosts == 2 or args.replug or args.kill_managers):
         p.error('--unplug-all runs alone: without --hosts 2, --replug and --kill-managers')
-    if args.voice and args.hosts == 2:
-        p.error('--voice runs on one host; --hosts 2 does not take it yet')
+    if _no_two_hosts(p, args, 'temoto demo'):
+        return 2
     if args.hosts == 2:
-        why = unavailable()
-        if why:
-            print('temoto demo --hosts 2: %s' % why, file=sys.stderr)
-            return 2
         if args.kill_managers:
             p.error('--kill-managers runs on one host; --hosts 2 does not take it yet')
         if not legal_name(args.robot, base=True) or args.robot == T.DEFAULT_NS:

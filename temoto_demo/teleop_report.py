@@ -264,6 +264,14 @@ def figures(run: TeleopRun) -> TeleopFigures:
 
 
 # ============================================================================ the pictures
+def _saved(fig, path: str) -> str:
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def plot_path(run: TeleopRun, path: str) -> str:
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -293,10 +301,7 @@ def plot_path(run: TeleopRun, path: str) -> str:
     ax.set_ylabel('y (m)')
     ax.legend(loc='best', fontsize=8)
     ax.set_title('The drive over the lab\'s map')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_hand(run: TeleopRun, path: str) -> str:
@@ -317,12 +322,10 @@ def plot_hand(run: TeleopRun, path: str) -> str:
             ax2.set_ylabel('hand y (mm)', color='tab:gray')
         ax.set_xlabel('s since the first target')
     ax.set_ylabel('y in %s (mm)' % ARM_BASE)
-    ax.legend(loc='upper left', fontsize=8)
+    if run.targets:
+        ax.legend(loc='upper left', fontsize=8)
     ax.set_title('The hand moves the camera arm (y, the hand path\'s axis)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 def plot_timeline(run: TeleopRun, path: str) -> str:
@@ -356,10 +359,7 @@ def plot_timeline(run: TeleopRun, path: str) -> str:
             a1.axvline(t - t0, color='tab:cyan', lw=1.2, ls=':')
     a1.legend(loc='upper right', fontsize=7)
     a1.set_title('Stops and failovers: red unplug, cyan obstacle source taken over, dashed the actions\' events')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _saved(fig, path)
 
 
 # ============================================================================ the report
