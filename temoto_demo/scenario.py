@@ -111,6 +111,10 @@ class StageTimeout(RuntimeError):
     pass
 
 
+class StageFailed(StageTimeout):
+    """What a stage waits for can no longer come: the graph that would bring it ended FAILED."""
+
+
 @dataclass
 class DemoOptions:
     out_dir: str
@@ -198,10 +202,24 @@ class EventWatcher:
                           lambda: 'timed out after %.0f s waiting for %s on screen; action events since: %s'
                           % (timeout, what, self._recent(since)))
 
-    def wait_action(self, match, since: float, timeout: float, what: str) -> dict:
-        """The first action event since ``since`` that ``match`` accepts."""
-        return self._wait(lambda: next((e for e in self.actions if e['arrival'] >= since and match(e)), None),
-                          timeout, lambda: 'timed out after %.0f s waiting for %s; action events since: %s'
+    def wait_action(self, match, since: float, timeout: float, what: str, graph: Optional[str] = None) -> dict:
+        """The first action event since ``since`` that ``match`` accepts.
+
+        With ``graph``, a FAILED end of that graph (or of any graph, for ``'*'``) since ``since`` ends the wait
+        at once with its reason, rather than letting the stage time out on an event that can no longer come.
+        """
+        def found():
+            for e in self.actions:
+                if e['arrival'] < since:
+                    continue
+                if match(e):
+                    return e
+                if graph and e.get('event') == 'graph_finished' and e.get('state') == 'FAILED' \
+                        and graph in ('*', e.get('graph')):
+                    raise StageFailed('%s failed while waiting for %s: %s'
+                                       % (e.get('graph'), what, e.get('reason') or 'no reason given'))
+            return None
+        return self._wait(found, timeout, lambda: 'timed out after %.0f s waiting for %s; action events since: %s'
                           % (timeout, what, self._recent(since)))
 
     def wait_removed(self, since: float, timeout: float) -> None:
@@ -211,7 +229,8 @@ class EventWatcher:
     def _recent(self, since: float) -> str:
         evs = [e for e in self.actions if e['arrival'] >= since and e.get('event') != 'state'] or \
               [e for e in self.actions if e['arrival'] >= since]
-        return '; '.join('%s %s' % (e.get('event'), e.get('message') or e.get('label') or e.get('state') or '')
+        return '; '.join(' '.join(str(part) for part in (e.get('event'), e.get('message') or e.get('label')
+                                                          or e.get('state'), e.get('reason')) if part)
                          for e in evs[-6:]) or 'none'
 
 

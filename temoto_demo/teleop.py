@@ -215,7 +215,7 @@ class TeleopDemo(Demo):
 
     def _action(self, event: str, since: float, what: str, timeout: float = 0.0) -> dict:
         return self.watcher.wait_action(lambda e: e.get('event') == event, since, timeout or self.opts.stage_timeout,
-                                        what)
+                                        what, graph='*')
 
     # ------------------------------------------------------------------ the stages
     def scenario(self) -> None:

@@ -6,28 +6,35 @@ sources) and Robot Managers, the pointer, and the action engine, each in its own
 """
 import json
 import math
+import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
+import rosgraph
 import rospy
 import tf2_ros
 from geometry_msgs.msg import PointStamped, PoseStamped
 from std_msgs.msg import Float32, String
 from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerInit, Marker
 
+from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.msg import HandSample
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import commanded_zero_after
 from temoto_testing.operator import Operator
+from temoto_testing.signals import stop as stop_process
 from temoto_testing.sensor_manager import (HAND_CATALOGUE, NS, er_processes, managers_idle, set_cable,
                                            start_robot_stack)
 from vaultbot_sim.msg import ArmState, BaseState, GripperState
 
 HANG = 90.0
+POINTER_STALL_S = 3.0     # longer than the 2 s bound that failed a busy CI run
 PLACES = next(r for r in load_file(DEFAULT_DESCRIPTION)[0] if r.name == 'vaultbot').navigation.places
 RRS = ('temoto_robot_manager', 'temoto_sensor_manager', 'temoto_er_manager')
 
@@ -145,6 +152,33 @@ def test_stop_halts_a_drive_at_once_and_the_drive_ends_stopped(op, rospy_client,
     # the base stays at rest: nothing drives on after the stop
     wait_for(lambda: abs(truth.last().linear) < 0.01, 10, 'the base at rest')
     graph = graph_of(said(op, 'robot please go home'))
+    assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
+
+
+def test_a_goal_is_taken_from_a_pointer_that_stalls_longer_than_a_busy_machine_takes(op, rospy_client, collect):
+    """A CI run under load failed "robot please go" with "nothing publishes": the action waited 2 s for the
+    pointer's latched goal. A stalled pointer (SIGSTOP, 3 s) is slow, not absent; the drive must start."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    pointed = collect('/%s/pointed_goal' % NS, PoseStamped)
+    point(rospy_client, 'drums')
+    wait_for(lambda: pointed.last() is not None and pointed.last().header.frame_id == 'world', 20,
+             'the pointed goal kept')
+    pointer = node_pid(lookup_node(rosgraph.get_master_uri(), '/pointer'))
+    stop_process(pointer)
+    resume = threading.Timer(POINTER_STALL_S, os.kill, (pointer, signal.SIGCONT))   # the fault's length
+    try:
+        graph = graph_of(said(op, 'robot please go'))
+        # the stall counts from the action's subscription: the robot's navigation loads for seconds before it
+        master, me = rosgraph.Master('/test_stall'), rospy.get_name()
+        wait_for(lambda: any(t == '/%s/pointed_goal' % NS and set(nodes) - {me}
+                             for t, nodes in master.getSystemState()[1]), HANG, 'the action asking for the goal')
+        resume.start()
+        op.wait_event('driving', graph, HANG, 'the drive to start')
+    finally:
+        resume.cancel()
+        os.kill(pointer, signal.SIGCONT)
+    said(op, 'stop')
     assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
 
 

@@ -21,10 +21,12 @@ from std_msgs.msg import Float32, String
 
 from temoto_action_engine.action_base import ActionError
 from temoto_action_engine.robot_action import RobotAction
+from temoto_core.latched import NoPublisher, latched_message
 from temoto_robot_manager.pointer_node import pointed_of
 from temoto_robot_manager.pointing import BadPointing
 
-POINTED_WAIT_S = 2.0          # the pointer's latched goal reaches a new subscriber within this
+POINTED_WAIT_S = 10.0         # the pointer's latched goal reaches a new subscriber within this, even when busy
+TF_WAIT_S = 5.0               # where the robot stands, from a new TF listener
 POINTED_WORDS = ('', 'there', 'pointed', 'goal', 'target')
 PLACE_FRAME = 'world'         # the frame of a description's named places (the map's)
 DRIVE_TIMEOUT_S = 600.0
@@ -82,9 +84,11 @@ class Navigate(RobotAction):
         """The pointer's goal, marked used; a point gets the heading from the robot towards it."""
         topic = '/%s/pointed_goal' % self.context.namespace
         try:
-            msg = rospy.wait_for_message(topic, PoseStamped, timeout=POINTED_WAIT_S)
-        except rospy.ROSException:
+            msg = latched_message(topic, PoseStamped, POINTED_WAIT_S)
+        except NoPublisher:
             raise ActionError('no pointed goal: nothing publishes %s (is the pointer running?)' % topic) from None
+        except TimeoutError as err:
+            raise ActionError('no pointed goal: %s' % err) from None
         try:
             pointed = pointed_of(msg)
         except BadPointing as err:
@@ -104,7 +108,7 @@ class Navigate(RobotAction):
         buffer = tf2_ros.Buffer()
         listener = tf2_ros.TransformListener(buffer)
         try:
-            t = buffer.lookup_transform(pointed.frame, base_frame, rospy.Time(0), rospy.Duration(POINTED_WAIT_S))
+            t = buffer.lookup_transform(pointed.frame, base_frame, rospy.Time(0), rospy.Duration(TF_WAIT_S))
         except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
             raise ActionError('the pointed point has no heading, and where the robot stands in %s is not '
                               'known: %s' % (pointed.frame, err)) from None
