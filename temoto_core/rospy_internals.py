@@ -113,6 +113,22 @@ def sender_of(msg) -> str:
     return connection_header(msg).get('callerid', '')
 
 
+def _open(conn) -> bool:
+    """Whether a TCPROS connection's peer still holds its end: a peek that reads an end of file says it
+    closed (its process died, and its kernel closed the socket), before rospy has noticed."""
+    sock = getattr(conn, 'socket', None)
+    if sock is None:
+        return False
+    try:
+        if sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b'':
+            return False                        # the peer closed its end
+    except BlockingIOError:
+        pass                                    # nothing to read: open
+    except OSError:                             # reset, or closed at this end
+        return False
+    return True
+
+
 def live_subscribers(publisher: rospy.Publisher) -> Set[str]:
     """The names of ``publisher``'s subscribers whose connection is open now.
 
@@ -120,20 +136,17 @@ def live_subscribers(publisher: rospy.Publisher) -> Set[str]:
     file (a TCPROS subscriber sends nothing after its handshake, so a peek takes nothing from the
     stream). rospy itself drops the connection only when a later write to it fails: the second write
     after the death, 0.4 s for an action's 5 Hz status."""
-    alive = set()
-    for conn in list(publisher.impl.connections):
-        sock = getattr(conn, 'socket', None)
-        if sock is None:
-            continue
-        try:
-            if sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b'':
-                continue                        # the peer closed its end
-        except BlockingIOError:
-            pass                                # nothing to read: open
-        except OSError:                         # reset, or closed at this end
-            continue
-        alive.add(conn.endpoint_id)
-    return alive
+    return {conn.endpoint_id for conn in list(publisher.impl.connections) if _open(conn)}
+
+
+def live_publishers(subscriber: rospy.Subscriber) -> Set[str]:
+    """The publishers of ``subscriber``'s topic whose connection is open now.
+
+    rospy's receive thread drops a connection when it reads the end of file, but that thread may not have
+    run yet when another callback asks (a goal that arrives right after the publisher died). A peek sees the
+    end of file as soon as the kernel closed the socket. A publisher with a message still unread reads as
+    open; for a latched topic sent once, that message was read long ago."""
+    return {conn.endpoint_id for conn in list(subscriber.impl.connections) if _open(conn)}
 
 
 # generous beside a handshake (a header is a few hundred bytes, sent right after the connect), short beside

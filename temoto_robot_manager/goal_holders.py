@@ -6,7 +6,8 @@ of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched
 - the goal's action client: its subscription to the status the server publishes, read for an end of file
   on every look (``rospy_internals.live_subscribers``). A goal sent with no client (``rostopic pub``) or by
   a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned;
-- the Robot Manager that started the node: the latched topic it publishes to the node, once seen.
+- the Robot Manager that started the node: the latched topic it publishes to the node, once seen, its
+  connection read for an end of file the same way (``rospy_internals.live_publishers``).
 """
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ from typing import Optional
 import actionlib
 import rospy
 
-from temoto_core.rospy_internals import live_subscribers
+from temoto_core.rospy_internals import live_publishers, live_subscribers
+
+OWNER_LOOK_S = 0.05            # how often the manager's connection is looked for until it is first seen
 
 
 class GoalHolders:
@@ -31,6 +34,14 @@ class GoalHolders:
         self._fire_and_forget = fire_and_forget
         self._owner_seen = False
         self._client_seen = False
+        # looked for until seen, not only when a goal comes: a manager that dies before the first goal must
+        # still count as seen, or that goal would be taken as one with no manager, and never orphaned
+        self._looking = rospy.Timer(rospy.Duration(OWNER_LOOK_S), self._look_for_owner) if owner else None
+
+    def _look_for_owner(self, _event) -> None:
+        if self._owner_connected():
+            self._owner_seen = True
+            self._looking.shutdown()
 
     def new_goal(self) -> None:
         """A new goal: its client has not been seen yet."""
@@ -41,7 +52,7 @@ class GoalHolders:
         connection to it (it died, or is being respawned and has not reached this node again), or None."""
         if self._owner is None:
             return None
-        if self._owner.get_num_connections() > 0:
+        if self._owner_connected():
             self._owner_seen = True
             return None
         if self._owner_seen:
@@ -49,10 +60,16 @@ class GoalHolders:
                    'it is back' % self._node
         return None
 
+    def _owner_connected(self) -> bool:
+        """The manager's latched topic reaches this node now: read from the socket, not from rospy's count,
+        which lags the manager's death by however long the receive thread waits for a CPU (a goal sent right
+        after the death was accepted and moved the base, in a CI run)."""
+        return bool(live_publishers(self._owner))
+
     def gone(self, goal_id: str) -> Optional[str]:
         """Why the goal ``goal_id`` has nobody left to want it, or None."""
         if self._owner is not None:
-            if self._owner.get_num_connections() > 0:
+            if self._owner_connected():
                 self._owner_seen = True
             elif self._owner_seen:
                 return 'the Robot Manager that started this %s is gone' % self._node
