@@ -18,10 +18,13 @@
    Managers, the Robot Manager with a journal under its warm-respawn parent, the robot loaded through it:
    the kill -> the first ground-truth state with zero commanded, and -> the manager's registry answering
    again, recovered and equal to the one before (as bench_recovery.py measures the other managers).
+5. **a teleop stream** (``--only teleop``): the sim, the SICK and the navigator: a stream on
+   ``teleop/cmd_vel`` falls silent -> zero commanded (the navigator's watch), alternating with the same
+   stream straight on ``cmd_vel`` (the base controller's timeout); the SICK stalled under the stream.
 
 Prints a markdown table and writes bench/results/navigation.json.
 Usage: python bench/bench_navigation.py [--pairs N] [--drives N] [--trials N] [--hogs N]
-                                        [--only planners|drives|stops|manager]
+                                        [--only planners|drives|stops|manager|teleop]
 """
 import argparse
 import json
@@ -327,6 +330,87 @@ def bench_stops(trials, drives, hogs):
     return out
 
 
+def bench_teleop(trials, hogs):
+    """A teleop stream on ``teleop/cmd_vel`` falls silent → the base commanded zero (the navigator's 0.1 s watch),
+    beside the same stream sent straight to ``cmd_vel`` (the base controller's 0.25 s timeout, what a twist_mux
+    setup relies on); and the SICK stalled while the stream turns the base → zero, from its last scan."""
+    import rospy
+    from geometry_msgs.msg import Twist, TwistStamped
+    from sensor_msgs.msg import LaserScan
+    from temoto_core.wait import wait_for
+    from temoto_testing.sensor_manager import set_cable
+    from vaultbot_sim.msg import BaseState
+
+    master, launcher = loopback_master('bench_navigation_teleop_')
+    hog_procs = cpu_hogs(hogs)
+    out = {'silence': [], 'silence_cmd_vel': [], 'stale': []}
+    try:
+        launcher.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
+        launcher.node('vaultbot_sim', 'base_controller')
+        sick = launcher.node('vaultbot_sim', 'sick_driver')
+        launcher.node('temoto_robot_manager', 'navigator', params={
+            'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
+        rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
+        states, scans = [], []
+        rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+        rospy.Subscriber('/sick/scan', LaserScan, lambda m: scans.append(m.header.stamp.to_sec()), queue_size=50)
+        teleop = rospy.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5, tcp_nodelay=True)
+        raw = rospy.Publisher('/cmd_vel', Twist, queue_size=5, tcp_nodelay=True)
+        wait_for(lambda: states and teleop.get_num_connections() and raw.get_num_connections(), HANG,
+                 'the navigator and the base controller listening')
+
+        def turn(pub, stamped, seconds, sign):
+            """Stream a slow turn at 50 Hz for ``seconds``; the wall time of the last command sent."""
+            rate, last = rospy.Rate(50), None
+            for _ in range(int(seconds * 50)):
+                if stamped:
+                    msg = TwistStamped()
+                    msg.header.stamp = rospy.Time.now()
+                    msg.twist.angular.z = sign * 0.4
+                else:
+                    msg = Twist()
+                    msg.angular.z = sign * 0.4
+                last = time.time()
+                pub.publish(msg)
+                rate.sleep()
+            return last
+
+        def zero_after(t0):
+            return wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-40:]
+                                          if s.header.stamp.to_sec() > t0 and s.commanded_angular == 0.0), None),
+                            HANG, 'zero commanded')
+
+        print('bench_navigation: teleop stream silent x %d ...' % (2 * trials), file=sys.stderr, flush=True)
+        for k in range(2 * trials):           # the two paths alternate, so the machine's noise hits both
+            through = k % 2 == 0
+            last = turn(teleop if through else raw, through, 0.4, 1 if k % 4 < 2 else -1)
+            out['silence' if through else 'silence_cmd_vel'].append(zero_after(last) - last)
+            wait_for(lambda: states[-1].angular == 0.0, HANG, 'at rest')
+        print('bench_navigation: SICK stalled under a teleop stream x %d ...' % trials, file=sys.stderr, flush=True)
+        for k in range(trials):
+            turn(teleop, True, 0.3, 1)
+            set_cable('sick', 'unplugged', 'stall')
+            cut = time.time()
+            rate = rospy.Rate(50)
+            for _ in range(50):                # the stream goes on while the source is stale: 1 s
+                msg = TwistStamped()
+                msg.header.stamp = rospy.Time.now()
+                msg.twist.angular.z = 0.4
+                teleop.publish(msg)
+                rate.sleep()
+            z = zero_after(cut - 1.0)
+            out['stale'].append(z - max(t for t in scans if t <= z))
+            sick.stop()
+            set_cable('sick', 'plugged')
+            sick = launcher.node('vaultbot_sim', 'sick_driver')
+            wait_for(lambda: len(scans) > 10 and time.time() - scans[-1] < 0.2, HANG, 'the SICK back')
+    finally:
+        stop_hogs(hog_procs)
+        launcher.stop_all()
+        master.stop()
+    return out
+
+
 def bench_manager(trials, hogs):
     import rospy
     from actionlib_msgs.msg import GoalStatus
@@ -441,7 +525,7 @@ def main() -> int:
     p.add_argument('--drives', type=int, default=100, help='seeded kinematic drives; a tenth of them across processes')
     p.add_argument('--trials', type=int, default=20, help='trials of each stop case across processes')
     p.add_argument('--hogs', type=int, default=0)
-    p.add_argument('--only', choices=('planners', 'drives', 'stops', 'manager'))
+    p.add_argument('--only', choices=('planners', 'drives', 'stops', 'manager', 'teleop'))
     args = p.parse_args()
     results = {'hogs': args.hogs}
     rows = []
@@ -487,6 +571,20 @@ def main() -> int:
         rows.append(('drives to the places across processes (%d with the SICK stalled on the way): reached /'
                      ' driven; contacts' % sum(x['stalled'] for x in dv),
                      '%d / %d; %d' % (len(ok), len(dv), sum(x['contacts'] for x in dv)), '≥ 95 %; 0'))
+    if args.only in (None, 'teleop'):
+        t = results['teleop'] = bench_teleop(args.trials, args.hogs)
+        rows.append(('a teleop stream (`teleop/cmd_vel`) falls silent → commanded zero, from its last command, '
+                     'p50 / p99 (n=%d)' % len(t['silence']), '%s / %s (max %s)' % (
+                         ms(pct(t['silence'], 50)), ms(pct(t['silence'], 99)), ms(max(t['silence']))),
+                     '≤ 100 ms (MoveIt Servo 0.1 s; twist_mux 0.5 s)'))
+        rows.append(('… the same stream straight to `cmd_vel` (the controller\'s timeout), p50 / p99 (n=%d)'
+                     % len(t['silence_cmd_vel']), '%s / %s' % (ms(pct(t['silence_cmd_vel'], 50)),
+                                                              ms(pct(t['silence_cmd_vel'], 99))), 'for comparison'))
+        rows.append(('… ratio of the medians (controller / navigator)', '%.1f x' % (
+            pct(t['silence_cmd_vel'], 50) / pct(t['silence'], 50)), '-'))
+        rows.append(('the SICK stalled under a teleop stream → commanded zero, from its last scan, p50 / max (n=%d)'
+                     % len(t['stale']), '%s / %s' % (ms(pct(t['stale'], 50)), ms(max(t['stale']))),
+                     '≤ 3 × 40 + 20 = 140 ms'))
     if args.only in (None, 'manager'):
         m = results['manager'] = bench_manager(args.trials, args.hogs)
         rows.append(('the Robot Manager SIGKILLed while driving → commanded zero, p50 / p99 (n=%d); at rest, p99'

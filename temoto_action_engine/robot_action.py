@@ -22,6 +22,7 @@ from temoto_core.action_client import TrackingActionClient
 from temoto_core.errors import TemotoError
 
 from .action_base import ActionBase, ActionError
+from .scene import SceneDisplay, SceneDisplays
 
 SERVER_WAIT_S = 30.0           # a part's action server appears within its start (the load returned already)
 POLL_S = 0.1                   # the goal loop's wake-up when nothing is posted
@@ -35,6 +36,7 @@ class RobotAction(ActionBase):
 
     robot_info: dict = {}
     loaded = None
+    _scene = None
 
     def hold_robot(self, feature: str) -> dict:
         """Load the robot's ``feature`` (the ``robot`` input names one, else the manager's first with it)."""
@@ -54,6 +56,21 @@ class RobotAction(ActionBase):
         except TemotoError as err:
             raise ActionError('could not load %s of %s: %s' % (feature, info['name'], err)) from None
         return info
+
+    def show_scene(self, *displays: SceneDisplay) -> None:
+        """Draw ``displays`` in the operator's scene while the action runs (``scene.py``: on their own thread;
+        the motion never waits for them)."""
+        self._scene = SceneDisplays(self, displays)
+        self._scene.start()
+
+    def release_resources(self) -> list:
+        if self._scene is not None:
+            self._scene.close()           # no request after this; then the registrar unloads what is left
+        return super().release_resources()
+
+    def navigator_topic(self, name: str) -> str:
+        """A private topic of the held robot's navigator (``plan``, ``scene``)."""
+        return self.robot_topic('%s/%s' % (self.robot_info.get('navigator') or 'navigator', name))
 
     def robot_topic(self, name: str) -> str:
         """``name`` in the robot's ROS namespace (where its manager started its parts)."""

@@ -222,6 +222,11 @@ class EventWatcher:
         return self._wait(found, timeout, lambda: 'timed out after %.0f s waiting for %s; action events since: %s'
                           % (timeout, what, self._recent(since)))
 
+    def wait_first_frame(self, topic: str, since: float, timeout: float) -> None:
+        """RViz has drawn a frame of ``topic`` (the Output Manager's ``first_frame``) since ``since``."""
+        self._wait(lambda: any(a >= since and ev == 'first_frame' and t == topic for a, ev, t in self.display),
+                   timeout, lambda: 'RViz drew no frame of %s within %.0f s' % (topic, timeout))
+
     def wait_removed(self, since: float, timeout: float) -> None:
         self._wait(lambda: any(a >= since and ev == 'removed' and t for a, ev, t in self.display), timeout,
                    lambda: 'no display was removed within %.0f s of stopping the action' % timeout)
@@ -401,8 +406,15 @@ class Demo:
     # sensors look (the host's default frames the robot alone).
     OPERATOR_VIEW = 'Distance: 7.5\nYaw: 3.14159\nPitch: 0.6\nFocal Point: [2.2, 0.0, 0.4]\n'
 
-    def _screenshot(self, name: str) -> str:
-        resp = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0).screenshot('view')
+    def _screenshot(self, name: str, settle_frames: int = 0) -> str:
+        """The view as RViz draws it now; after ``settle_frames`` more frames when a display was just added
+        (its first message reaches the display before RViz's update loop has drawn it)."""
+        host = RvizHostClient(host_node_name(self.opts.namespace), timeout=10.0)
+        if settle_frames:
+            first = host.screenshot('view').frame_count
+            wait_for(lambda: host.screenshot('view').frame_count >= first + settle_frames, self.opts.stage_timeout,
+                     'RViz to draw %d frames' % settle_frames)
+        resp = host.screenshot('view')
         # Numbered in the order taken, as the report numbers them when it extracts them from the bag.
         path = os.path.join(self.opts.out_dir, 'screenshot_%d_%s.png' % (len(self.screenshots) + 1, name))
         with open(path, 'wb') as f:

@@ -53,6 +53,7 @@ DRIVING_MPS = 0.2               # the base counts as driving above this commande
 ARRIVAL_TIMEOUT = 120.0         # the drive, with its stop and the obstacle source's failover
 FOLLOWED_TARGETS = 150          # servo targets sent while the grab holds: 1.5 s of the hand at 100 Hz
 ARM_MOVING = 0.005              # rad/s: the camera arm follows the grabbing hand (0.01 at 0.1x)
+SETTLE_FRAMES = 5                # frames RViz draws after a new display's first message, before a screenshot
 RECORDER = '/usr/lib/rosbag/record'
 ROBOT_RECORDER = '/temoto_demo_robot_record'
 
@@ -232,6 +233,12 @@ class TeleopDemo(Demo):
         wait_for(lambda: self.base and self.base[-1].commanded_linear > DRIVING_MPS, self.opts.stage_timeout,
                  'the base driving')
         self.progress.line('"robot please go": driving to the pointed goal')
+        # the scene while it drives: the plan, the footprint and its stop zone reaching ahead
+        zone = self.watcher.wait_action(lambda e: e.get('event') == 'scene_shown' and 'stop zone' in
+                                        e.get('display', ''), since, self.opts.stage_timeout,
+                                        'the stop zone in the scene', graph='*')
+        self.watcher.wait_first_frame(zone['topic'], since, self.opts.stage_timeout)
+        self._screenshot('driving', settle_frames=SETTLE_FRAMES)
         # 4: the SICK goes on the way
         cut = time.time()
         since = time.monotonic()
@@ -260,7 +267,7 @@ class TeleopDemo(Demo):
                                         self.opts.stage_timeout, 'the gripper to close')
         self.progress.line('"close the gripper": %s' % ('holding an object' if done['event'] == 'grasped'
                                                         else 'closed'))
-        self._screenshot('gripper')
+        self._screenshot('gripper', settle_frames=SETTLE_FRAMES)
         if self.hosts is not None:
             self._cut_while_following()
         # 7: the arm's controller crashes while the arm follows the hand

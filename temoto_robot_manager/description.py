@@ -85,6 +85,13 @@ class Part:
     args: str = ''
     running: bool = False
 
+    @property
+    def node_name(self) -> str:
+        """The name its node runs as: a ``__name:=`` remapping in its args, else its executable's (as the
+        node scripts here name themselves)."""
+        renamed = [a.split(':=', 1)[1] for a in self.args.split() if a.startswith('__name:=')]
+        return renamed[-1] if renamed else self.executable
+
 
 @dataclass(frozen=True)
 class ObstacleSource:

@@ -76,6 +76,13 @@ class HandClutch:
         self._last = target
         return target
 
+    def hand_point(self, palm: np.ndarray) -> Optional[np.ndarray]:
+        """Where the hand is, unscaled, from the tool's anchor (the scene draws it beside the scaled target), or
+        None while nothing is engaged."""
+        if not self.engaged or self._palm0 is None or not np.all(np.isfinite(palm)):
+            return None
+        return self._tool0[:3, 3] + (palm[:3, 3] - self._palm0[:3, 3])
+
     def lost(self) -> None:
         """The hand is gone (its source failed, its samples stale): let go, and wait for an open hand."""
         self.engaged = self._armed = False

@@ -312,6 +312,8 @@ class RobotManager:
             'places': sorted(r.navigation.places) if r.navigation else [],
             'place_poses': {k: list(v) for k, v in r.navigation.places.items()} if r.navigation else {},
             'base_frame': r.navigation.base_frame if r.navigation else '',
+            # the navigator's node, whose private topics (plan, scene) the operator's scene shows
+            'navigator': r.navigation.controller.node_name if r.navigation and r.navigation.controller else '',
             'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
             'arm_frames': {a.name: {'base_frame': a.base_frame, 'tool_frame': a.tool_frame}
                            for a in r.manipulation.values()},

@@ -123,6 +123,15 @@ class Navigator:
         if self.costmap is not None and self.pose is not None:
             self.costmap.mark(self.to_map(points_base))
 
+    def monitor_points(self) -> np.ndarray:
+        """What the collision monitor checks a command against (N x 2, base frame): the source's latest frame
+        and the map's obstacles within ``MONITOR_RADIUS``."""
+        points = self.obstacles_base
+        if self.costmap is not None and self.pose is not None:
+            near = self.costmap.static_points(self.pose[0], self.pose[1], MONITOR_RADIUS)
+            points = np.vstack([points, self.to_base(near)]) if len(near) else points
+        return points
+
     def to_map(self, points_base: np.ndarray) -> np.ndarray:
         x, y, yaw = self.pose
         c, s = math.cos(yaw), math.sin(yaw)
@@ -310,10 +319,7 @@ class Navigator:
             x, y, yaw = self.pose
             return self._end(Outcome.SUCCEEDED, 'arrived %.3f m and %.1f deg from the goal' % (
                 math.hypot(self.goal[0] - x, self.goal[1] - y), math.degrees(abs(wrap(self.goal[2] - yaw)))))
-        points = self.obstacles_base
-        if self.costmap is not None:
-            near = self.costmap.static_points(self.pose[0], self.pose[1], MONITOR_RADIUS)
-            points = np.vstack([points, self.to_base(near)]) if len(near) else points
+        points = self.monitor_points()
         verdict = self.monitor.check(points, linear, angular)
         for scale in CREEP:                            # too fast for where it is: slower may be safe (a creep)
             if verdict.zone is not Zone.STOP:

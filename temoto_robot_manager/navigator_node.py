@@ -7,8 +7,14 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
   is left;
 - ``move_base_simple/goal`` (``PoseStamped``): passed to the action server as move_base does;
 - ``~plan`` (``nav_msgs/Path``): the current plan, for RViz;
+- ``~scene`` (``visualization_msgs/MarkerArray``, latched, 5 Hz): the footprint, and the stop zone on the
+  current command (``scene_markers.py``), for the operator's scene;
 - ``~halt_topic`` (default ``/temoto/halt``, ``std_msgs/String``): the operator's "stop": zero at once,
-  and the goal ends ABORTED with the reason (``temoto_core/halt.py``).
+  and the goal ends ABORTED with the reason (``temoto_core/halt.py``);
+- ``teleop/cmd_vel`` (``TwistStamped``): a stream of velocity commands (the hand in navigation mode), under
+  the same guards as a goal: refused while a goal drives or when late, zero while the obstacle source is
+  stale, through the collision monitor, zero once the stream is silent for 0.1 s (``teleop_drive.py``).
+  ``teleop/status`` (latched ``String``) says what the stream gets, when that changes.
 
 In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
 ``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
@@ -36,11 +42,12 @@ import numpy as np
 import rospy
 import tf2_ros
 from actionlib_msgs.msg import GoalStatus
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseActionGoal, MoveBaseFeedback, MoveBaseResult
 from nav_msgs.msg import OccupancyGrid, Odometry, Path
 from sensor_msgs.msg import LaserScan, PointCloud2
 from std_msgs.msg import Float32, String
+from visualization_msgs.msg import MarkerArray
 
 from temoto_core import params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
@@ -54,8 +61,11 @@ from temoto_robot_manager.global_planner import NoPath
 from temoto_robot_manager.goal_holders import GoalHolders
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
+from temoto_robot_manager.scene_markers import base_scene
+from temoto_robot_manager.teleop_drive import Refused, TeleopDrive
 
 FEEDBACK_PERIOD_S = 0.2
+SCENE_PERIOD_S = 0.2           # the footprint and stop zone redrawn (5 Hz: a display, not a control loop)
 
 
 class NavigatorNode:
@@ -74,8 +84,14 @@ class NavigatorNode:
         self.rate = params.number('rate', 20.0, above=0, maximum=200)
         self.pub_cmd = rospy.Publisher(nav.cmd_vel_topic, Twist, queue_size=5, tcp_nodelay=True)
         self.pub_plan = rospy.Publisher('~plan', Path, queue_size=1, latch=True)
+        self.pub_scene = rospy.Publisher('~scene', MarkerArray, queue_size=1, latch=True)
+        self.commanded = (0.0, 0.0)
+        self._scene_at = 0.0
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
+        self.teleop = TeleopDrive(self.nav)
+        self.pub_teleop_status = rospy.Publisher('teleop/status', String, queue_size=5, latch=True)
+        self._teleop_said = None
         self.active = None                      # the goal handle being driven
         # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
@@ -90,6 +106,7 @@ class NavigatorNode:
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
         rospy.Subscriber(params.text('halt_topic', halt_topic('temoto')), HALT_TYPE, self._on_halt, queue_size=5,
                          tcp_nodelay=True)
+        rospy.Subscriber('teleop/cmd_vel', TwistStamped, self._on_teleop, queue_size=5, tcp_nodelay=True)
         # the Robot Manager's latched topic: its connection is also how the navigator knows the manager lives
         self._owner = rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
                                        lambda msg: self.use_source(msg.data), queue_size=5)
@@ -108,6 +125,7 @@ class NavigatorNode:
                                    fire_and_forget='move_base_simple-')
         self.server.start()
         threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
+        threading.Thread(target=self._watch_teleop, name='teleop watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
                       rospy.resolve_name('move_base'), rospy.resolve_name(nav.cmd_vel_topic))
 
@@ -226,6 +244,7 @@ class NavigatorNode:
             with self.lock:
                 goal = self._checked(target)
                 self.nav.start(goal, now)
+                self.teleop.end()                # the goal drives now; the stream's deadline must not zero it
                 previous, self.active, self.active_id = self.active, handle, goal_id
                 self.holders.new_goal()
                 path = self.nav.path
@@ -257,6 +276,7 @@ class NavigatorNode:
         reason = reason_of(msg)
         with self.lock:
             self._command(0.0, 0.0)
+            self.teleop.halt(rospy.get_time())
             halted, self.active = self.active, None
             if halted is not None:
                 self.nav.cancel()
@@ -265,6 +285,31 @@ class NavigatorNode:
             self._publish_plan(None)
         rospy.logwarn('navigator: halted (%s)%s', reason, ': goal %s aborted' % halted.get_goal_id().id
                       if halted is not None else '')
+
+    def _on_teleop(self, msg: TwistStamped) -> None:
+        """A command of the teleop stream: decided and sent at once, under the lock the loop and the
+        staleness watch hold, so a zero decided by either is never overtaken by a command decided before it."""
+        now, wall = time.monotonic(), rospy.get_time()
+        with self.wake:
+            started = not self.teleop.active
+            try:
+                decision = self.teleop.command(msg.header.stamp.to_sec(), wall, now, msg.twist.linear.x,
+                                               msg.twist.angular.z)
+            except Refused as err:
+                self._say_teleop('refused: %s' % err)
+                return
+            self._command(decision.linear, decision.angular)
+            if started:
+                self.wake.notify_all()         # the watches now have a stream to guard
+            self._say_teleop(decision.why or 'driving')
+
+    def _say_teleop(self, text: str) -> None:
+        """``teleop/status`` when what the stream gets changes (not at 100 Hz); called with the lock held."""
+        if text != self._teleop_said:
+            self._teleop_said = text
+            self.pub_teleop_status.publish(String(text))
+            if text.startswith('refused'):
+                rospy.logwarn_throttle(2.0, 'navigator: teleop command %s', text)
 
     def _publish_plan(self, path: Optional[np.ndarray]) -> None:
         msg = Path()
@@ -280,6 +325,16 @@ class NavigatorNode:
         cmd = Twist()
         cmd.linear.x, cmd.angular.z = linear, angular
         self.pub_cmd.publish(cmd)
+        self.commanded = (linear, angular)
+
+    def _publish_scene(self, now: float) -> None:
+        """The footprint and the stop zone on the last command, for the operator's scene, at ``SCENE_PERIOD_S``."""
+        if now - self._scene_at < SCENE_PERIOD_S:
+            return
+        self._scene_at = now
+        linear, angular = self.commanded
+        self.pub_scene.publish(base_scene(self.nav.footprint, self.base_frame, linear, angular, rospy.Time.now(),
+                                          self.nav.monitor.settings))
 
     def _watch_staleness(self) -> None:
         """Zero at the obstacle source's deadline, not at the next tick (the issue's 3 periods + 20 ms)."""
@@ -288,7 +343,8 @@ class NavigatorNode:
             while ok():
                 deadline = self.nav.freshness.deadline()
                 now = time.monotonic()
-                if self.nav.goal is None or deadline is None or (deadline <= now and stopped_for == deadline):
+                driven = self.nav.goal is not None or self.teleop.active
+                if not driven or deadline is None or (deadline <= now and stopped_for == deadline):
                     self.wake.wait(0.5)
                     continue
                 if now < deadline:
@@ -298,6 +354,23 @@ class NavigatorNode:
                 self._command(0.0, 0.0)
                 rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped', self.source_topic,
                               (now - self.nav.freshness.last) * 1e3, self.nav.freshness.periods)
+
+    def _watch_teleop(self) -> None:
+        """Zero at the teleop stream's deadline, not at the next tick: a silent stream stops the base within
+        ``TIMEOUT_S`` of its last command."""
+        with self.wake:
+            while ok():
+                deadline = self.teleop.deadline()
+                now = time.monotonic()
+                if deadline is None:
+                    self.wake.wait(0.5)
+                    continue
+                if now < deadline:
+                    self.wake.wait(deadline - now)
+                    continue
+                self.teleop.expire(now)
+                self._command(0.0, 0.0)
+                self._say_teleop('stopped: no teleop command for %.0f ms' % (self.teleop.timeout * 1e3))
 
     def spin(self) -> None:
         period = 1.0 / self.rate
@@ -335,6 +408,7 @@ class NavigatorNode:
                 self._feedback(handle, pose, tick.remaining)
                 if replanned:
                     self._publish_plan(path)
+            self._publish_scene(now)
             next_at += period
             delay = next_at - time.monotonic()
             if delay < 0:

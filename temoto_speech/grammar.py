@@ -104,9 +104,11 @@ class _ActionWords:
             elif spec.get('pattern') and not words:
                 self.left_out.append('parameter %s (pattern %s: not a list of words)' % (pname, spec['pattern']))
             # an action said with its subject takes its parameters' words in a phrase after it ("follow my hand
-            # at a tenth", "... with the right arm"); words that are its own verbs ("open") are said as the verb
-            if words and not set(words) & set(self.verbs):
-                self.phrases[pname] = words
+            # at a tenth", "... with the right arm", "... with the base"); words that are its own verbs ("open",
+            # "drive") are said as the verb
+            phrased = [w for w in words if w not in self.verbs]
+            if phrased:
+                self.phrases[pname] = phrased
 
         def said_in_words(name: str) -> bool:
             spec = params.get(name) or {}

@@ -64,6 +64,20 @@ def test_the_bag_keeps_every_input_inert(teleop_run):
     assert '/vaultbot_sim/base_state' in topics and '/vaultbot_sim/arm_states' in topics
 
 
+def test_the_scene_showed_the_plan_the_stop_zone_and_the_hand_through_the_output_manager(teleop_run):
+    _, out, _ = teleop_run
+    shown = {}
+    with AnyReader([Path(out / 'teleop.bag')]) as reader:
+        events = [c for c in reader.connections if c.topic == T.inert_name(T.action_events())]
+        for conn, _, raw in reader.messages(connections=events):
+            ev = json.loads(reader.deserialize(raw, conn.msgtype).data)
+            if ev.get('event') in ('scene_shown', 'scene_failed'):
+                shown.setdefault(ev['display'], []).append(ev['event'])
+    for display in ('the planned path', 'the footprint and its stop zone', 'the hand and its target'):
+        assert shown.get(display, [None])[0] == 'scene_shown', shown
+    assert (out / 'screenshot_2_driving.png').stat().st_size > 10000
+
+
 def test_on_two_hosts_a_cut_link_holds_the_following_arm_and_the_station_hears_it(tmp_path_factory):
     """``--hosts 2``: the station (hand, pointer, engine, RViz) apart from the robot; the link is cut while the
     arm follows the hand. The robot's side, recorded on its own host, shows the arm held once the stream fell

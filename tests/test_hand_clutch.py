@@ -76,3 +76,15 @@ def test_turning_the_dial_while_engaged_does_not_make_the_target_jump():
     assert np.allclose(same, before)
     further = clutch.sample(pose(0.4, 0, 0.2), 1.0, lambda: TOOL)
     assert np.allclose(further[:3, 3], before[:3, 3] + [0.01, 0, 0])
+
+
+def test_the_scene_draws_the_hand_unscaled_from_the_tool_beside_its_scaled_target():
+    clutch = HandClutch(Dial(0.1))
+    assert clutch.hand_point(pose(0.1, 0.0, 0.2)) is None, 'nothing engaged: no hand drawn'
+    engaged(clutch)
+    moved = pose(0.1, 0.05, 0.2)
+    target = clutch.sample(moved, 1.0, lambda: TOOL)
+    assert np.allclose(clutch.hand_point(moved), TOOL[:3, 3] + (0.0, 0.05, 0.0))
+    assert np.allclose(target[:3, 3], TOOL[:3, 3] + (0.0, 0.005, 0.0))
+    clutch.lost()
+    assert clutch.hand_point(moved) is None

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from temoto_robot_manager.dial import Dial
+from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, TURN_PER_M, velocity_of
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 
 TOOL = np.eye(4)
@@ -66,3 +67,32 @@ def test_bad_settings_are_refused():
         HandFollower(Dial(), period=0.0)
     with pytest.raises(ValueError):
         HandFollower(Dial(), missed=0)
+
+
+# ----------------------------------------------------------------------------------- navigation mode
+def test_in_navigation_mode_the_hand_pushed_forward_drives_and_pushed_left_turns_left():
+    follower = HandFollower(Dial(1.0), gain=GAIN_NAVIGATION)
+    t = following(follower)
+    k = GAIN_NAVIGATION
+    still = follower.sample(t + 0.01, palm(0.004), 1.0, True, lambda: TOOL)
+    assert velocity_of(still.pose[:3, 3], k) == (0.0, 0.0), 'within the dead zone: a trembling hand does not creep'
+    forward = follower.sample(t + 0.02, palm(0.055), 1.0, True, lambda: TOOL)
+    linear, angular = velocity_of(forward.pose[:3, 3], k)
+    assert linear == pytest.approx(k * 0.05) and angular == 0.0
+    left = np.eye(4)
+    left[1, 3] = 0.055
+    linear, angular = velocity_of(follower.sample(t + 0.03, left, 1.0, True, lambda: TOOL).pose[:3, 3], k)
+    assert linear == 0.0 and angular == pytest.approx(TURN_PER_M * k * 0.05)
+
+
+def test_in_navigation_mode_the_dial_scales_the_speed():
+    fine = HandFollower(Dial(0.1), gain=GAIN_NAVIGATION)
+    t = following(fine)
+    offset = fine.sample(t + 0.01, palm(0.055), 1.0, True, lambda: TOOL).pose[:3, 3]
+    assert velocity_of(offset, 0.1 * GAIN_NAVIGATION)[0] == pytest.approx(0.1 * GAIN_NAVIGATION * 0.05)
+
+
+def test_a_drive_velocity_from_a_bad_offset_is_zero_and_a_bad_gain_is_refused():
+    assert velocity_of(np.array([math.nan, 0.0, 0.0]), 1.0) == (0.0, 0.0)
+    with pytest.raises(ValueError, match='must be above 0'):
+        velocity_of(np.zeros(3), 0.0)

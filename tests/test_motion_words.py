@@ -40,6 +40,10 @@ def grounded(grounder, index, text):
     ('move the arm with my hand', [('follow_hand', {})]),
     ('follow my hand with the right arm', [('follow_hand', {'arm': 'right'})]),
     ('follow my hand at 0.1', [('follow_hand', {'scale': '0.1'})]),
+    ('drive with my hand', [('follow_hand', {'mode': 'drive'})]),        # navigation mode: the verb says it
+    ('follow my hand with the base', [('follow_hand', {'mode': 'base'})]),
+    ('move the base with my hand', [('follow_hand', {'mode': 'base'})]),
+    ('drive home', [('navigate', {'place': 'home'})]),
     ('stop', [('stop', {})]),
     ('stop stop', [('stop', {'action': 'stop'})]),
 ])
@@ -150,8 +154,9 @@ def test_the_grammar_says_a_motion_only_after_the_wake_phrase(index):
     # one motion an utterance, and only after the wake phrase
     assert 'robot please (<motion> [(and | then) <clause>] | <clause> [(and | then) (<motion> | <clause>)])' in top
     assert '<motion> = <a_follow_hand> | <a_gripper> | <a_navigate>;' in g.jsgf
-    assert '<a_follow_hand> = (follow | mirror | move) [me] [(the | a | my)] (hand) [((at | with) [(the | a)] ' \
-        '(left | right) [arm] | (at | with) [(the | a)] (fifth | half | hundredth | tenth) [scale])];' in g.jsgf
+    assert '<a_follow_hand> = (drive | follow | mirror | move) [me] [(the | a | my)] (hand) [((at | with) ' \
+        '[(the | a)] (left | right) [arm] | (at | with) [(the | a)] (base | driving | navigation) [mode] | ' \
+        '(at | with) [(the | a)] (fifth | half | hundredth | tenth) [scale])];' in g.jsgf, g.jsgf
     clause = next(line for line in g.jsgf.splitlines() if line.startswith('<clause> ='))
     assert 'navigate' not in clause and 'gripper' not in clause
     said = grammar.phrases(actions)

@@ -9,17 +9,20 @@ import time
 import numpy as np
 import pytest
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from sensor_msgs.msg import LaserScan
+from std_msgs.msg import String
 
 from temoto_robot_manager import global_planner
-from temoto_robot_manager.collision_monitor import CollisionMonitor, Zone
+from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
+from temoto_robot_manager.scene_markers import base_scene, stop_pose
+from temoto_robot_manager.teleop_drive import TIMEOUT_S as TELEOP_TIMEOUT_S, Refused, TeleopDrive
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import GOAL_CLIENT, aborted_goal, commanded_zero_after
 from temoto_testing.sensor_manager import set_cable
@@ -265,6 +268,79 @@ def test_a_stale_source_zeroes_the_command_and_a_fresh_one_resumes(lab):
     assert nav.tick(0.36).state is State.DRIVING
 
 
+def teleop_at_home(lab, walls=True):
+    nav = Navigator(HUSKY, Freshness(declared=0.04))
+    if walls:
+        nav.set_map(lab_costmap(lab))
+    nav.set_pose((0.0, 0.0, 0.0))
+    proven(nav)
+    return nav, TeleopDrive(nav)
+
+
+def test_a_teleop_command_is_clamped_lasts_its_timeout_and_a_stop_ends_the_stream(lab):
+    nav, drive = teleop_at_home(lab, walls=False)         # nothing near to slow it: the clamp alone
+    d = drive.command(100.0, 100.01, 0.01, 5.0, -9.0)
+    assert (d.linear, d.angular) == (nav.follower.limits.max_speed, -nav.follower.limits.max_turn)
+    assert drive.active and drive.deadline() == pytest.approx(0.01 + TELEOP_TIMEOUT_S)
+    assert not drive.expire(0.01 + TELEOP_TIMEOUT_S - 1e-3) and drive.expire(0.01 + TELEOP_TIMEOUT_S)
+    assert not drive.active and not drive.expire(1.0), 'the zero is said once'
+    drive.command(100.05, 100.06, 0.05, 0.2, 0.0)
+    drive.halt(100.1)
+    assert not drive.active
+    with pytest.raises(Refused, match='before the operator'):
+        drive.command(100.09, 100.11, 0.11, 0.2, 0.0)
+    proven(nav, 0.13)
+    assert drive.command(100.12, 100.13, 0.13, 0.2, 0.0).linear == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize('stamp, linear, words', [
+    (99.5, 0.2, 'late: more than 100 ms'),
+    (100.0, math.nan, 'must be finite'),
+    (math.inf, 0.2, 'must be finite'),
+])
+def test_a_bad_teleop_command_is_refused_naming_why_and_changes_nothing(lab, stamp, linear, words):
+    nav, drive = teleop_at_home(lab)
+    with pytest.raises(Refused, match=words):
+        drive.command(stamp, 100.0, 0.0, linear, 0.0)
+    assert not drive.active
+
+
+def test_a_teleop_stream_is_refused_while_a_goal_drives_and_zero_while_the_source_is_stale(lab):
+    nav, drive = teleop_at_home(lab)
+    nav.start(nav.check(*PLACES['drums'][:2], quat(PLACES['drums'][2])), 0.0)
+    with pytest.raises(Refused, match='a navigation goal is driving'):
+        drive.command(100.0, 100.0, 0.0, 0.2, 0.0)
+    nav.cancel()
+    assert drive.command(100.0, 100.0, 0.0, 0.2, 0.0).linear == pytest.approx(0.2)
+    stale = drive.command(100.2, 100.2, 0.2, 0.2, 0.0)
+    assert (stale.linear, stale.angular) == (0.0, 0.0) and 'does not drive blind' in stale.why
+
+
+def test_a_teleop_command_into_an_obstacle_is_zeroed_by_the_collision_monitor(lab):
+    nav, drive = teleop_at_home(lab)
+    nav.set_obstacles(np.array([[0.75, 0.0]]), 0.0)          # just ahead of the bumper
+    ahead = drive.command(100.0, 100.0, 0.0, 0.8, 0.0)
+    assert (ahead.linear, ahead.angular) == (0.0, 0.0) and 'stop zone' in ahead.why
+    back = drive.command(100.01, 100.01, 0.01, -0.3, 0.0)
+    assert back.linear == pytest.approx(-0.3) or 'slowed' in back.why, back
+
+
+def test_the_scene_draws_the_stop_zone_where_the_robot_would_stop_on_its_command():
+    settings = MonitorSettings()
+    assert stop_pose(0.0, 0.0, settings) == (0.0, 0.0, 0.0)
+    reach, y, yaw = stop_pose(0.8, 0.0, settings)
+    braking = 0.8 / settings.decel
+    assert reach == pytest.approx(0.8 * (settings.latency + braking / 2)) and y == 0.0 and yaw == 0.0
+    x, y, yaw = stop_pose(0.0, 1.2, settings)
+    assert x == pytest.approx(0.0) and yaw > 0.0, 'turning in place: the zone turns, it does not move'
+    scene = base_scene(HUSKY, 'base_link', 0.8, 0.0, 0)
+    footprint, zone = scene.markers
+    assert len(footprint.points) == 8 * len(HUSKY.boxes), 'four sides of each box, as point pairs'
+    assert len(zone.points) == 2 * len(footprint.points), 'the grown outline here, and where it would stop'
+    ahead = max(p.x for p in zone.points)
+    assert ahead == pytest.approx(max(b[1] for b in HUSKY.boxes) + settings.stop_margin + reach)
+
+
 # ----------------------------------------------------------------------------------------- across processes
 SIM_PARAMS = {'world': 'lab', 'sweep': False, 'hand_motion': False}
 
@@ -375,3 +451,55 @@ def test_the_base_stops_when_the_goal_s_client_dies_mid_drive(navigation, procs,
     wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
     rest = truth.last()
     assert rest.contacts == 0
+
+
+def stream(pub, rospy, linear, angular, until, rate=50.0, limit=2000, age=0.0):
+    """Teleop commands at ``rate`` Hz until ``until()`` holds (at most ``limit`` of them), stamped ``age`` s ago."""
+    sleeper = rospy.Rate(rate)
+    for _ in range(limit):
+        msg = TwistStamped()
+        msg.header.stamp = rospy.Time.from_sec(rospy.get_time() - age)
+        msg.twist.linear.x, msg.twist.angular.z = linear, angular
+        pub.publish(msg)
+        if until():
+            return
+        sleeper.sleep()
+    raise AssertionError('the condition did not come within %d commands' % limit)
+
+
+def test_a_teleop_stream_drives_the_base_and_its_silence_stops_it(navigation, rospy_client, collect):
+    truth = navigation['truth']
+    status = collect('/teleop/status', String)
+    pub = rospy_client.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5, tcp_nodelay=True)
+    wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the navigator listening')
+    # a late stream (a link that held it) is refused, and nothing moves
+    stream(pub, rospy_client, 0.0, 0.5, lambda: status.last() is not None, age=0.5)
+    assert status.last().data.startswith('refused: sent') and 'late' in status.last().data, status.last()
+    assert all(s.commanded_angular == 0.0 for s in truth.msgs)
+    # a live stream turns it in place
+    yaw0 = truth.last().yaw
+    stream(pub, rospy_client, 0.0, 0.5, lambda: abs(truth.last().yaw - yaw0) > 0.2)
+    assert truth.last().commanded_angular > 0.0 and status.last().data == 'driving'
+    last = rospy_client.get_time()
+    zero = commanded_zero_after(truth.msgs, last, HANG)
+    assert zero.header.stamp.to_sec() - last < 2.0, 'a hang, not a timing goal (bench_teleop measures it)'
+    wait_for(lambda: status.last().data.startswith('stopped: no teleop command'), HANG, 'the stream said over')
+    wait_for(lambda: truth.last().angular == 0.0, HANG, 'the base at rest')
+
+
+def test_a_teleop_stream_does_not_drive_blind(navigation, rospy_client, collect):
+    truth = navigation['truth']
+    status = collect('/teleop/status', String)
+    pub = rospy_client.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5, tcp_nodelay=True)
+    wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the navigator listening')
+    stream(pub, rospy_client, 0.0, 0.5, lambda: truth.last().commanded_angular > 0.0)
+    set_cable('sick', 'unplugged', 'stall')
+    try:
+        stream(pub, rospy_client, 0.0, 0.5, lambda: status.last().data.startswith('no fresh obstacle source'))
+        stream(pub, rospy_client, 0.0, 0.5, lambda: truth.last().commanded_angular == 0.0)
+        at = rospy_client.get_time()
+        stream(pub, rospy_client, 0.0, 0.5, lambda: rospy_client.get_time() - at > 1.0)
+        assert all(s.commanded_angular == 0.0 for s in truth.msgs if s.header.stamp.to_sec() > at), \
+            'the stream went on; the base stayed at zero'
+    finally:
+        set_cable('sick', 'plugged')

@@ -263,6 +263,34 @@ def test_the_arm_follows_the_hand_holds_when_it_is_unplugged_and_fails_over_to_t
         listener.unregister()
 
 
+def test_in_navigation_mode_the_hand_turns_the_base_and_a_lost_hand_stops_it(op, rospy_client, collect):
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    status = collect('/teleop/status', String)
+    yaw0 = wait_for(lambda: truth.last(), HANG, 'the ground truth').yaw
+    graph = graph_of(said(op, 'robot please drive with my hand'))
+    following = op.wait_event('following', graph, HANG, 'the base following the hand')[0]
+    assert following['part'] == 'base', following
+    # the default hand path: a grab, then 10 cm to the left: the base turns left, in place
+    wait_for(lambda: truth.last().commanded_angular > 0.0, 30, 'the hand turning the base left')
+    wait_for(lambda: math.remainder(truth.last().yaw - yaw0, 2 * math.pi) > 0.1, 30, 'the base turned left')
+    assert truth.last().commanded_linear == 0.0, 'the hand moved sideways only'
+    assert status.last() is not None and status.last().data.startswith(('driving', 'slowed')), status.last()
+    wait_for(lambda: truth.last().commanded_angular > 0.0, 30, 'the hand turning the base again')
+    t0 = rospy_client.get_time()
+    set_cable('hand_tracker', 'unplugged', 'crash')
+    zero = commanded_zero_after(truth.msgs, t0, HANG)
+    assert zero.header.stamp.to_sec() - t0 < 2.0, 'a hang, not a timing goal (bench_teleop measures it)'
+    assert op.wait_event('hand_failed', graph, HANG, 'the tracker failed')[0]['hand'] == 'sim_hand_tracker'
+    wait_for(lambda: [e for e in op.of('following', graph) if e['hand'] == 'virtual_hand'], HANG,
+             'the virtual hand taking over')
+    rest_at = rospy_client.get_time()
+    wait_for(lambda: truth.last().angular == 0.0, HANG, 'the base at rest')
+    said(op, 'stop')
+    assert ended(op, graph, 'follow_hand_0') == 'FINISHED', op.of('state', graph)
+    assert all(s.commanded_angular == 0.0 and s.commanded_linear == 0.0 for s in truth.msgs
+               if s.header.stamp.to_sec() > rest_at), 'the virtual hand, never grabbed, drove nothing'
+
+
 def dial_cli(*args):
     return subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'dial'] + list(args), capture_output=True,
                           text=True, timeout=HANG)

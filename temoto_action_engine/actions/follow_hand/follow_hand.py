@@ -13,6 +13,12 @@ hand source's subscriber thread, so a sample becomes a servo target with no queu
   Manager's ranking); when none works, the action ends FAILED, the arm held;
 - the robot's manipulation failing (a controller crashed) ends it FAILED, the arm held.
 
+In navigation mode (``mode`` base: "drive with my hand", "follow my hand with the base") it holds the
+robot's navigation instead, and the same clutch drives the base (``temoto_robot_manager/hand_drive.py``): the
+hand's motion since the grab becomes a ``TwistStamped`` on the navigator's ``teleop/cmd_vel``, and a lost
+hand a zero there. The navigator keeps its guards on the stream (``teleop_drive.py``) and says what it does on
+``teleop/status``; a hold or a refusal is passed to the operator as feedback.
+
 The dial: ``/<ns>/dial`` (``std_msgs/Float32``, a scale from 0.01 to 10, stepped onto the 1-2-5 series) and
 ``/<ns>/dial/step`` (``std_msgs/Int8``, clicks finer (-) or coarser (+)); the scale now is latched on
 ``/<ns>/dial/scale``. A scale out of range is refused, naming the range, and the scale stays.
@@ -25,23 +31,29 @@ import time
 import numpy as np
 import rospy
 import tf2_ros
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped
 from std_msgs.msg import Float32, Int8, String
+from visualization_msgs.msg import MarkerArray
 
 from temoto_action_engine.action_base import ActionError
 from temoto_action_engine.robot_action import RobotAction
+from temoto_action_engine.scene import SceneDisplay
 from temoto_core.errors import TemotoError
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import HandSample
 from temoto_robot_manager import dial
 from temoto_robot_manager.dial import Dial
+from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, velocity_of
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 from temoto_robot_manager.obstacle_points import matrix_of
+from temoto_robot_manager.scene_markers import hand_scene
 
 HAND_TYPE = 'hand'
 HAND_TOPIC_KEY = 'hand_data'
 SAMPLE_PERIOD_S = 0.01          # a Leap Motion's 100 Hz (hands.yaml declares the same rate)
 TOOL_WAIT_S = 0.2               # the tool's pose from TF at a grab
+BASE_WORDS = ('base', 'drive', 'driving', 'navigation')   # the ``mode`` that drives the base, not an arm
+SCENE_PERIOD_S = 0.1            # the hand and its target redrawn (10 Hz: a display, not the servo loop)
 
 
 def _palm(msg: HandSample) -> np.ndarray:
@@ -58,6 +70,18 @@ def _palm(msg: HandSample) -> np.ndarray:
                      [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]]
     m[:3, 3] = (p.x, p.y, p.z)
     return m
+
+
+def _identity() -> np.ndarray:
+    """The clutch's "tool" in navigation mode: its target is then the scaled hand motion itself."""
+    return np.eye(4)
+
+
+def _twist(linear: float, angular: float) -> TwistStamped:
+    msg = TwistStamped()
+    msg.header.stamp = rospy.Time.now()
+    msg.twist.linear.x, msg.twist.angular.z = linear, angular
+    return msg
 
 
 def _pose(frame: str, m: np.ndarray) -> PoseStamped:
@@ -77,18 +101,22 @@ def _pose(frame: str, m: np.ndarray) -> PoseStamped:
 class FollowHand(RobotAction):
     lock = None                  # set once on_start has what a hold needs
     hand = None
+    arm = ''
+    driving = False
+    _drawn_at = 0.0
+    _target_drawn = None
     _subs: list = []
     _hand_sub = None
 
     def on_start(self):
-        info = self.hold_robot('manipulation')
-        arms = info.get('arm_frames') or {}
-        said = (self.input('arm') or '').strip().lower()
-        default = (info.get('gripper') or {}).get('arm') or next(iter(sorted(arms)), '')
-        self.arm = next((a for a in arms if said and a.startswith(said)), None) if said else default
-        if self.arm not in arms:
-            raise ActionError('%s has no %s arm (its arms: %s)' % (info['name'], said, ', '.join(sorted(arms))))
-        self.base_frame, self.tool_frame = arms[self.arm]['base_frame'], arms[self.arm]['tool_frame']
+        self.driving = (self.input('mode') or '').strip().lower() in BASE_WORDS
+        if self.driving:
+            info = self.hold_robot('navigation')
+            self.part = 'base'
+        else:
+            info = self.hold_robot('manipulation')
+            self._choose_arm(info)
+            self.part = self.arm
         self.dial = Dial()
         scale = self.input('scale')
         if scale not in (None, ''):
@@ -98,22 +126,46 @@ class FollowHand(RobotAction):
                 raise ActionError('scale %s: %s' % (scale, err)) from None
         self.lock = threading.Lock()
         self.halted = False
-        self.follower = HandFollower(self.dial, SAMPLE_PERIOD_S)
-        self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(5.0))
-        self._tf_listener = tf2_ros.TransformListener(self.tf)
-        self.pub_target = rospy.Publisher(self.robot_topic('%s/servo_target' % self.arm), PoseStamped,
-                                          queue_size=5, tcp_nodelay=True)
-        self.pub_hold = rospy.Publisher(self.robot_topic('%s/servo_hold' % self.arm), String, queue_size=5,
-                                        tcp_nodelay=True)
         ns = self.context.namespace
+        if self.driving:
+            self.follower = HandFollower(self.dial, SAMPLE_PERIOD_S, gain=GAIN_NAVIGATION)
+            self.pub_twist = rospy.Publisher(self.robot_topic('teleop/cmd_vel'), TwistStamped, queue_size=5,
+                                             tcp_nodelay=True)
+            self._subs = [rospy.Subscriber(self.robot_topic('teleop/status'), String, self._on_drive_status,
+                                           queue_size=5)]
+        else:
+            self.follower = HandFollower(self.dial, SAMPLE_PERIOD_S)
+            self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(5.0))
+            self._tf_listener = tf2_ros.TransformListener(self.tf)
+            self.pub_target = rospy.Publisher(self.robot_topic('%s/servo_target' % self.arm), PoseStamped,
+                                              queue_size=5, tcp_nodelay=True)
+            self.pub_hold = rospy.Publisher(self.robot_topic('%s/servo_hold' % self.arm), String, queue_size=5,
+                                            tcp_nodelay=True)
+            self._subs = []
         self.pub_scale = rospy.Publisher(dial.topic(ns, dial.SCALE), Float32, queue_size=1, latch=True)
         self.pub_scale.publish(Float32(self.dial.scale))
-        self._subs = [rospy.Subscriber(dial.topic(ns, dial.SET), Float32, self._on_dial, queue_size=5),
-                      rospy.Subscriber(dial.topic(ns, dial.STEP), Int8, self._on_dial_step, queue_size=5),
-                      rospy.Subscriber(halt_topic(ns), HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)]
+        self._subs += [rospy.Subscriber(dial.topic(ns, dial.SET), Float32, self._on_dial, queue_size=5),
+                       rospy.Subscriber(dial.topic(ns, dial.STEP), Int8, self._on_dial_step, queue_size=5),
+                       rospy.Subscriber(halt_topic(ns), HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)]
+        if self.driving:
+            self.show_scene(SceneDisplay('the footprint and its stop zone', 'marker array',
+                                         self.navigator_topic('scene')))
+        else:
+            scene_topic = '/%s/follow_hand/%s/scene' % (ns, self.arm)
+            self.pub_scene = rospy.Publisher(scene_topic, MarkerArray, queue_size=1, latch=True)
+            self.show_scene(SceneDisplay('the hand and its target', 'marker array', scene_topic))
         self._start_hand()
-        self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
-        self.feedback('the %s follows your hand at %gx: open your hand, then grab' % (self.arm, self.dial.scale))
+        self.event('following', part=self.part, arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
+        self.feedback('the %s follows your hand at %gx: open your hand, then grab' % (self.part, self.dial.scale))
+
+    def _choose_arm(self, info: dict) -> None:
+        arms = info.get('arm_frames') or {}
+        said = (self.input('arm') or '').strip().lower()
+        default = (info.get('gripper') or {}).get('arm') or next(iter(sorted(arms)), '')
+        self.arm = next((a for a in arms if said and a.startswith(said)), None) if said else default
+        if self.arm not in arms:
+            raise ActionError('%s has no %s arm (its arms: %s)' % (info['name'], said, ', '.join(sorted(arms))))
+        self.base_frame, self.tool_frame = arms[self.arm]['base_frame'], arms[self.arm]['tool_frame']
 
     # -- the hand source ----------------------------------------------------------------------------------------
     def _start_hand(self) -> None:
@@ -139,7 +191,7 @@ class FollowHand(RobotAction):
         except ActionError as err:
             self.fail('lost the hand (%s), and no other hand source works: %s' % (event.origin, err))
             return
-        self.event('following', arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
+        self.event('following', part=self.part, arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
         self.feedback('the hand source failed (%s); now %s: open your hand, then grab again'
                       % (event.origin, self.hand.sensor_name))
 
@@ -152,11 +204,13 @@ class FollowHand(RobotAction):
                 return
             try:
                 command = self.follower.sample(time.monotonic(), _palm(msg), float(msg.grab_strength), msg.tracked,
-                                               self._tool_now)
+                                               _identity if self.driving else self._tool_now)
             except ActionError as err:         # no tool pose at the grab: nothing engages
                 command = self.follower.lost(str(err))
                 self.log_warn(str(err))
             self._send(command)
+            if not self.driving:
+                self._draw(_palm(msg), command)
 
     def _on_halt(self, msg) -> None:
         """The operator's "stop": no target after it, whatever the hand does; the action ends."""
@@ -177,10 +231,33 @@ class FollowHand(RobotAction):
         """Publish a follower's command; called with self.lock held, so a hold is never overtaken."""
         if command is None:
             return
-        if command.kind == TARGET:
+        if self.driving:
+            linear, angular = (velocity_of(command.pose[:3, 3], self.dial.scale * GAIN_NAVIGATION)
+                               if command.kind == TARGET else (0.0, 0.0))
+            self.pub_twist.publish(_twist(linear, angular))
+        elif command.kind == TARGET:
             self.pub_target.publish(_pose(self.base_frame, command.pose))
         elif command.kind == HOLD:
             self.pub_hold.publish(String(command.why))
+
+    def _draw(self, palm: np.ndarray, command) -> None:
+        """The hand and its target in the scene, at most every ``SCENE_PERIOD_S`` (after the servo target went:
+        drawing never delays it), and at once when the clutch lets go."""
+        now = time.monotonic()
+        let_go = command is not None and command.kind == HOLD
+        if not let_go and now - self._drawn_at < SCENE_PERIOD_S:
+            return
+        self._drawn_at = now
+        if command is not None and command.kind == TARGET:
+            self._target_drawn = command.pose[:3, 3]
+        hand = self.follower.clutch.hand_point(palm)
+        target = self._target_drawn if hand is not None else None
+        self.pub_scene.publish(hand_scene(self.base_frame, rospy.Time.now(), hand, target))
+
+    def _on_drive_status(self, msg: String) -> None:
+        """The navigator's word on the stream, when it changes: a hold or a refusal is said to the operator."""
+        if msg.data != 'driving':
+            self.feedback('the base: %s' % msg.data)
 
     def _hold(self, why: str) -> None:
         with self.lock:

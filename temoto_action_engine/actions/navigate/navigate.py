@@ -21,6 +21,7 @@ from std_msgs.msg import Float32, String
 
 from temoto_action_engine.action_base import ActionError
 from temoto_action_engine.robot_action import RobotAction
+from temoto_action_engine.scene import SceneDisplay
 from temoto_core.latched import NoPublisher, latched_message
 from temoto_robot_manager.pointer_node import pointed_of
 from temoto_robot_manager.pointing import BadPointing
@@ -46,6 +47,9 @@ class Navigate(RobotAction):
             raise ActionError('no place "%s" for %s: say one of %s, or point a goal in RViz and say "go"'
                               % (place, info['name'], ', '.join(sorted(places)) or 'none'))
         self.client = self.client('move_base', MoveBaseAction)
+        self.show_scene(SceneDisplay('the planned path', 'path', self.navigator_topic('plan')),
+                        SceneDisplay('the footprint and its stop zone', 'marker array',
+                                     self.navigator_topic('scene')))
 
     def execute(self):
         left = {'m': float('nan')}
