@@ -127,6 +127,21 @@ def test_freshness_learns_the_period_and_goes_stale_after_three_of_them():
     assert f.fresh(15.0 + 1.4) and not f.fresh(15.0 + 1.5)
 
 
+def test_a_scanner_that_starts_slowly_is_held_to_its_declared_period_once_it_runs_at_it():
+    """A SICK restarted after a fault sends its first frames slowly while it warms up. Judged by the median of its
+    whole window, it kept a 0.58 s period for a second, and a stall then stopped the robot after 1.7 s."""
+    f = Freshness(declared=0.04)
+    t = 0.0
+    for _ in range(12):                          # warming up: 2 Hz
+        t += 0.5
+        f.heard(t)
+    for _ in range(8):                           # then at its 25 Hz
+        t += 0.04
+        f.heard(t)
+    assert f.period == pytest.approx(0.04)
+    assert f.fresh(t + 0.119) and not f.fresh(t + 0.121)
+
+
 def test_a_source_that_jitters_is_judged_by_its_slow_frames_not_its_median():
     f = Freshness()
     t = 0.0
