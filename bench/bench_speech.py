@@ -17,8 +17,12 @@ a wrong action); latency <= 0.5 s median; idle CPU <= 10 % of a core.
 - **Latency:** across processes: a roscore, the engine and the speech node; an utterance sent on the audio
   topic with its end marker, to the engine's event of the graph running; utterances PACE_S apart.
 
-Prints markdown tables; writes bench/results/speech.json.
-Usage: python bench/bench_speech.py [--quick]
+With ``--confirm``, only the motion instructions, as the speech node takes them with ``~confirm_motion``:
+each heard as a motion is said back, the operator answers "yes" or "no" (synthesized in the same voice and
+noise), and the motion starts only on a "yes" heard as one.
+
+Prints markdown tables; writes bench/results/speech.json (speech_confirm.json).
+Usage: python bench/bench_speech.py [--quick] [--confirm]
 """
 import argparse
 import json
@@ -41,6 +45,7 @@ from temoto_action_engine.indexer import ActionIndex  # noqa: E402
 from temoto_testing.action_engine import write_plugin  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_speech import grammar as grammar_mod  # noqa: E402
+from temoto_speech.confirmation import ANSWERS, YES  # noqa: E402
 from temoto_speech.msg import AudioData  # noqa: E402
 from temoto_speech.recognizer import Recognizer  # noqa: E402
 from temoto_speech.voice import synthesize_pcm  # noqa: E402
@@ -164,10 +169,85 @@ def latency() -> dict:
         master.stop()
 
 
+def confirmation(quick: bool) -> dict:
+    """``~confirm_motion``: every motion instruction heard as a motion is said back, and the operator answers
+    "yes" if it is what was said, else "no", in the same voice and noise; the motion starts only on a "yes"
+    heard as one. The sentences that are no instruction are also tried as answers: a "yes" made up of talk
+    while a question waits would start a motion too."""
+    index = ActionIndex([], include_bundled=True)
+    index.reindex()
+    actions = index.to_json()['actions']
+    grounder = Grounder(index.descriptors())
+    recognizer = Recognizer([])
+    recognizer.update(actions, answers=ANSWERS, moving_answers=YES)
+    said = [t for t in grammar_mod.phrases(actions) if motions(grounder, meaning(grounder, t))]
+    if quick:
+        said = said[::6]
+    rng = np.random.default_rng(20261126)
+    out = {'motions': 0, 'started_right': 0, 'started_wrong': 0, 'refused_wrong': 0, 'yes_lost': 0,
+           'not_heard': 0, 'talk_as_yes': 0, 'talk': 0, 'wrong_heard': []}
+
+    def answer_is_yes(word, voice, speed, noisy):
+        pcm = synthesize_pcm(word, voice, speed)
+        rec = recognizer.recognize(with_noise(pcm, SNR_DB, rng) if noisy else pcm)
+        return rec.accepted and rec.text.lower() in YES
+    for voice, speed in VOICES:
+        for text in said:
+            expected = meaning(grounder, text)
+            clean = synthesize_pcm(text, voice, speed)
+            for noisy in (False, True):
+                out['motions'] += 1
+                rec = recognizer.recognize(with_noise(clean, SNR_DB, rng) if noisy else clean)
+                got = meaning(grounder, rec.text) if rec.accepted else None
+                if not motions(grounder, got):
+                    out['not_heard'] += 1             # rejected, or heard as no motion: nothing to confirm
+                    continue
+                right = got == expected
+                yes = answer_is_yes('yes' if right else 'no', voice, speed, noisy)
+                if right and yes:
+                    out['started_right'] += 1
+                elif right:
+                    out['yes_lost'] += 1
+                elif yes:
+                    out['started_wrong'] += 1
+                    out['wrong_heard'].append('"%s" heard as "%s", and "no" as "yes"' % (text, rec.text))
+                else:
+                    out['refused_wrong'] += 1
+                    out['wrong_heard'].append('"%s" heard as "%s"; "no" said' % (text, rec.text))
+        for text in NOT_INSTRUCTIONS:
+            for noisy in (False, True):
+                out['talk'] += 1
+                pcm = synthesize_pcm(text, voice, speed)
+                rec = recognizer.recognize(with_noise(pcm, SNR_DB, rng) if noisy else pcm)
+                out['talk_as_yes'] += rec.accepted and rec.text.lower() in YES
+        print('  %s done (confirmation)' % voice, file=sys.stderr, flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--quick', action='store_true', help='every sixth phrase only')
+    ap.add_argument('--confirm', action='store_true', help='only the motion instructions with ~confirm_motion')
     opts = ap.parse_args(argv)
+    if opts.confirm:
+        c = confirmation(opts.quick)
+        print('| figure (~confirm_motion) | value | goal |')
+        print('| --- | --- | --- |')
+        print('| motion instructions x voices x (clean, %g dB SNR) | %d | - |' % (SNR_DB, c['motions']))
+        print('| started as said (heard right, its "yes" heard) | %.1f %% (%d) | >= 95 %% |'
+              % (100.0 * c['started_right'] / c['motions'], c['started_right']))
+        print('| a motion started that was not said (heard wrong, and "no" heard as "yes") | %d | 0 |'
+              % c['started_wrong'])
+        print('| heard wrong, refused by the operator\'s "no" | %d | reported |' % c['refused_wrong'])
+        print('| heard right, its "yes" not heard (said again) | %d | reported |' % c['yes_lost'])
+        print('| not heard as a motion (rejected: said again) | %d | reported |' % c['not_heard'])
+        print('| sentences that are no instruction heard as "yes" | %d of %d | 0 |' % (c['talk_as_yes'], c['talk']))
+        if c['wrong_heard']:
+            print('\n' + '; '.join(c['wrong_heard'][:12]))
+        os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
+        with open(os.path.join(ROOT, 'bench', 'results', 'speech_confirm.json'), 'w') as f:
+            json.dump(c, f, indent=1)
+        return 0
     rec = recognition(opts.quick)
     rows = rec['rows']
     lat = latency()

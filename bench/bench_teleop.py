@@ -14,12 +14,15 @@ start_graph service as `temoto say` does. Figures:
   can have moved it.
 - **tracking at 0.1x**: the tool (TF from the sim's joint states) against the scaled hand's target, RMS,
   while the hand moves steadily.
+- **"stop" spoken** (``--only voice``): the speech node added; "stop" synthesized (espeak-ng) and sent as
+  audio while the robot drives: the end of speech → the base commanded zero.
 - **navigation mode** (``--only drive``): the hand unplugged while it turns the base → the base commanded
   zero (``vaultbot_sim/base_state``), from the hand's last sample.
 
 Prints a markdown table and writes bench/results/teleop.json.
 """
 import argparse
+import json
 import math
 import os
 import sys
@@ -242,12 +245,60 @@ def bench_drive(op, trials):
     return out
 
 
+def bench_voice_stop(launcher, op, trials):
+    """"stop" spoken while the robot drives: from the end of speech (the audio's end marker sent to the speech
+    node) to the first ground-truth state with zero commanded. The speech node as the operator runs it."""
+    import rospy
+    from std_msgs.msg import String
+    from temoto_core.wait import wait_for
+    from temoto_speech.msg import AudioData
+    from temoto_speech.voice import synthesize_pcm
+    from vaultbot_sim.msg import BaseState
+
+    launcher.node('temoto_speech', 'temoto_speech', params={'speak': False})
+    states, heard = [], []
+    rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+    rospy.Subscriber('/temoto/speech/heard', String, lambda m: heard.append(json.loads(m.data)), queue_size=50)
+    grammar = []
+    rospy.Subscriber('/temoto/speech/grammar', String, lambda m: grammar.append(json.loads(m.data)), queue_size=5)
+    pub = rospy.Publisher('/temoto/speech/audio', AudioData, queue_size=1000)
+    wait_for(lambda: grammar and 'stop' in grammar[-1]['actions'] and pub.get_num_connections() > 0 and states,
+             HANG, 'the speech node ready')
+    pcm = synthesize_pcm('stop', 'en-us', 175)
+    places = ['shelf', 'drums', 'table', 'home']
+    out = {'zero': [], 'decode': [], 'missed': 0}
+    for k in range(trials):
+        graph = op.say('robot please go to the %s' % places[k % len(places)])
+        wait_for(lambda: states[-1].commanded_linear > 0.3 or op.node_state(graph, 'navigate_0') in
+                 ('FINISHED', 'FAILED'), HANG, 'the base driving')
+        if states[-1].commanded_linear <= 0.3:
+            continue
+        before = len(heard)
+        for i in range(0, len(pcm), 3200):
+            pub.publish(AudioData(data=pcm[i:i + 3200]))
+        end = time.time()
+        pub.publish(AudioData(data=b''))
+        wait_for(lambda: len(heard) > before, 30, 'the speech node\'s report')
+        if not heard[before].get('accepted'):
+            out['missed'] += 1
+            op.say('stop')
+        else:
+            zero = wait_for(lambda: next((s.header.stamp.to_sec() for s in states[-60:] if s.header.stamp.to_sec() > end
+                                          and s.commanded_linear == 0.0 and s.commanded_angular == 0.0), None),
+                            HANG, 'zero commanded')
+            out['zero'].append(zero - end)
+            out['decode'].append(heard[before].get('decode_s'))
+        graph_end(op, graph, 'navigate_0')
+        wait_for(lambda: states[-1].linear == 0.0 and states[-1].angular == 0.0, HANG, 'at rest')
+    return out
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--trials', type=int, default=20, help='stops of each kind, and unplugs of the hand')
     p.add_argument('--loops', type=int, default=8, help='loops of the hand path for the latency and tracking')
     p.add_argument('--hogs', type=int, default=0)
-    p.add_argument('--only', choices=('stops', 'hand', 'drive'))
+    p.add_argument('--only', choices=('stops', 'hand', 'drive', 'voice'))
     args = p.parse_args()
     import rospy
     master, launcher = loopback_master('bench_teleop_')
@@ -262,6 +313,9 @@ def main() -> int:
         if args.only in (None, 'hand'):
             print('bench_teleop: the hand ...', file=sys.stderr, flush=True)
             results['hand'] = bench_hand(op, args.trials, args.loops)
+        if args.only in (None, 'voice'):
+            print('bench_teleop: "stop" spoken x %d ...' % args.trials, file=sys.stderr, flush=True)
+            results['voice'] = bench_voice_stop(launcher, op, args.trials)
         if args.only in (None, 'drive'):
             print('bench_teleop: the hand driving the base x %d ...' % args.trials, file=sys.stderr, flush=True)
             results['drive'] = bench_drive(op, args.trials)
@@ -301,6 +355,12 @@ def main() -> int:
              % len(h['unplug']), '%s / %s' % (ms(pct(h['unplug'], 50)), ms(max(h['unplug']))),
              '≤ 2 periods + 20 ms = 40 ms'),
         ]
+    v = results.get('voice')
+    if v and v['zero']:
+        rows.append(('"stop" spoken while driving: end of speech → zero commanded, median / p95 (n=%d; not heard: %d)'
+                     % (len(v['zero']), v['missed']), '%s / %s (decoding: %s median)' % (
+                         ms(pct(v['zero'], 50)), ms(pct(v['zero'], 95)),
+                         ms(pct([x for x in v['decode'] if x is not None], 50))), '≤ 300 ms median'))
     d = results.get('drive')
     if d:
         rows.append(('navigation mode: hand unplugged while it turns the base → the base commanded zero, from its '

@@ -26,6 +26,8 @@ HAND_COLOUR = (1.0, 0.6, 0.1, 0.9)
 TARGET_COLOUR = (0.2, 0.4, 1.0, 0.9)
 LINE_WIDTH = 0.02
 HAND_SIZE = 0.06
+TEXT_COLOUR = (1.0, 1.0, 1.0, 0.95)
+TEXT_HEIGHT = 0.08
 
 
 def _colour(rgba: Tuple[float, float, float, float]) -> ColorRGBA:
@@ -78,8 +80,17 @@ def base_scene(footprint: Footprint, frame: str, linear: float, angular: float, 
     return MarkerArray(markers=markers)
 
 
+def gripper_text(gap: Optional[float], stalled: bool, reached: bool) -> str:
+    """What the scene says of the gripper, from its controller's GripperCommand feedback or result."""
+    if gap is None:
+        return 'gripper: not heard from yet'
+    if stalled and not reached:
+        return 'gripper: holding (%.0f mm)' % (1e3 * gap)
+    return 'gripper: %s %.0f mm' % ('open' if gap > 0.01 else 'closed', 1e3 * gap)
+
+
 def hand_scene(frame: str, stamp, hand: Optional[Sequence[float]], target: Optional[Sequence[float]],
-               ns: str = 'hand') -> MarkerArray:
+               ns: str = 'hand', gripper: str = '', tool: Optional[Sequence[float]] = None) -> MarkerArray:
     """The hand (orange: where the hand has moved since the grab, from the tool's anchor, unscaled) and the target
     it gives (blue: scaled by the dial), in the arm base's ``frame``; a point that is None is deleted (nothing
     is engaged)."""
@@ -95,5 +106,14 @@ def hand_scene(frame: str, stamp, hand: Optional[Sequence[float]], target: Optio
             m.pose.orientation.w = 1.0
             m.scale.x = m.scale.y = m.scale.z = HAND_SIZE
             m.color = _colour(colour)
+        markers.append(m)
+    if gripper:                            # the gripper's state, written above the tool
+        m = Marker(type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, ns='%s/gripper' % ns, id=2, text=gripper)
+        m.header.frame_id, m.header.stamp = frame, stamp
+        at = tool if tool is not None and np.all(np.isfinite(tool)) else (0.0, 0.0, 0.0)
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = float(at[0]), float(at[1]), float(at[2]) + 0.15
+        m.pose.orientation.w = 1.0
+        m.scale.z = TEXT_HEIGHT
+        m.color = _colour(TEXT_COLOUR)
         markers.append(m)
     return MarkerArray(markers=markers)

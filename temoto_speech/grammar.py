@@ -122,10 +122,11 @@ class _ActionWords:
 
 
 def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: Iterable[str] = (),
-          motion_wake: Sequence[str] = MOTION_WAKE) -> Grammar:
+          motion_wake: Sequence[str] = MOTION_WAKE, answers: Sequence[str] = ()) -> Grammar:
     """The grammar of ``actions`` (descriptor JSON, as ``list_actions`` sends it); with ``wake_words`` an
     utterance must open with one of them. ``unsayable``: words the recogniser has no pronunciation for.
-    An action that moves the robot (``motion``) is said only after ``motion_wake`` ("robot please go")."""
+    An action that moves the robot (``motion``) is said only after ``motion_wake`` ("robot please go").
+    ``answers``: single words said alone, with no wake word, to answer a question ("yes", "no")."""
     unsayable = set(unsayable)
     described = [a for a in (_ActionWords(a, unsayable) for a in actions) if a.verbs]
     det = '[%s]' % _alt(DETERMINERS)
@@ -177,7 +178,11 @@ def build(actions: Sequence[dict], wake_words: Sequence[str] = (), unsayable: It
             form = '%s (<motion> [%s <clause>] | <clause> [%s (<motion> | <clause>)])' % (
                 wake_words, _alt(JOINERS), _alt(JOINERS))
         forms.append(form)
-    body = ['public <utterance> = %s%s;' % (lead, forms[0] if len(forms) == 1 else _alt(forms))]
+    said_answers = _sayable(answers, unsayable)
+    top = '%s%s' % (lead, forms[0] if len(forms) == 1 else _alt(forms))
+    if said_answers:
+        top = '%s | %s' % (top, _alt(said_answers))       # JSGF: "|" binds loosest
+    body = ['public <utterance> = %s;' % top]
     if still:
         body.append('<clause> = %s;' % ' | '.join('<%s>' % _rule_name(a.name) for a in still))
     if moving:

@@ -16,7 +16,8 @@ Parameters: ``~source`` (``topic``, or ``microphone``: the ALSA device ``~microp
 ``~wake_words`` (','-separated; an utterance must start with one), ``~min_margin`` (the rejection
 threshold, ``recognizer.py``), ``~min_motion_margin`` (the stricter one for an utterance that moves the robot), ``~speak`` (false: announcements only on the topic), ``~voice``,
 ``~speed``, ``~wav_dir`` (each announcement also written there as a WAV file), ``~grammar_poll_s`` (how
-often the engine's action index is read for new plugins).
+often the engine's action index is read for new plugins), ``~confirm_motion`` (true: a heard motion is said
+back and sent only on "yes", ``confirmation.py``) and ``~confirm_window_s``.
 """
 from __future__ import annotations
 
@@ -35,12 +36,15 @@ from temoto_action_engine.srv import ListActions
 from temoto_core.node import init_node, spin
 from temoto_core import params
 from temoto_speech.announcer import Announcer, Sentences
+from temoto_speech.confirmation import ANSWERS, WINDOW_S, YES, MotionConfirmation
+from temoto_speech.grammar import MOTION_WAKE
 from temoto_speech.audio import FRAME_BYTES, RATE, Utterances
 from temoto_speech.msg import AudioData
 from temoto_speech.recognizer import MIN_MARGIN, MIN_MOTION_MARGIN, Recognizer
 from temoto_speech.voice import DEFAULT_SPEED, DEFAULT_VOICE
 
 NODE_NAME = 'temoto_speech'
+STOP_WORDS = ('stop', 'halt')     # never held for a confirmation
 NOT_UNDERSTOOD = 'I did not understand'
 INDEX_CALL_TIMEOUT_S = 5.0
 
@@ -65,6 +69,10 @@ class SpeechNode:
                                    on_error=lambda text: rospy.logwarn('%s: %s', NODE_NAME, text))
         self.recognizer = Recognizer([], self.wake_words, params.number('min_margin', MIN_MARGIN),
                                      params.number('min_motion_margin', MIN_MOTION_MARGIN))
+        self.confirmation = MotionConfirmation(MOTION_WAKE, STOP_WORDS, params.number('confirm_window_s', WINDOW_S,
+                                                                                      above=0), self.wake_words) \
+            if params.flag('confirm_motion', False) else None
+        self._confirm_lock = threading.Lock()
         self._index_digest = ''
         self.utterances = Utterances()
         self._audio_lock = threading.Lock()
@@ -75,6 +83,8 @@ class SpeechNode:
                       rospy.Subscriber('/%s/action_engine/events' % self.ns, String, self._on_event, queue_size=100)]
         self.refresh_grammar()      # after the subscriptions: a grammar on its topic means the node listens
         threading.Thread(target=self._poll_index, name='speech-grammar', daemon=True).start()
+        if self.confirmation is not None:
+            threading.Thread(target=self._expire_questions, name='speech-confirmation', daemon=True).start()
         if source == 'microphone':
             threading.Thread(target=self._listen_microphone, args=(params.text('microphone', 'default'),),
                              name='speech-microphone', daemon=True).start()
@@ -96,7 +106,8 @@ class SpeechNode:
         if digest == self._index_digest:
             return True
         try:
-            built = self.recognizer.update(actions, self.wake_words)
+            built = self.recognizer.update(actions, self.wake_words, ANSWERS if self.confirmation else (),
+                                           YES if self.confirmation else ())
         except (ValueError, RuntimeError) as e:      # a grammar pocketsphinx refuses, espeak-ng missing
             rospy.logerr('%s: no new grammar for the %d action(s) now indexed (the last one stays): %s',
                          NODE_NAME, len(actions), e)
@@ -130,10 +141,27 @@ class SpeechNode:
         self.heard.publish(String(json.dumps(report)))
         if result.accepted:
             rospy.loginfo('%s: heard "%s" (margin %.1f)', NODE_NAME, result.text, result.margin)
-            self.chatter.publish(String(result.text))
+            if self.confirmation is None:
+                self.chatter.publish(String(result.text))
+                return
+            with self._confirm_lock:
+                decision = self.confirmation.heard(result.text, time.monotonic())
+            if decision.send:
+                self.chatter.publish(String(decision.send))
+            if decision.say:
+                self.announcer.say(decision.say)
         else:
             rospy.loginfo('%s: rejected "%s": %s', NODE_NAME, result.text, result.reason)
             self.announcer.say(NOT_UNDERSTOOD)
+
+    def _expire_questions(self) -> None:
+        """A motion left unanswered is dropped, and the operator told, once its window has passed."""
+        while not self._stop.wait(0.25) and not rospy.is_shutdown():
+            with self._confirm_lock:
+                dropped = self.confirmation.expire(time.monotonic())
+            if dropped:
+                rospy.loginfo('%s: "%s" not confirmed in time: dropped', NODE_NAME, dropped)
+                self.announcer.say('not confirmed')
 
     def _listen_microphone(self, device: str) -> None:
         argv = ['sox', '-q', '-t', 'alsa', device, '-t', 'raw', '-r', str(RATE), '-c', '1', '-b', '16',

@@ -73,14 +73,19 @@ class Recognizer:
         self.min_margin = float(min_margin)
         self.min_motion_margin = max(float(min_motion_margin), self.min_margin)
         self.wake_words: Sequence[str] = ()
+        self.moving_answers: Sequence[str] = ()
         self._lock = threading.Lock()
         self.grammar: Optional[grammar_mod.Grammar] = None
         self._decoder: Optional[Decoder] = None
         self.update(actions, wake_words)
 
-    def update(self, actions: Sequence[dict], wake_words: Sequence[str] = ()) -> grammar_mod.Grammar:
-        """A grammar for ``actions`` (descriptor JSON); a new decoder replaces the old one at once."""
-        built = grammar_mod.build(actions, wake_words)
+    def update(self, actions: Sequence[dict], wake_words: Sequence[str] = (), answers: Sequence[str] = (),
+               moving_answers: Sequence[str] = ()) -> grammar_mod.Grammar:
+        """A grammar for ``actions`` (descriptor JSON), and ``answers`` said alone ("yes", "no"); a new decoder
+        replaces the old one at once. ``moving_answers`` ("yes") are held to the motion margin, since they
+        start a motion; the others ("no") only drop one, and a short "no" often scores low."""
+        self.moving_answers = tuple(a.lower() for a in moving_answers)
+        built = grammar_mod.build(actions, wake_words, answers=answers)
         self.wake_words = tuple(w.lower() for w in wake_words)
         decoder = Decoder(samprate=16000, lm=None, bestpath=False, loglevel='FATAL')
         if built.jsgf:
@@ -89,7 +94,7 @@ class Recognizer:
                     _add_pronunciation(decoder, word, phones)
             unsayable = [w for w in built.words if decoder.lookup_word(w) is None]
             if unsayable:
-                built = grammar_mod.build(actions, wake_words, unsayable)
+                built = grammar_mod.build(actions, wake_words, unsayable, answers=answers)
         if built.jsgf:
             decoder.add_jsgf_string(GRAMMAR_SEARCH, built.jsgf)
             decoder.add_allphone_file(PHONE_SEARCH, os.path.join(get_model_path(), 'en-us', 'en-us-phone.lm.bin'))
@@ -111,7 +116,8 @@ class Recognizer:
             _, phones_score, _ = self._decode(PHONE_SEARCH, pcm)
         margin = (words_score - phones_score) / max(frames, 1)
         took = time.monotonic() - t0
-        needed = self.min_motion_margin if self.moves(text) else self.min_margin
+        moving = self.moves(text) or text.lower() in self.moving_answers
+        needed = self.min_motion_margin if moving else self.min_margin
         if margin < needed:
             return Recognition(text, False, 'not sure (margin %.1f, below %.1f%s)'
                                % (margin, needed, ' for a motion' if needed != self.min_margin else ''),

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from temoto_robot_manager.dial import Dial
+from temoto_robot_manager.scene_markers import gripper_text
 from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, TURN_PER_M, velocity_of
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 
@@ -96,3 +97,10 @@ def test_a_drive_velocity_from_a_bad_offset_is_zero_and_a_bad_gain_is_refused():
     assert velocity_of(np.array([math.nan, 0.0, 0.0]), 1.0) == (0.0, 0.0)
     with pytest.raises(ValueError, match='must be above 0'):
         velocity_of(np.zeros(3), 0.0)
+
+
+def test_the_scene_says_the_gripper_s_state_from_its_controller():
+    assert gripper_text(None, False, False) == 'gripper: not heard from yet'
+    assert gripper_text(0.085, False, True) == 'gripper: open 85 mm'
+    assert gripper_text(0.0, False, True) == 'gripper: closed 0 mm'
+    assert gripper_text(0.05, True, False) == 'gripper: holding (50 mm)'

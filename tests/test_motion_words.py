@@ -9,6 +9,7 @@ from temoto_action_engine.indexer import ActionIndex
 from temoto_action_engine.umrf import UmrfError, parse_descriptor, parse_graph
 from temoto_core.wait import wait_for
 from temoto_speech import grammar
+from temoto_speech.confirmation import ANSWERS, Decision, MotionConfirmation
 from temoto_testing.action_engine import FakeRegistrarFactory, write_plugin
 
 HOLD = '''
@@ -164,3 +165,32 @@ def test_the_grammar_says_a_motion_only_after_the_wake_phrase(index):
     assert 'robot please go to the shelf' in said and 'robot please go home' in said and 'finer' in said
     assert not [p for p in said if ' the home' in p or ' the there' in p or p.startswith('finer the')]
     assert not [p for p in said if p.split()[0] in ('go', 'open', 'close', 'follow') and 'gripper' in p]
+
+
+def test_a_motion_waits_for_its_yes_within_the_window_and_anything_else_drops_it():
+    c = MotionConfirmation(('robot', 'please'), ('stop', 'halt'), window=5.0, wake_words=('temoto',))
+    asked = c.heard('robot please go to the shelf', 0.0)
+    assert asked == Decision(say='go to the shelf? yes or no')
+    assert c.heard('yes', 1.0) == Decision(send='robot please go to the shelf')
+    assert c.heard('yes', 1.5) == Decision(say='nothing to confirm: no motion is waiting for an answer')
+    c.heard('robot please go home', 2.0)
+    assert c.heard('no', 3.0) == Decision(say='cancelled')
+    c.heard('temoto robot please go home', 4.0)                    # after the node's own wake word
+    assert c.heard('confirm', 9.5) == Decision(say='too late: no motion is waiting for an answer')
+    c.heard('robot please go home', 10.0)
+    assert c.expire(14.0) is None and c.expire(15.5) == 'robot please go home'
+    c.heard('robot please go home', 20.0)
+    assert c.heard('show the environment', 21.0) == Decision(send='show the environment',
+                                                             say='not confirmed: robot please go home')
+    c.heard('robot please go home', 22.0)
+    assert c.heard('stop', 22.5) == Decision(send='stop'), 'a stop is never held'
+    assert c.pending is None
+    with pytest.raises(ValueError, match='window'):
+        MotionConfirmation(('robot', 'please'), ('stop',), window=0.0)
+
+
+def test_with_confirmation_the_grammar_takes_yes_and_no_alone(index):
+    g = grammar.build(index.to_json()['actions'], answers=ANSWERS)
+    top = g.jsgf.splitlines()[2]
+    assert top.endswith('| (cancel | confirm | no | yes);'), top
+    assert {'yes', 'no'} <= g.words

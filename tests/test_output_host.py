@@ -318,12 +318,13 @@ def test_the_motion_scene_s_markers_are_drawn(host, events, rospy_client):
     from visualization_msgs.msg import MarkerArray
     from temoto_robot_manager.costmap import Footprint
     from temoto_robot_manager.scene_markers import (FOOTPRINT_COLOUR, HAND_COLOUR, STOP_ZONE_COLOUR, TARGET_COLOUR,
-                                                    base_scene, hand_scene)
+                                                    TEXT_COLOUR, base_scene, hand_scene)
     _, client = host
     base = rospy_client.Publisher('/om_test/base_scene', MarkerArray, queue_size=1, latch=True)
     hand = rospy_client.Publisher('/om_test/hand_scene', MarkerArray, queue_size=1, latch=True)
     base.publish(base_scene(Footprint.of([1.2, 1.4]), 'base_link', 0.8, 0.0, rospy_client.Time.now()))
-    hand.publish(hand_scene('base_link', rospy_client.Time.now(), (0.0, -0.3, 0.5), (0.0, 0.3, 0.5)))
+    hand.publish(hand_scene('base_link', rospy_client.Time.now(), (0.0, -0.3, 0.5), (0.0, 0.3, 0.5),
+                            gripper='gripper: holding (50 mm)', tool=(0.0, 0.3, 0.5)))
     try:
         client.add_display('rviz/MarkerArray', '/om_test/base_scene', name='base scene')
         client.add_display('rviz/MarkerArray', '/om_test/hand_scene', name='hand scene')
@@ -333,7 +334,7 @@ def test_the_motion_scene_s_markers_are_drawn(host, events, rospy_client):
         wait_for(lambda: client.screenshot('view').frame_count >= first + 5, 15, 'RViz to draw on')
         view = png_pixels(client.screenshot('view'))
         for what, rgba in (('footprint', FOOTPRINT_COLOUR), ('stop zone', STOP_ZONE_COLOUR), ('hand', HAND_COLOUR),
-                           ('target', TARGET_COLOUR)):
+                           ('target', TARGET_COLOUR), ("gripper's state", TEXT_COLOUR)):
             rgb = tuple(int(255 * c) for c in rgba[:3])
             assert colour_fraction(view, rgb, tol=60) > 1e-5, 'the %s is not drawn' % what
         client.remove_display('base scene')

@@ -70,10 +70,22 @@ class Topics:
 
 @pytest.fixture
 def speech(procs, rospy_client, ros_master, tmp_path):
+    yield from speech_stack(procs, rospy_client, ros_master, tmp_path)
+
+
+@pytest.fixture
+def confirming(procs, rospy_client, ros_master, tmp_path):
+    """The speech node with ``confirm_motion``, and a motion action to confirm."""
+    yield from speech_stack(procs, rospy_client, ros_master, tmp_path, confirm_motion=True)
+
+
+def speech_stack(procs, rospy_client, ros_master, tmp_path, **speech_params):
     plugins = tmp_path / 'plugins'
     write_plugin(str(plugins), 'wave', ASYNC.format(cls='Wave'), effect='asynchronous',
                  grounding={'verbs': ['wave'], 'subjects': ['flag']})
     write_plugin(str(plugins), 'crash', CRASH, grounding={'verbs': ['crash'], 'subjects': ['party']})
+    write_plugin(str(plugins), 'carry', ASYNC.format(cls='Carry'), effect='asynchronous', motion=True,
+                 grounding={'verbs': ['carry'], 'subjects': ['crate']})
     for node in ('/sp_engine', '/sp_speech'):
         if rospy_client.has_param(node):
             rospy_client.delete_param(node)      # private params outlive a node on the shared master
@@ -84,7 +96,8 @@ def speech(procs, rospy_client, ros_master, tmp_path):
     wav_dir = tmp_path / 'said'
     wav_dir.mkdir()
     node = procs.node('temoto_speech', 'temoto_speech', name='sp_speech',
-                      params={'temoto_namespace': NS, 'speak': False, 'wav_dir': str(wav_dir), 'grammar_poll_s': 0.5})
+                      params=dict({'temoto_namespace': NS, 'speak': False, 'wav_dir': str(wav_dir),
+                                   'grammar_poll_s': 0.5}, **speech_params))
     try:
         wait_for(lambda: topics.get('grammar'), 30, 'the speech node to publish its grammar')
     except TimeoutError as err:        # a clean clone's suite saw this once: what the node said is the clue
@@ -132,6 +145,33 @@ def test_an_utterance_outside_the_grammar_starts_nothing_and_the_operator_hears_
     assert temoto('say', '--voice', 'wave', 'the', 'flag').returncode == 0
     assert [content(t) for t in wait_for(lambda: topics.get('chatter'), 10, 'the accepted text')] == ['wave flag']
     wait_for(lambda: 'RUNNING' in topics.states('wave'), 20, 'the graph of the accepted utterance')
+
+
+def test_with_confirmation_a_spoken_motion_waits_for_yes_and_no_drops_it(confirming):
+    topics, _, _ = confirming
+    proc = temoto('say', '--voice', 'robot', 'please', 'carry', 'the', 'crate')
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    asked = wait_for(lambda: [a for a in topics.get('announcements') if a.endswith('? yes or no')], 10,
+                     'the motion said back as a question')
+    assert content(asked[0]) == 'carry crate? yes or no'
+    assert topics.get('chatter') == [], 'a motion was sent before its "yes"'
+    proc = temoto('say', '--voice', 'yes')
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert [content(t) for t in wait_for(lambda: topics.get('chatter'), 10, 'the confirmed motion sent')] == \
+        ['robot please carry crate']
+    wait_for(lambda: 'RUNNING' in topics.states('carry'), 20, 'the confirmed motion running')
+    # "no" drops the next one; a "yes" after it has nothing to confirm
+    assert temoto('say', '--voice', 'robot', 'please', 'carry', 'the', 'crate').returncode == 0
+    wait_for(lambda: len([a for a in topics.get('announcements') if a.endswith('? yes or no')]) == 2, 10,
+             'the second question')
+    assert temoto('say', '--voice', 'no').returncode == 0
+    wait_for(lambda: 'cancelled' in topics.get('announcements'), 10, 'the motion cancelled')
+    assert temoto('say', '--voice', 'yes').returncode == 0
+    wait_for(lambda: any('nothing to confirm' in a for a in topics.get('announcements')), 10, 'nothing to confirm')
+    assert len(topics.get('chatter')) == 1, topics.get('chatter')
+    # a stop is never held for a question: it goes at once
+    assert temoto('say', '--voice', 'stop', 'everything').returncode == 0
+    wait_for(lambda: len(topics.get('chatter')) == 2, 10, 'the stop sent at once')
 
 
 def test_a_new_plugin_is_understood_once_it_is_indexed(speech, rospy_client):

@@ -31,6 +31,7 @@ import time
 import numpy as np
 import rospy
 import tf2_ros
+from control_msgs.msg import GripperCommandActionFeedback, GripperCommandActionResult
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from std_msgs.msg import Float32, Int8, String
 from visualization_msgs.msg import MarkerArray
@@ -46,7 +47,7 @@ from temoto_robot_manager.dial import Dial
 from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, velocity_of
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 from temoto_robot_manager.obstacle_points import matrix_of
-from temoto_robot_manager.scene_markers import hand_scene
+from temoto_robot_manager.scene_markers import gripper_text, hand_scene
 
 HAND_TYPE = 'hand'
 HAND_TOPIC_KEY = 'hand_data'
@@ -105,6 +106,7 @@ class FollowHand(RobotAction):
     driving = False
     _drawn_at = 0.0
     _target_drawn = None
+    _gripper = None                 # its last state, when this arm carries the robot's gripper
     _subs: list = []
     _hand_sub = None
 
@@ -153,6 +155,15 @@ class FollowHand(RobotAction):
         else:
             scene_topic = '/%s/follow_hand/%s/scene' % (ns, self.arm)
             self.pub_scene = rospy.Publisher(scene_topic, MarkerArray, queue_size=1, latch=True)
+            gripper = info.get('gripper') or {}
+            if gripper.get('arm') == self.arm and gripper.get('action'):
+                # the gripper's state as its controller's action says it, whoever commands it ("close the gripper")
+                self._gripper = {'gap': None, 'stalled': False, 'reached': False}
+                action = self.robot_topic(gripper['action'])
+                self._subs += [rospy.Subscriber(action + '/feedback', GripperCommandActionFeedback,
+                                                lambda m: self._on_gripper(m.feedback), queue_size=5),
+                               rospy.Subscriber(action + '/result', GripperCommandActionResult,
+                                                lambda m: self._on_gripper(m.result), queue_size=5)]
             self.show_scene(SceneDisplay('the hand and its target', 'marker array', scene_topic))
         self._start_hand()
         self.event('following', part=self.part, arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
@@ -252,7 +263,14 @@ class FollowHand(RobotAction):
             self._target_drawn = command.pose[:3, 3]
         hand = self.follower.clutch.hand_point(palm)
         target = self._target_drawn if hand is not None else None
-        self.pub_scene.publish(hand_scene(self.base_frame, rospy.Time.now(), hand, target))
+        said = gripper_text(self._gripper['gap'], self._gripper['stalled'], self._gripper['reached']) \
+            if self._gripper is not None else ''
+        self.pub_scene.publish(hand_scene(self.base_frame, rospy.Time.now(), hand, target, gripper=said,
+                                          tool=self._target_drawn))
+
+    def _on_gripper(self, state) -> None:
+        self._gripper = {'gap': float(state.position), 'stalled': bool(state.stalled),
+                         'reached': bool(state.reached_goal)}
 
     def _on_drive_status(self, msg: String) -> None:
         """The navigator's word on the stream, when it changes: a hold or a refusal is said to the operator."""
