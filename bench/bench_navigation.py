@@ -185,30 +185,38 @@ def bench_drives(n, seed=40):
 
 
 # ------------------------------------------------------------------------------------------------ across processes
+def navigator_stack(launcher):
+    """The sim in the lab, its base controller, the SICK and the navigator, and this process subscribed to the
+    ground truth; (the SICK's process, the base states, the scans' stamps)."""
+    import rospy
+    from sensor_msgs.msg import LaserScan
+    from vaultbot_sim.msg import BaseState
+    launcher.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
+    launcher.node('vaultbot_sim', 'base_controller')
+    sick = launcher.node('vaultbot_sim', 'sick_driver')
+    launcher.node('temoto_robot_manager', 'navigator', params={
+        'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
+    rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
+    states, scans = [], []
+    rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
+    rospy.Subscriber('/sick/scan', LaserScan, lambda m: scans.append(m.header.stamp.to_sec()), queue_size=50)
+    return sick, states, scans
+
+
 def bench_stops(trials, drives, hogs):
     import rospy
     from actionlib_msgs.msg import GoalStatus
     from geometry_msgs.msg import PoseStamped
     from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
-    from sensor_msgs.msg import LaserScan
     from temoto_core.wait import wait_for
     from temoto_testing.motion import GOAL_CLIENT
     from temoto_testing.sensor_manager import set_cable
-    from vaultbot_sim.msg import BaseState
 
     master, launcher = loopback_master('bench_navigation_')
     hog_procs = cpu_hogs(hogs)
     out = {'stale': [], 'refusal': [], 'refusal_moved': 0, 'client_killed': [], 'drives': []}
     try:
-        launcher.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
-        launcher.node('vaultbot_sim', 'base_controller')
-        sick = launcher.node('vaultbot_sim', 'sick_driver')
-        launcher.node('temoto_robot_manager', 'navigator', params={
-            'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
-        rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
-        states, scans = [], []
-        rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
-        rospy.Subscriber('/sick/scan', LaserScan, lambda m: scans.append(m.header.stamp.to_sec()), queue_size=50)
+        sick, states, scans = navigator_stack(launcher)
         from actionlib_msgs.msg import GoalStatusArray
         seen = []
         rospy.Subscriber('/move_base/status', GoalStatusArray, lambda m: seen.append(
@@ -336,24 +344,14 @@ def bench_teleop(trials, hogs):
     setup relies on); and the SICK stalled while the stream turns the base → zero, from its last scan."""
     import rospy
     from geometry_msgs.msg import Twist, TwistStamped
-    from sensor_msgs.msg import LaserScan
     from temoto_core.wait import wait_for
     from temoto_testing.sensor_manager import set_cable
-    from vaultbot_sim.msg import BaseState
 
     master, launcher = loopback_master('bench_navigation_teleop_')
     hog_procs = cpu_hogs(hogs)
     out = {'silence': [], 'silence_cmd_vel': [], 'stale': []}
     try:
-        launcher.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
-        launcher.node('vaultbot_sim', 'base_controller')
-        sick = launcher.node('vaultbot_sim', 'sick_driver')
-        launcher.node('temoto_robot_manager', 'navigator', params={
-            'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
-        rospy.init_node('bench_navigation', anonymous=True, disable_signals=True)
-        states, scans = [], []
-        rospy.Subscriber('/vaultbot_sim/base_state', BaseState, states.append, queue_size=200, tcp_nodelay=True)
-        rospy.Subscriber('/sick/scan', LaserScan, lambda m: scans.append(m.header.stamp.to_sec()), queue_size=50)
+        sick, states, scans = navigator_stack(launcher)
         teleop = rospy.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5, tcp_nodelay=True)
         raw = rospy.Publisher('/cmd_vel', Twist, queue_size=5, tcp_nodelay=True)
         wait_for(lambda: states and teleop.get_num_connections() and raw.get_num_connections(), HANG,
