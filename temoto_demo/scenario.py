@@ -817,10 +817,15 @@ def run_stages(demo: Demo, name: str, report: Callable[[Demo], None]) -> int:
     return rc
 
 
+def announce(title: str, opts: DemoOptions) -> None:
+    """A demo's first line: what it shows, where its files go, and where RViz draws."""
+    print('%s; run folder %s (%s)' % (title, _rel(opts.out_dir),
+                                      'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
+
+
 def run_demo(opts: DemoOptions) -> int:
     demo = Demo(opts)
-    print('temoto demo: the paper\'s sensor failover; run folder %s (%s)'
-          % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
+    announce('temoto demo: the paper\'s sensor failover', opts)
 
     def report(demo: Demo) -> None:
         rep = write_report(demo.bag_path, opts.out_dir, opts.namespace)

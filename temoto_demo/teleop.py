@@ -43,7 +43,7 @@ from vaultbot_sim.msg import ArmState, BaseState
 
 from . import topics as T
 from .recording import _subscribed_topics
-from .scenario import Demo, DemoOptions, _rel, run_stages, write_station_catalogue
+from .scenario import Demo, DemoOptions, _rel, announce, run_stages, write_station_catalogue
 from .teleop_report import write_teleop_report
 
 PLACE = 'drums'                 # where the pointed goal is: 2.3 m ahead, past the SICK's unplug
@@ -298,8 +298,7 @@ class TeleopDemo(Demo):
 
 def run_teleop(opts: DemoOptions) -> int:
     demo = TeleopDemo(opts)
-    print('temoto demo teleop: the operator moves the robot; run folder %s (%s)'
-          % (_rel(opts.out_dir), 'RViz on ' + os.environ['DISPLAY'] if opts.live else 'headless'), flush=True)
+    announce('temoto demo teleop: the operator moves the robot', opts)
 
     def report(demo: TeleopDemo) -> None:
         rep = write_teleop_report(demo.bag_path, opts.out_dir, opts.namespace)
