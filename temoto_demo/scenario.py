@@ -205,19 +205,24 @@ class EventWatcher:
     def wait_action(self, match, since: float, timeout: float, what: str, graph: Optional[str] = None) -> dict:
         """The first action event since ``since`` that ``match`` accepts.
 
-        With ``graph``, a FAILED end of that graph (or of any graph, for ``'*'``) since ``since`` ends the wait
-        at once with its reason, rather than letting the stage time out on an event that can no longer come.
+        With ``graph``, a FAILED end of that graph (or of any graph, for ``'*'``) started since ``since`` ends
+        the wait at once with its reason, rather than letting the stage time out on an event that can no longer
+        come. Started since: the engine reuses a finished graph's name, and an earlier graph's end can come
+        after ``since`` (the engine sends it before the next graph of that name starts).
         """
         def found():
+            started = set()
             for e in self.actions:
                 if e['arrival'] < since:
                     continue
                 if match(e):
                     return e
-                if graph and e.get('event') == 'graph_finished' and e.get('state') == 'FAILED' \
-                        and graph in ('*', e.get('graph')):
+                if e.get('event') == 'graph_started':
+                    started.add(e.get('graph'))
+                elif graph and e.get('event') == 'graph_finished' and e.get('state') == 'FAILED' \
+                        and e.get('graph') in started and graph in ('*', e.get('graph')):
                     raise StageFailed('%s failed while waiting for %s: %s'
-                                       % (e.get('graph'), what, e.get('reason') or 'no reason given'))
+                                      % (e.get('graph'), what, e.get('reason') or 'no reason given'))
             return None
         return self._wait(found, timeout, lambda: 'timed out after %.0f s waiting for %s; action events since: %s'
                           % (timeout, what, self._recent(since)))

@@ -59,6 +59,7 @@ class TeleopRun:
     pointed: List[tuple] = field(default_factory=list)    # t, x, y (RViz's goal as pointed)
     targets: List[tuple] = field(default_factory=list)    # t, x, y, z (the arm's servo targets, its base frame)
     hand: List[tuple] = field(default_factory=list)       # t, x, y, z, grab
+    hand_arrivals: List[float] = field(default_factory=list)  # when each hand sample reached the recorder
     holds: List[tuple] = field(default_factory=list)      # t, reason
     halts: List[tuple] = field(default_factory=list)      # t, reason
     tf: Dict[str, tuple] = field(default_factory=dict)    # child -> (parent, [t], [4 x 4])
@@ -110,6 +111,8 @@ def load_teleop(bag_path: str, namespace: str = T.DEFAULT_NS) -> TeleopRun:
             elif topic in ('/hand/sample', '/virtual_hand/sample'):
                 p = msg.palm.position
                 run.hand.append((_t(msg, bag_t), p.x, p.y, p.z, msg.grab_strength))
+                if topic == '/hand/sample':
+                    run.hand_arrivals.append(bag_t)
             elif topic in ('/tf', '/tf_static'):
                 for tr in msg.transforms:
                     parent, times, mats = run.tf.setdefault(tr.child_frame_id, (tr.header.frame_id, [], []))
@@ -136,6 +139,7 @@ def load_teleop(bag_path: str, namespace: str = T.DEFAULT_NS) -> TeleopRun:
                 run.screenshots.append((_t(msg, bag_t), msg.header.frame_id, bytes(msg.data)))
     for lst in (run.base, run.arm, run.targets, run.hand, run.gripper):
         lst.sort(key=lambda r: r[0])
+    run.hand_arrivals.sort()
     run.actions.sort(key=lambda e: e['t'])
     return run
 
@@ -175,25 +179,57 @@ class TeleopFigures:
     cut_hold_ms: Optional[float] = None           # --hosts 2, link cut while following: the last servo target
                                                   # on the robot → the arm commanded zero (robot.bag)
     cut_failing_s: Optional[float] = None         # … the link cut → the station hears follow_hand fail
+    hand_to_joint_ms: Optional[Tuple[float, float, int]] = None   # --hosts 2, before the cut: a hand sample at
+                                                  # the station → the joint command it became on the robot;
+                                                  # (p50, p95, n)
 
 
 def _first(rows, pred):
     return next((r for r in rows if pred(r)), None)
 
 
-def robot_side(bag_path: str) -> Tuple[List[tuple], List[float]]:
-    """From ``robot.bag`` (--hosts 2, recorded on the robot's host): the camera arm's ground truth (t, commanded
-    speed) and when each servo target reached the robot. Arrival, not the target's stamp: over the cut link TCP
-    keeps the station's last targets and delivers them once the link is back, stamped before the cut."""
-    arm, targets = [], []
+@dataclass
+class RobotSide:
+    """``robot.bag`` (--hosts 2, recorded on the robot's host). Arrivals, not stamps: over the cut link TCP keeps
+    the station's last targets and delivers them once the link is back, stamped before the cut."""
+    arm: List[tuple] = field(default_factory=list)         # t, commanded speed (the camera arm's ground truth)
+    targets: List[float] = field(default_factory=list)     # when each servo target reached the robot
+    sent: List[float] = field(default_factory=list)        # … and when the station sent it (its stamp)
+    commands: List[float] = field(default_factory=list)    # when each joint command left the manipulator
+
+
+def robot_side(bag_path: str) -> RobotSide:
+    side = RobotSide()
     with AnyReader([Path(bag_path)]) as reader:
         for conn, bag_ns, raw in reader.messages():
             msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic.endswith('/vaultbot_sim/arm_states') and msg.arm == ARM:
-                arm.append((_t(msg, bag_ns * 1e-9), msg.commanded_speed))
+                side.arm.append((_t(msg, bag_ns * 1e-9), msg.commanded_speed))
             elif conn.topic.endswith('%s/servo_target' % ARM):
-                targets.append(bag_ns * 1e-9)
-    return sorted(arm), sorted(targets)
+                side.targets.append(bag_ns * 1e-9)
+                side.sent.append(_t(msg, bag_ns * 1e-9))
+            elif conn.topic.endswith('%s/servo_command' % ARM):
+                side.commands.append(bag_ns * 1e-9)
+    side.arm.sort()
+    order = np.argsort(side.targets)
+    side.targets, side.sent = [side.targets[i] for i in order], [side.sent[i] for i in order]
+    side.commands.sort()
+    return side
+
+
+def hand_to_joint(hand_arrivals: List[float], side: RobotSide, before: float) -> List[float]:
+    """For each servo target sent before ``before``: from the hand sample it came of (the last to reach the
+    station's recorder before the target was sent) to the first joint command on the robot after the target
+    reached it. The hosts are network namespaces of one machine, so the two recorders share a clock."""
+    out = []
+    for sent, arrived in zip(side.sent, side.targets):
+        if sent >= before:
+            break
+        k = int(np.searchsorted(hand_arrivals, sent, side='right')) - 1
+        j = int(np.searchsorted(side.commands, arrived, side='left'))
+        if k >= 0 and j < len(side.commands) and sent - hand_arrivals[k] < 0.05:
+            out.append(side.commands[j] - hand_arrivals[k])
+    return out
 
 
 def cut_figures(run: TeleopRun, f: 'TeleopFigures', robot_bag: str) -> None:
@@ -204,11 +240,15 @@ def cut_figures(run: TeleopRun, f: 'TeleopFigures', robot_bag: str) -> None:
                      and e.get('action') == 'follow_hand')
     f.cut_failing_s = None if failing is None else failing['t'] - down
     if os.path.exists(robot_bag):
-        arm, targets = robot_side(robot_bag)
-        zero = _first(arm, lambda a: a[0] > down and a[1] == 0.0)
-        last = max((t for t in targets if zero is not None and t <= zero[0]), default=None)
+        side = robot_side(robot_bag)
+        zero = _first(side.arm, lambda a: a[0] > down and a[1] == 0.0)
+        last = max((t for t in side.targets if zero is not None and t <= zero[0]), default=None)
         if zero is not None and last is not None:
             f.cut_hold_ms = 1e3 * (zero[0] - last)
+        took = hand_to_joint(run.hand_arrivals, side, down)
+        if took:
+            f.hand_to_joint_ms = (1e3 * float(np.percentile(took, 50)), 1e3 * float(np.percentile(took, 95)),
+                                  len(took))
 
 
 def figures(run: TeleopRun) -> TeleopFigures:
@@ -420,6 +460,10 @@ def write_teleop_report(bag_path: str, out_dir: Optional[str] = None,
         L += ['| two hosts, the link cut while following: the last servo target on the robot → the arm commanded '
               'zero (robot.bag) | %s | 100 ms (the servo stream\'s timeout) |' % _ms(f.cut_hold_ms),
               '| … the link cut → the station hears follow_hand fail | %s | 1 s |' % _ms(f.cut_failing_s, 's')]
+        if f.hand_to_joint_ms is not None:
+            L += ['| two hosts, before the cut: a hand sample at the station → its joint command on the robot, '
+                  'p50 / p95 (n=%d) | %.1f / %.1f ms | 25 ms p95 |' % (f.hand_to_joint_ms[2], f.hand_to_joint_ms[0],
+                                                                       f.hand_to_joint_ms[1])]
     L += ['']
     L += ['## The drive', '', '![path](path.png)', '',
           '## The hand and the end-effector', '', '![hand](hand.png)', '',

@@ -267,8 +267,13 @@ def test_in_navigation_mode_the_hand_turns_the_base_and_a_lost_hand_stops_it(op,
     truth = collect('/vaultbot_sim/base_state', BaseState)
     status = collect('/teleop/status', String)
     yaw0 = wait_for(lambda: truth.last(), HANG, 'the ground truth').yaw
+    t0 = time.time()
+
+    def new(kind):
+        """This graph's ``kind`` events: the engine reuses a graph's name, and the module's earlier tests ran one."""
+        return [e for e in op.of(kind, graph) if e['stamp'] >= t0]
     graph = graph_of(said(op, 'robot please drive with my hand'))
-    following = op.wait_event('following', graph, HANG, 'the base following the hand')[0]
+    following = wait_for(lambda: new('following'), HANG, 'the base following the hand')[0]
     assert following['part'] == 'base', following
     # the default hand path: a grab, then 10 cm to the left: the base turns left, in place
     wait_for(lambda: truth.last().commanded_angular > 0.0, 30, 'the hand turning the base left')
@@ -280,8 +285,8 @@ def test_in_navigation_mode_the_hand_turns_the_base_and_a_lost_hand_stops_it(op,
     set_cable('hand_tracker', 'unplugged', 'crash')
     zero = commanded_zero_after(truth.msgs, t0, HANG)
     assert zero.header.stamp.to_sec() - t0 < 2.0, 'a hang, not a timing goal (bench_teleop measures it)'
-    assert op.wait_event('hand_failed', graph, HANG, 'the tracker failed')[0]['hand'] == 'sim_hand_tracker'
-    wait_for(lambda: [e for e in op.of('following', graph) if e['hand'] == 'virtual_hand'], HANG,
+    assert wait_for(lambda: new('hand_failed'), HANG, 'the tracker failed')[0]['hand'] == 'sim_hand_tracker'
+    wait_for(lambda: [e for e in new('following') if e['hand'] == 'virtual_hand'], HANG,
              'the virtual hand taking over')
     rest_at = rospy_client.get_time()
     wait_for(lambda: truth.last().angular == 0.0, HANG, 'the base at rest')
