@@ -12,7 +12,8 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
 - ``~halt_topic`` (default ``/temoto/halt``, ``std_msgs/String``): the operator's "stop": zero at once,
   and the goal ends ABORTED with the reason (``temoto_core/halt.py``);
 - ``teleop/cmd_vel`` (``TwistStamped``): a stream of velocity commands (the hand in navigation mode), under
-  the same guards as a goal: refused while a goal drives or when late, zero while the obstacle source is
+  the same guards as a goal: refused while a goal drives, when late, or while the Robot Manager that
+  started the node is away (the stream then stopped at once), zero while the obstacle source is
   stale, through the collision monitor, zero once the stream is silent for 0.1 s (``teleop_drive.py``).
   ``teleop/status`` (latched ``String``) says what the stream gets, when that changes.
 
@@ -290,9 +291,16 @@ class NavigatorNode:
         """A command of the teleop stream: decided and sent at once, under the lock the loop and the
         staleness watch hold, so a zero decided by either is never overtaken by a command decided before it."""
         now, wall = time.monotonic(), rospy.get_time()
+        holders = getattr(self, 'holders', None)        # None until the action server starts
+        away = holders.owner_away() if holders is not None else 'the navigator is still starting'
         with self.wake:
             started = not self.teleop.active
             try:
+                if away is not None:              # as a goal is: nothing moves for a node nobody manages
+                    if self.teleop.active:
+                        self.teleop.end()
+                        self._command(0.0, 0.0)
+                    raise Refused(away)
                 decision = self.teleop.command(msg.header.stamp.to_sec(), wall, now, msg.twist.linear.x,
                                                msg.twist.angular.z)
             except Refused as err:

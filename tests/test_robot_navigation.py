@@ -13,8 +13,9 @@ import time
 import pytest
 import rosgraph
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+from std_msgs.msg import String
 
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import master_lookup
@@ -192,6 +193,20 @@ def test_a_goal_sent_while_the_robot_manager_is_away_is_refused_and_nothing_move
         wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG, 'the answer')
         assert client.get_state() == GoalStatus.REJECTED and 'Robot Manager that started this navigator is away' \
             in client.get_goal_status_text(), (client.get_state(), client.get_goal_status_text())
+        # a teleop stream is refused the same way
+        status = collect('/teleop/status', String)
+        teleop = rospy_client.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5)
+        wait_for(lambda: teleop.get_num_connections() > 0, HANG, 'the navigator listening to the stream')
+        rate = rospy_client.Rate(50)
+        for _ in range(int(HANG * 50)):
+            cmd = TwistStamped()
+            cmd.header.stamp = rospy_client.Time.now()
+            cmd.twist.angular.z = 0.4
+            teleop.publish(cmd)
+            if status.last() is not None:
+                break
+            rate.sleep()
+        assert 'refused' in status.last().data and 'is away' in status.last().data, status.last()
         assert not any(m.commanded_linear or m.commanded_angular for m in truth.msgs[before:])
         wait_for(lambda: not navigator_running(), HANG, 'the navigator to be released with its dead manager')
     finally:
