@@ -30,7 +30,7 @@ ALGORITHMS = ('color_blob_trac',)
 CLIENT_NODE_PREFIX = 'chaos_client_'       # the clients' node names (the runner names each incarnation)
 # what a client calls the resources of each server it is a consumer of (its held 'kind')
 SERVER_KINDS = {'start_sensor': 'sensor', 'load_process': 'process', 'track_object': 'tracked',
-                'load_rviz_plugin': 'display'}
+                'load_rviz_plugin': 'display', 'load_robot': 'robot'}
 UNDER_WAY = ('loading', 'unloading')        # an owner's entry that is not settled yet: compared once it is
 
 
@@ -44,14 +44,17 @@ class Manager:
     lists_processes: bool = False              # an ER Manager: its processes are read too
 
 
-def managers(robot: str, station: Optional[str] = None) -> List[Manager]:
-    """The managers of the robot's stack, and of the station's when it runs one (history 3 and later)."""
+def managers(robot: str, station: Optional[str] = None, robot_manager: bool = False) -> List[Manager]:
+    """The managers of the robot's stack, and of the station's when it runs one (history 3 and later); the
+    Robot Manager's when the clients hold motion (history 5)."""
     out = [Manager('Sensor Manager', '/%s/temoto_sensor_manager' % robot, (('start_sensor', 'sensor'),)),
            Manager('ER Manager', '/%s/temoto_er_manager' % robot, (('load_process', 'process'),), True)]
     if station:
         out += [Manager('Context Manager', '/%s/temoto_context_manager' % robot, (('track_object', 'tracked object'),)),
                 Manager("station's ER Manager", '/%s/temoto_er_manager' % station, (), True),
                 Manager('Output Manager', '/%s/temoto_output_manager' % station, (('load_rviz_plugin', 'display'),))]
+    if robot_manager:
+        out.append(Manager('Robot Manager', '/%s/temoto_robot_manager' % robot, (('load_robot', 'robot'),)))
     return out
 
 
@@ -59,7 +62,8 @@ READ_TIMEOUT = 2.0
 PROCESS_CLOCK_S = 0.02        # a process's start time is known to the kernel's clock tick (10 ms), and rounded
 # a call's deadlines, load and unload (the managers' contracts), by the kind of resource a client holds (it
 # counts its calls as '<load|unload> <kind>'), and the slack a loaded machine gets before it is a violation
-DEADLINES = {'sensor': (40.0, 15.0), 'process': (15.0, 10.0), 'tracked': (70.0, 25.0), 'display': (60.0, 15.0)}
+DEADLINES = {'sensor': (40.0, 15.0), 'process': (15.0, 10.0), 'tracked': (70.0, 25.0), 'display': (60.0, 15.0),
+             'robot': (90.0, 30.0)}
 DEADLINE_SLACK = 2.0
 # s an owner has to release what a killed client held: its consumer liveness bound, 2 x (the check period,
 # 2 s, + 1 s of ping timeout), with the same slack
@@ -361,7 +365,7 @@ def _served_holders(snap: Snapshot, registry: dict, server: str, what: str) -> L
 
 
 def _describe(summary: dict) -> str:
-    for key in ('sensor_type', 'executable', 'object_name', 'topic', 'type'):
+    for key in ('sensor_type', 'executable', 'object_name', 'topic', 'type', 'robot_name', 'features'):
         if summary.get(key):
             return str(summary[key])
     return '?'

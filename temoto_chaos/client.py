@@ -17,7 +17,7 @@ import os
 import socketserver
 import threading
 import time
-from typing import Callable, Deque, Dict, Iterator, List
+from typing import Callable, Deque, Dict, Iterator, List, Optional
 
 import rospy
 
@@ -28,26 +28,35 @@ from temoto_core.rr import StatusEvent
 from temoto_context_manager.interface import ContextManagerInterface
 from temoto_er_manager.interface import ERManagerInterface
 from temoto_output_manager.interface import OutputManagerInterface
+from temoto_robot_manager.interface import RobotManagerInterface
 from temoto_sensor_manager.interface import SensorManagerInterface
+
+from .motion_client import Journal, MotionClient
 
 NODE_NAME = 'chaos_client'     # the runner names each incarnation (__name:=chaos_client_<client>_<generation>)
 RECENT_STATUSES = 20
 THROTTLE = '/usr/lib/topic_tools/throttle'     # the process a client runs (the chaos ER config allows it)
+HAND_TYPE, HAND_KEY = 'hand', 'hand_data'      # the hand source a servo may follow (hands.yaml)
 
 
 class ChaosClient:
     """The state a consumer knows, and the operations the runner asks of it."""
 
-    def __init__(self, namespace: str, station_namespace: str = '') -> None:
+    def __init__(self, namespace: str, station_namespace: str = '', journal: str = '') -> None:
         self.namespace = namespace
         self.sensors = SensorManagerInterface(namespace=namespace)
         rr = self.sensors.rr         # one registrar for every manager's resources
         self.processes = ERManagerInterface(rr=rr, namespace=namespace)
         self.context = ContextManagerInterface(rr=rr, namespace=namespace)
         self.screen = OutputManagerInterface(rr=rr, namespace=station_namespace) if station_namespace else None
+        self.robots = RobotManagerInterface(rr=rr, namespace=namespace)
+        # the motions it holds on the robot (history 5), journaled for the checker
+        self.motion = MotionClient(Journal(journal), rospy.get_name()) if journal else None
+        self.robot_info: Dict[int, dict] = {}      # a held robot's id -> the manager's description of it
         # how each kind of held resource is released
         self.releases = {'sensor': self.sensors.stop_sensor, 'process': self.processes.unload,
-                         'tracked': self.context.stop, 'display': self.screen.hide if self.screen else None}
+                         'tracked': self.context.stop, 'display': self.screen.hide if self.screen else None,
+                         'robot': self._release_robot}
         self.lock = threading.Lock()
         self.held: Dict[int, dict] = {}        # local id -> {'kind', 'what' (its request), 'failed': message or ''}
         # what the checker needs stays bounded over a history of any length: the FAILED heard for what is
@@ -60,14 +69,19 @@ class ChaosClient:
         # resource whose load or unload is under way to what is settled
         self.pending: Dict[int, dict] = {}         # call number -> {'op', 'kind', 'id' (an unload's)}
         self._calls_started = 0
+        self.hand_topics: Dict[int, str] = {}      # a held hand source's id -> its sample topic
 
     def _on_status(self, ev: StatusEvent) -> None:
         with self.lock:
             self.recent.append({'id': ev.resource_id, 'code': ev.code.name, 'message': ev.message})
+            robot = False
             if ev.failed:
                 self.failed_heard[ev.resource_id] = ev.message or 'FAILED'
                 if ev.resource_id in self.held:
                     self.held[ev.resource_id]['failed'] = ev.message or 'FAILED'
+                    robot = self.held[ev.resource_id]['kind'] == 'robot'
+        if robot and self.motion is not None:
+            self.motion.robot_failed(ev.resource_id, ev.message)     # a motion action's policy: stop
 
     def _load(self, kind: str, what: str, load: Callable[[], object], resource_id: Callable[[object], int],
               answer: Callable[[object], dict]) -> dict:
@@ -112,6 +126,75 @@ class ChaosClient:
                           lambda: self.screen.show(display_type, full, on_status=self._on_status),
                           lambda r: r.trr.resource_id, lambda r: {'display': r.display_name})
 
+    # -- motion (history 5) --------------------------------------------------------------------------------------
+    def _held_robot(self, feature: str) -> Optional[int]:
+        with self.lock:
+            return next((rid for rid, h in sorted(self.held.items())
+                         if h['kind'] == 'robot' and h['what'] == feature and not h['failed']), None)
+
+    def _robot(self, feature: str):
+        """The robot's ``feature`` this client holds (loaded now if it holds none that works): (id, info), or
+        an answer that says why not."""
+        rid = self._held_robot(feature)
+        if rid is not None:
+            return rid, self.robot_info[rid]
+        try:
+            info = self.robots.robot_with(feature)
+        except (OSError, ValueError, LookupError) as e:
+            return None, {'ok': False, 'error': 'no robot with %s: %s' % (feature, e)}
+
+        def load():
+            loaded = self.robots.load_robot([feature], robot_name=info['name'], on_status=self._on_status)
+            self.robot_info[loaded.resource_id] = info      # before the load is acknowledged (held)
+            return loaded
+        answer = self._load('robot', feature, load, lambda r: r.resource_id, lambda r: {'robot': r.robot_name})
+        if not answer['ok']:
+            return None, answer
+        return answer['id'], info
+
+    def _release_robot(self, resource_id: int) -> None:
+        """A robot is released as a motion action releases it: its motions let go first."""
+        if self.motion is not None:
+            self.motion.releasing(resource_id)
+        self.robots.release(resource_id)
+
+    def navigate(self, x: float, y: float, yaw: float, frame: str) -> dict:
+        rid, info = self._robot('navigation')
+        if rid is None:
+            return info
+        return self.motion.navigate(rid, info, x, y, yaw, frame)
+
+    def grip(self, gap: float, effort: float) -> dict:
+        rid, info = self._robot('gripper')
+        if rid is None:
+            return info
+        return self.motion.grip(rid, info, gap, effort)
+
+    def servo(self, arm: str, source: str, offset: List[float], scale: float, seconds: float) -> dict:
+        rid, info = self._robot('manipulation')
+        if rid is None:
+            return info
+        if arm not in info.get('arm_frames', {}):
+            return {'ok': False, 'error': '%s has no arm %r' % (info['name'], arm)}
+        if source == 'path':
+            return self.motion.servo_path(rid, info, arm, tuple(offset), seconds)
+        with self.lock:
+            hand = next((rid for rid, h in sorted(self.held.items())
+                         if h['kind'] == 'sensor' and h['what'] == HAND_TYPE and not h['failed']), None)
+        topic = self.hand_topics.get(hand)
+        if topic is None:
+            answer = self._load('sensor', HAND_TYPE,
+                                lambda: self.sensors.start_sensor(HAND_TYPE, output_topics=[HAND_KEY],
+                                                                  on_status=self._on_status),
+                                lambda r: r.resource_id, lambda r: {'topic': r.topic(HAND_KEY)})
+            if not answer['ok']:
+                return answer
+            topic = self.hand_topics[answer['id']] = answer['topic']
+        return self.motion.servo_hand(rid, info, arm, topic, scale, seconds)
+
+    def cancel_motion(self, pick: int) -> dict:
+        return self.motion.cancel(pick)
+
     def unload(self, resource_id: int) -> dict:
         t0 = time.monotonic()
         with self.lock:
@@ -125,6 +208,8 @@ class ChaosClient:
             with self.lock:
                 self.held.pop(resource_id, None)     # released here whatever the owner answered (it is owed)
                 self.failed_heard.pop(resource_id, None)
+                self.robot_info.pop(resource_id, None)
+                self.hand_topics.pop(resource_id, None)
             self._call('unload ' + kind, t0, ok)
         return {'ok': ok, 'error': error}
 
@@ -177,10 +262,21 @@ class ChaosClient:
             return self.show_display(str(cmd['type']), str(cmd['topic']))
         if op == 'unload':
             return self.unload(int(cmd['id']))
+        if op in ('navigate', 'grip', 'servo', 'cancel_motion') and self.motion is None:
+            return {'ok': False, 'error': 'this client has no motion journal (~motion_journal)'}
+        if op == 'navigate':
+            return self.navigate(float(cmd['x']), float(cmd['y']), float(cmd['yaw']), str(cmd['frame']))
+        if op == 'grip':
+            return self.grip(float(cmd['gap']), float(cmd['effort']))
+        if op == 'servo':
+            return self.servo(str(cmd['arm']), str(cmd['source']), [float(v) for v in cmd['offset']],
+                              float(cmd['scale']), float(cmd['seconds']))
+        if op == 'cancel_motion':
+            return self.cancel_motion(int(cmd['pick']))
         if op == 'state':
             return self.state()
         return {'ok': False, 'error': 'unknown op %r: load_sensor, load_process, track_object, show_display, '
-                                      'unload or state' % (op,)}
+                                      'navigate, grip, servo, cancel_motion, unload or state' % (op,)}
 
 
 class _Handler(socketserver.StreamRequestHandler):
@@ -200,7 +296,7 @@ def main() -> None:
     init_node(NODE_NAME)
     namespace = params.text('temoto_namespace', 'temoto', empty=False)
     socket_path = params.text('control_socket', '', empty=False)
-    client = ChaosClient(namespace, params.text('station_namespace', ''))
+    client = ChaosClient(namespace, params.text('station_namespace', ''), params.text('motion_journal', ''))
     server = control_socket.Server(socket_path, _Handler)
     server.client = client
     threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()

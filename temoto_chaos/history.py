@@ -8,10 +8,11 @@ held resource, modulo how many there are"), which is as far as a real system all
 from __future__ import annotations
 
 import dataclasses
+import math
 import random
 from typing import Dict, Iterator, List, Tuple
 
-VERSION = 4
+VERSION = 5
 # (kind, weight) by history version: client operations are the bulk of a history, faults the rest. A new
 # version draws other steps from the same seed; the older ones stay, so that every seed ever reported
 # replays (version 1: sensors only, no consumer processes and no power loss of the robot; version 2: no
@@ -30,6 +31,12 @@ NEMESIS: Dict[int, List[Tuple[str, float]]] = {
 }
 NEMESIS[3] = NEMESIS[4] = NEMESIS[2]
 CLIENT_OPS[4] = CLIENT_OPS[3]
+# version 5: the clients also hold motion (a drive to a point of the lab, a servo stream, a gripper goal, a
+# cancel), and the nemesis hits what moves (a controller killed or stalled, the obstacle source the base
+# drives on, the hand an arm follows; the Robot Manager among the managers)
+CLIENT_OPS[5] = CLIENT_OPS[3] + [('navigate', 2.5), ('servo', 2.0), ('grip', 1.0), ('cancel_motion', 1.0)]
+NEMESIS[5] = NEMESIS[2] + [('kill_controller', 1), ('stop_controller', 1), ('unplug_obstacle', 0.75),
+                           ('unplug_hand', 0.5)]
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
@@ -49,12 +56,24 @@ MANAGERS: Dict[int, Tuple[str, ...]] = {
 }
 MANAGERS[2] = MANAGERS[1]
 MANAGERS[4] = MANAGERS[3]
+MANAGERS[5] = MANAGERS[3] + ('/temoto_robot_manager',)
 # how many clients a history has unless told (``step`` draws the client from them); from version 4 the
 # clients work concurrently (runner.py), and the draws are version 3's over twice as many clients
-CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6}
+CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6, 5: 6}
 CONCURRENT_FROM = 4
+MOTION_FROM = 5
 DEVICES = ('d435', 'hokuyo', 'sick')
+DEVICES_WITH_HAND = DEVICES + ('hand_tracker',)      # version 5: the operator's hand tracker has a cable too
 MODES = ('crash', 'stall')
+# version 5's motion: the lab's floor to draw goals from (m, the world frame; a point in an obstacle, or too
+# near one for the robot's outline, is refused), its named places, and goals that are wrong on purpose
+LAB_X, LAB_Y = (-1.5, 3.5), (-1.5, 3.0)
+PLACES = ((0.0, 0.0, 0.0), (1.7, 1.06, 1.571), (0.5, 2.1, 1.571), (2.3, 0.0, -0.3))
+BAD_GOALS = (('world', 25.0, 0.0), ('nowhere', 1.0, 0.0), ('world', float('nan'), 0.0))
+ARMS = ('left_arm', 'left_arm', 'right_arm')          # the camera's arm carries the gripper: servoed more
+SCALES = (0.1, 0.25, 0.5, 1.0)                        # the dial, for a servo that follows the hand
+GRIPPER_STROKE = 0.085
+CONTROLLERS = ('base_controller', 'left_arm_controller', 'right_arm_controller', 'gripper_controller')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,8 +109,17 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
         elif kind == 'show_display':
             display_type, topic = rng.choice(DISPLAY_REQUESTS)
             args.update(type=display_type, topic=topic)
+        elif kind == 'navigate':
+            args.update(_goal(rng))
+        elif kind == 'servo':
+            args.update(_servo(rng))
+        elif kind == 'grip':
+            draw = rng.random()
+            gap = GRIPPER_STROKE if draw < 0.35 else 0.0 if draw < 0.7 else 0.2 if draw < 0.8 else \
+                round(rng.uniform(0.0, GRIPPER_STROKE), 4)        # 0.2: beyond the stroke, refused
+            args.update(gap=gap, effort=round(rng.uniform(10.0, 100.0), 1) if rng.random() > 0.05 else -1.0)
         else:
-            args['pick'] = rng.randrange(1 << 30)
+            args['pick'] = rng.randrange(1 << 30)      # unload, cancel_motion: which of what it holds
         return Step(index, kind, args)
     kind = _weighted(rng, NEMESIS[version])
     if kind in ('kill_driver', 'kill_consumer'):
@@ -103,13 +131,44 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
     if kind == 'stop_manager':
         return Step(index, kind, {'manager': rng.choice(MANAGERS[version]),
                                   'seconds': round(rng.uniform(0.2, 2.0), 2)})
-    if kind == 'unplug':
-        return Step(index, kind, {'device': rng.choice(DEVICES), 'mode': rng.choice(MODES)})
     if kind == 'partition':
         return Step(index, kind, {'seconds': round(rng.uniform(1.0, 3.0), 2)})
     if kind == 'kill_robot':
         return Step(index, kind, {})
-    return Step(index, 'replug', {'device': rng.choice(DEVICES)})
+    if kind == 'kill_controller':
+        return Step(index, kind, {'controller': rng.choice(CONTROLLERS)})
+    if kind == 'stop_controller':
+        return Step(index, kind, {'controller': rng.choice(CONTROLLERS), 'seconds': round(rng.uniform(0.2, 1.5), 2)})
+    if kind in ('unplug_obstacle', 'unplug_hand'):
+        return Step(index, kind, {'mode': rng.choice(MODES)})
+    devices = DEVICES_WITH_HAND if version >= MOTION_FROM else DEVICES
+    if kind == 'unplug':
+        return Step(index, kind, {'device': rng.choice(devices), 'mode': rng.choice(MODES)})
+    return Step(index, 'replug', {'device': rng.choice(devices)})
+
+
+def _goal(rng: random.Random) -> Dict[str, object]:
+    """A drive's goal: a point of the lab's floor (most), a named place, or a goal wrong on purpose."""
+    draw = rng.random()
+    if draw < 0.6:
+        x, y, yaw = rng.uniform(*LAB_X), rng.uniform(*LAB_Y), rng.uniform(-math.pi, math.pi)
+        return {'frame': 'world', 'x': round(x, 2), 'y': round(y, 2), 'yaw': round(yaw, 2)}
+    if draw < 0.9:
+        x, y, yaw = rng.choice(PLACES)
+        return {'frame': 'world', 'x': x, 'y': y, 'yaw': yaw}
+    frame, x, y = rng.choice(BAD_GOALS)
+    return {'frame': frame, 'x': x, 'y': y, 'yaw': 0.0}
+
+
+def _servo(rng: random.Random) -> Dict[str, object]:
+    """A servo stream: a short path from where the tool is (a direction, 2 to 8 cm, there and back), or the
+    hand tracker followed at a dial's scale; 1 to 4 s."""
+    v = [rng.gauss(0.0, 1.0) for _ in range(3)]
+    norm = math.sqrt(sum(c * c for c in v)) or 1.0
+    length = rng.uniform(0.02, 0.08)
+    return {'arm': rng.choice(ARMS), 'source': 'hand' if rng.random() < 0.25 else 'path',
+            'offset': [round(c / norm * length, 4) for c in v], 'scale': rng.choice(SCALES),
+            'seconds': round(rng.uniform(1.0, 4.0), 2)}
 
 
 def history(seed: int, steps: int, clients: int, version: int = VERSION) -> Iterator[Step]:

@@ -32,10 +32,12 @@ from typing import Callable, Deque, Dict, List, Optional, Tuple, Union
 
 import psutil
 import rospy
+from std_msgs.msg import String
 
 from temoto_demo.stack import Stack
 from temoto_core import control_socket
 from temoto_core.hosts import TwoHosts
+from temoto_core.latched import NoPublisher, latched_message
 from temoto_core.master import RosMaster
 from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.processes import ProcessGroupLauncher, dump_stacks, kill_leftovers, leftover_processes
@@ -43,8 +45,11 @@ from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
 
 from . import checker
-from .history import CLIENTS, CONCURRENT_FROM, VERSION, Step, history
+from .history import CLIENTS, CONCURRENT_FROM, MOTION_FROM, VERSION, Step, history
 from .lasting import LastingFault
+from . import motion_checker
+from .motion_checker import MotionLedger
+from .motion_truth import BASE, GRIPPER, LEFT_ARM, RIGHT_ARM
 
 ROBOT = 'chaos'                # the robot's TeMoto (and ROS) namespace
 STATION = 'chaos_station'      # the station's, from history 3
@@ -53,9 +58,18 @@ ER_CONFIG = os.path.join(HERE, 'config', 'er_chaos.yaml')
 LAUNCH_ARGS = ['robot:=' + ROBOT, 'recovery:=true', 'er_config:=' + ER_CONFIG]
 STATION_LAUNCH = os.path.join(HERE, 'launch', 'station.launch')
 STATION_ARGS = ['temoto_namespace:=' + STATION, 'robot:=' + ROBOT]
-CLIENT_STEPS = ('load_sensor', 'load_process', 'track_object', 'show_display', 'unload')
+# history 5: the hand sources too, on the robot's Sensor Manager (the simulated tracker has a cable of the sim's)
+HANDS_CATALOGUE = os.path.join(os.path.dirname(HERE), 'temoto_sensor_manager', 'config', 'hands.yaml')
+CLIENT_STEPS = ('load_sensor', 'load_process', 'track_object', 'show_display', 'unload', 'navigate', 'servo', 'grip',
+                'cancel_motion')
+MOTION_WATCH_START_S = 20.0
+# which part each controller moves, and the devices the obstacle sources come from (the navigator's topic)
+CONTROLLED = {'base_controller': BASE, 'left_arm_controller': LEFT_ARM, 'right_arm_controller': RIGHT_ARM,
+              'gripper_controller': GRIPPER}
+SOURCE_DEVICES = (('sick/', 'sick'), ('laser_stitcher/', 'hokuyo'), ('hokuyo/', 'hokuyo'), ('d435/', 'd435'))
+OBSTACLE_SOURCE_TOPIC = '/%s/temoto_robot_manager/vaultbot/obstacle_source' % ROBOT
 STATION_KINDS = ('display',)   # what a client holds of the station's, on the clients' side of a cut link
-CLIENT_CALL_TIMEOUT = 60.0     # s: a client's answer to the runner (a load has a 40 s deadline of its own)
+CLIENT_CALL_TIMEOUT = 130.0    # s: a client's answer to the runner (a robot's load has a 90 s deadline of its own)
 # calls a client may have queued (concurrent histories): the runner waits for a client only when its queue is
 # full, so one slow call (a display's first frame) does not hold up the steps of the others
 CLIENT_BACKLOG = 6
@@ -72,7 +86,8 @@ LASTING_FAULT_SLACK_S = 10.0
 # those that need nothing it cuts off. On two hosts this runner is on the station, so a cut link leaves it
 # without the robot's simulation (the cables), and the cut's own check asks the clients it knew at the cut
 # (not a client killed meanwhile). A manager stopped or killed (until it is back) takes none of them away.
-_BESIDE_A_MANAGER_DOWN = ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug')
+_BESIDE_A_MANAGER_DOWN = ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug', 'unplug_obstacle',
+                          'unplug_hand', 'kill_controller')
 OVERLAPPING = {
     'partition': ('kill_driver', 'kill_consumer'),
     'stop_manager': _BESIDE_A_MANAGER_DOWN,
@@ -102,6 +117,11 @@ class ChaosOptions:
         return self.version >= CONCURRENT_FROM and not self.serial
 
     @property
+    def motion(self) -> bool:
+        """History 5 and later: the clients hold motion, and the ground truth is watched."""
+        return self.version >= MOTION_FROM
+
+    @property
     def station(self) -> bool:
         """History 3 and later: trackers on the robot, displays on a station stack of its own."""
         return self.version >= 3
@@ -111,15 +131,16 @@ class ClientHandle:
     """One client incarnation: its process and its control socket."""
 
     def __init__(self, launcher: ProcessGroupLauncher, index: int, generation: int, socket_path: str,
-                 station: str = '') -> None:
+                 station: str = '', journal: str = '') -> None:
         if os.path.exists(socket_path):
             os.unlink(socket_path)      # a killed incarnation's
         self.index = index
         self.socket_path = socket_path
         self.name = '%s%d_%d' % (checker.CLIENT_NODE_PREFIX, index, generation)
+        self.journal = journal
         self.proc = launcher.node('temoto_chaos', 'chaos_client', name=self.name, wait=False,
                                   params={'control_socket': socket_path, 'temoto_namespace': ROBOT,
-                                          'station_namespace': station})
+                                          'station_namespace': station, 'motion_journal': journal})
         try:
             launcher.wait_registered(self.proc, ['/' + self.name], CLIENT_START_S)
             deadline = time.monotonic() + CLIENT_START_S
@@ -143,8 +164,16 @@ class Chaos:
         self.master: Optional[RosMaster] = None
         self.stack = None
         self.station_stack = None
-        self.managers = checker.managers(ROBOT, STATION if opts.station else None)
-        self.launch_args = LAUNCH_ARGS + (['context_manager:=true'] if opts.station else [])
+        self.managers = checker.managers(ROBOT, STATION if opts.station else None, robot_manager=opts.motion)
+        self.launch_args = LAUNCH_ARGS + (['context_manager:=true'] if opts.station else []) + \
+            (['extra_catalogues:=' + HANDS_CATALOGUE] if opts.motion else [])
+        # history 5: the ground truth of motion (the watch, on the robot's host), the clients' journals of
+        # their motions (path -> bytes read), and the ledger that holds one against the other
+        self.watch = None
+        self._watch_launcher: Optional[ProcessGroupLauncher] = None
+        self._journals: Dict[str, int] = {}
+        self.motion = MotionLedger()
+        self.motion_violations: List[str] = []
         self.launcher: Optional[ProcessGroupLauncher] = None
         self.clients: Dict[int, ClientHandle] = {}
         self.generations: Dict[int, int] = collections.Counter()
@@ -213,10 +242,29 @@ class Chaos:
                 self.station_stack = Stack(STATION_LAUNCH, env, logs, STATION_ARGS)
                 self.station_stack.start(STACK_START_S)
             self.launcher = ProcessGroupLauncher(env, clients_dir)
+        if self.opts.motion:
+            watch_dir = os.path.join(self.opts.out_dir, 'watch')
+            os.makedirs(watch_dir, exist_ok=True)
+            self._watch_launcher = self.hosts.launcher(self.hosts.robot, self.master, watch_dir) \
+                if self.hosts is not None else ProcessGroupLauncher(env, watch_dir)
+            self._start_watch()
         rospy.init_node('temoto_chaos', disable_signals=True)
         self._wait_managers()
         for i in range(self.opts.clients):
             self._start_client(i)
+
+    def _start_watch(self) -> None:
+        """The ground truth's watch, on the robot's host, outside the robot's stack: a power loss spares it."""
+        path = os.path.join(self.opts.out_dir, 'motion_watch.sock')
+        if os.path.exists(path):
+            os.unlink(path)
+        self.watch = self._watch_launcher.node('temoto_chaos', 'chaos_motion_watch', name='chaos_motion_watch',
+                                               params={'control_socket': path, 'robot_namespace': ROBOT})
+        self._watch_socket = path
+        wait_for(lambda: os.path.exists(path) or not self.watch.alive(), MOTION_WATCH_START_S,
+                 'the motion watch to open its socket')
+        if not self.watch.alive():
+            raise RuntimeError('the motion watch exited; log:\n%s' % self.watch.log())
 
     def _wait_managers(self) -> None:
         """Until every manager answers for its registry (a dead incarnation's service may still be listed)."""
@@ -227,8 +275,12 @@ class Chaos:
     def _start_client(self, index: int) -> None:
         self.generations[index] += 1
         path = os.path.join(self.opts.out_dir, 'client_%d.sock' % index)
+        journal = os.path.join(self.opts.out_dir, 'clients', 'motion_%d_%d.jsonl' % (index, self.generations[index])) \
+            if self.opts.motion else ''
+        if journal:
+            self._journals.setdefault(journal, 0)
         self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path,
-                                           STATION if self.opts.station else '')
+                                           STATION if self.opts.station else '', journal)
         if self.opts.concurrent and index not in self._workers:
             self._workers[index] = concurrent.futures.ThreadPoolExecutor(1, 'chaos-client-%d' % index)
 
@@ -259,6 +311,8 @@ class Chaos:
             self.hosts.link(True)        # a run stopped during a partition: the nodes stop over a working link
         if self.launcher is not None:
             self.launcher.stop_all()
+        if self._watch_launcher is not None:
+            self._watch_launcher.stop_all()
         if self.station_stack is not None:
             self.station_stack.stop()
         if self.stack is not None:
@@ -311,15 +365,78 @@ class Chaos:
             return self._partition(a['seconds'])
         if kind == 'kill_robot':
             return self._kill_robot()
+        if kind in ('kill_controller', 'stop_controller'):
+            return self._hit_controller(step)
+        if kind == 'unplug_obstacle':
+            return self._unplug_obstacle(step)
+        if kind == 'unplug_hand':
+            self._stop_cases('hand_unplugged', step, [LEFT_ARM, RIGHT_ARM], hand_only=True)
+            self._cable('hand_tracker', 'unplugged', a['mode'])
+            return 'unplugged hand_tracker (%s)' % a['mode']
         if kind == 'unplug':
             self._cable(a['device'], 'unplugged', a['mode'])
             return 'unplugged %s (%s)' % (a['device'], a['mode'])
         self._cable(a['device'], 'plugged', '')
         return 'plugged %s' % a['device']
 
+    def _hit_controller(self, step: Step) -> Union[str, Callable[[], str]]:
+        """SIGKILL a controller (the base's respawns; an arm's or the gripper's is the Robot Manager's part,
+        which FAILs), or SIGSTOP it for a while: either way its motors' watchdog stops the part."""
+        name = '/%s/%s' % (ROBOT, step.args['controller'])
+        uri = lookup_node(self.master.uri, name)
+        pid = node_pid(uri) if uri else None
+        if pid is None:
+            return '%s not registered' % name
+        part = CONTROLLED[step.args['controller']]
+        if step.kind == 'kill_controller':
+            self._stop_cases('controller_killed', step, [part])
+            os.kill(pid, signal.SIGKILL)
+            return 'SIGKILL %s (%d)' % (name, pid)
+        self._stop_cases('controller_stalled', step, [part])
+        os.kill(pid, signal.SIGSTOP)
+        if self.opts.concurrent:
+            return lambda: self._resume(name, pid, step.args['seconds'])
+        return self._resume(name, pid, step.args['seconds'])
+
+    def _unplug_obstacle(self, step: Step) -> str:
+        """Pull the cable of the device the navigator's obstacle source comes from (the Robot Manager's latched
+        word; the SICK when it has said none)."""
+        device = 'sick'
+        try:
+            topic = latched_message(OBSTACLE_SOURCE_TOPIC, String, 2.0, absent_after=0.5).data
+            device = next((d for prefix, d in SOURCE_DEVICES if topic.lstrip('/').startswith(prefix) or
+                           ('/' + prefix) in topic), device)
+        except (NoPublisher, TimeoutError, rospy.ROSException):
+            topic = ''
+        self._stop_cases('obstacle_unplugged', step, [BASE])
+        self._cable(device, 'unplugged', step.args['mode'])
+        return 'unplugged %s (%s), the obstacle source%s' % (device, step.args['mode'],
+                                                            ' on ' + topic if topic else ' (none said: the SICK)')
+
+    def _stop_cases(self, case: str, step: Step, parts: List[str], hand_only: bool = False) -> None:
+        """A fault that stops motion, about to be done: each part is held to the case's bound from now."""
+        if self.opts.motion:
+            self._read_journals()
+            affected = ()
+            if hand_only:      # the arms that follow the hand: another hold of the arm still moves it
+                affected = tuple(h.id for h in self.motion.holds.values() if h.what.startswith('hand '))
+            for part in parts:
+                self.motion.fault(case, time.time(), part, step.index, affected)
+
     def _client_op(self, step: Step, client: ClientHandle) -> str:
         """A client's step, done by ``client``: what it answered."""
         kind, a = step.kind, step.args
+        if kind in ('navigate', 'servo', 'grip', 'cancel_motion'):
+            answer = client.ask(op=kind, **{k: v for k, v in a.items() if k != 'client'})
+            if not answer.get('ok'):
+                return 'client %d: refused: %s' % (a['client'], answer.get('error', '')[:200])
+            if kind == 'cancel_motion':
+                return 'client %d: cancelled %s' % (a['client'], answer['cancelled'] or 'nothing (no motion held)')
+            if 'accepted' in answer:
+                return 'client %d: %s %s%s' % (a['client'], answer['id'], 'accepted' if answer['accepted']
+                                               else answer['state'], '' if answer['accepted']
+                                               else ': ' + answer['text'][:160])
+            return 'client %d: %s streaming' % (a['client'], answer['id'])
         if kind == 'load_sensor':
             answer = client.ask(op='load_sensor', type=a['type'], keys=a['keys'])
             return 'client %d: %s' % (a['client'], answer.get('sensor') or
@@ -354,8 +471,14 @@ class Chaos:
         if index not in self.clients:
             return 'client %d did not start again: nothing to kill' % index
         old = self.clients.pop(index)
+        if self.opts.motion:
+            self._read_journals()
+        killed_at = time.time()
         os.kill(old.proc.pid, signal.SIGKILL)
         self._killed[old.name] = time.monotonic()
+        if self.opts.motion:
+            self._read_journals()          # whatever it wrote up to its death
+            self.motion.killed('/' + old.name, killed_at, getattr(self, '_step_index', -1))
         if not self.opts.concurrent:
             self._restart_client(index, old)
             return 'SIGKILL client %d, started again' % index
@@ -473,6 +596,11 @@ class Chaos:
         held = {i: {lid for lid, info in state['held'].items()
                     if not info['failed'] and info['kind'] not in STATION_KINDS}
                 for i, state in self._states(clients).items()}
+        if self.opts.motion:
+            self._read_journals()
+            servoed = sorted({h.part for h in self.motion.holds.values() if h.kind == 'servo' and h.end is None})
+            for part in servoed:
+                self.motion.fault('link_cut', time.time(), part, getattr(self, '_step_index', -1))
         cut = time.monotonic()
         self.hosts.link(False)
         return lambda: self._heal(clients, held, cut, seconds)
@@ -511,13 +639,14 @@ class Chaos:
         under_way = sum(1 for jobs in self._jobs.values() for job, _ in jobs if not job.done())
         t0 = time.monotonic()
         self.stack.kill()
+        spare = [self.watch.pid] if self.watch is not None else []
         if self.hosts is not None:
-            self.hosts.kill_all(self.hosts.robot)
+            self.hosts.kill_all(self.hosts.robot, spare=spare)
             self.master.stop()                  # reaps it
             self.master.start()                 # the robot boots: a new master at the same address
         else:
             # the master, the clients and the station's stack stay, with whatever they started
-            roots = [self.master.proc.pid, *(c.proc.pid for c in self.clients.values()),
+            roots = [self.master.proc.pid, *spare, *(c.proc.pid for c in self.clients.values()),
                      *(self.station_stack.pids if self.station_stack is not None else []), *self._station_processes()]
             kill_leftovers(self.token, exclude=_with_descendants(roots))
         self.stack = self._new_stack()
@@ -558,12 +687,43 @@ class Chaos:
             for name, age in snap.killed.items():
                 if age > checker.KILLED_CLIENT_BOUND + self.opts.settle_s:
                     del self._killed[name]      # past its bound long ago: a reference it left is a violation
-            violations = self.partition_violations + self.call_violations + checker.check(snap)
+            violations = self.partition_violations + self.call_violations + checker.check(snap) + \
+                self._check_motion()
             self.checks += 1
             if not violations or time.monotonic() > deadline:
                 return violations
             self.waited_for = self.waited_for or violations[0][:200]
             time.sleep(0.1)
+
+    def _check_motion(self, final: bool = False) -> List[str]:
+        """The motion invariants (history 5): the ground truth read first, then the journals, whose lines for
+        any motion the watch saw are written by then. What is found stays found: it is not settled away."""
+        if not self.opts.motion:
+            return []
+        try:
+            answer = control_socket.ask(self._watch_socket, {'op': 'since', 'seq': self.motion.seq}, 10.0)
+        except (OSError, ValueError) as err:
+            self.motion_violations.append('motion: the ground-truth watch does not answer: %s' % err)
+            return self.motion_violations
+        self.motion.truth(answer)
+        self._read_journals()
+        now = answer['now'] + (motion_checker.JUDGE_AFTER_S if final else 0.0)
+        self.motion_violations += self.motion.check(now)
+        return self.motion_violations
+
+    def _read_journals(self) -> None:
+        """Each client incarnation's journal lines not read yet (a line is whole: one write each)."""
+        for path, offset in list(self._journals.items()):
+            try:
+                with open(path, 'rb') as f:
+                    f.seek(offset)
+                    data = f.read()
+            except FileNotFoundError:
+                continue
+            end = data.rfind(b'\n') + 1
+            if end:
+                self.motion.journal(json.loads(line) for line in data[:end].splitlines() if line.strip())
+                self._journals[path] = offset + end
 
     def _states(self, clients: Optional[Dict[int, ClientHandle]] = None) -> Dict[int, dict]:
         """Each client's own account, all asked at once: of ``clients``, or of every running one (one starting
@@ -584,6 +744,7 @@ class Chaos:
             if self._lasting is not None and (not overlaps or self._lasting.done()) and self._end_lasting():
                 break
             started = time.monotonic()
+            self._step_index = step.index
             entry = {'step': step.index, 'kind': step.kind, 'args': step.args, 'did': 'under way', 'violations': []}
             self.log.append(entry)
             self.waited_for = ''
@@ -620,6 +781,7 @@ class Chaos:
                 if self._lasting is not None and self._end_lasting():
                     return self.summary()
                 self._drain()
+                self._check_motion(final=True)      # every span judged, up to the last sample
                 violations = self.check()
             except (OSError, ValueError, concurrent.futures.TimeoutError) as err:
                 violations = ['the runner could not check the end of the history: %s' % err]
@@ -658,6 +820,7 @@ class Chaos:
         return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done,
                 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': self.violations, 'failed_step': self.failed_step, 'seconds': took,
+                **({'motion': self.motion.figures()} if self.opts.motion else {}),
                 'steps_per_s': done / took if took > 0 else 0.0}
 
 

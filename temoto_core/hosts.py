@@ -247,11 +247,12 @@ class TwoHosts:
     def restore_address(self, host: Host) -> None:
         _ip('-n', host.name, 'addr', 'add', '%s/%d' % (host.address, SUBNET_PREFIX), 'dev', host.device)
 
-    def kill_all(self, host: Host, timeout: float = 5.0) -> None:
-        """Every process of ``host`` SIGKILLed, as a host that loses power (then reaped, if ours)."""
+    def kill_all(self, host: Host, timeout: float = 5.0, spare: Sequence[int] = ()) -> None:
+        """Every process of ``host`` SIGKILLed, as a host that loses power (then reaped, if ours); but those of
+        ``spare``: a test's own instrument on that host."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            pids = self.pids(host)
+            pids = [pid for pid in self.pids(host) if pid not in spare]
             if not pids:
                 return
             for pid in pids:

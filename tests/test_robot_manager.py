@@ -52,6 +52,19 @@ def test_a_robot_with_every_feature_runs_its_parts_and_an_unload_stops_them(rmi)
     assert robot_info()['robots'][0]['loaded'] == []
 
 
+def test_a_stopped_manager_is_said_as_not_answering_with_the_error_its_callers_catch(rmi, stack):
+    """Found by chaos (history 5): ``robots()`` let rospy's ``ServiceException`` out, which is not a
+    ``ROSException``, so a motion action asked while the manager was stopped failed with no reason of its own."""
+    rm = rmi()
+    os.kill(stack.robot_manager.pid, signal.SIGSTOP)
+    try:
+        with pytest.raises(OSError, match='the Robot Manager does not answer on /.*/robots'):
+            rm.robot_with('navigation', timeout=0.5)
+    finally:
+        os.kill(stack.robot_manager.pid, signal.SIGCONT)
+    assert rm.robot_with('navigation')['name'] == 'vaultbot'
+
+
 def test_a_crashed_part_reaches_the_holder_as_failed_naming_it(rmi):
     heard = []
     got = threading.Event()

@@ -1,0 +1,144 @@
+"""The robot's motion as the simulation says it happened: spans of motion per part, contacts, blind drives.
+
+The checker must not take a manager's word for "the robot stopped". The simulation publishes each part's
+ground truth (``vaultbot_sim/base_state``, ``arm_states``, ``gripper_state``: the bodies' own velocities)
+and every contact. ``GroundTruth`` turns those samples into what the motion invariants need, kept free of
+ROS so that every rule is tested alone:
+
+- a *span* of motion per part: from the first sample above the part's rest threshold to the first below
+  it (or to the part's last sample, when the samples stop: the robot lost power), with its peak speed;
+- each contact;
+- a *blind* span: the base moving while no obstacle source has sent anything within its freshness bound
+  (three of its declared periods and 20 ms, the navigator's rule) plus the base's braking time, which a
+  stop that came in time still needs.
+
+The events are numbered, so a reader asks for what came after the last one it saw; a bounded deque keeps
+the newest (a reader that asks every check never misses one).
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+from typing import Deque, Dict, List, Optional
+
+BASE, LEFT_ARM, RIGHT_ARM, GRIPPER = 'base', 'left_arm', 'right_arm', 'gripper'
+PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
+# at rest below these (the sim's velocities are exact: a held part reads 0)
+BASE_REST_LINEAR = 0.01      # m/s
+BASE_REST_ANGULAR = 0.02     # rad/s
+ARM_REST = 0.01              # rad/s, the fastest joint
+GRIPPER_REST = 0.002         # m/s of the gap
+# s without a sample after which a span is closed at its last sample: the robot lost power, or the sim died
+SAMPLES_LOST_S = 0.5
+# the base's braking from top speed (docs/robots.md: 2 m/s² from 0.5 m/s, and 0.25 s more to turn from top)
+BASE_BRAKING_S = 0.5
+# the navigator's obstacle sources (the robot description's, in the robot's namespace) and their declared
+# periods; a source is fresh within 3 periods + 20 ms of its last message (temoto_robot_manager/freshness.py)
+OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': 1 / 10.0,
+                    'd435/depth_registered/points': 1 / 30.0}
+STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
+MAX_EVENTS = 20000
+
+
+def blind_after(period: float) -> float:
+    """s after a source's last message beyond which a base still moving drove blind."""
+    return STALE_PERIODS * period + STALE_MARGIN_S + BASE_BRAKING_S
+
+
+@dataclasses.dataclass
+class _Open:
+    start: float
+    last: float
+    peak: float
+
+
+class GroundTruth:
+    def __init__(self, sources: Optional[Dict[str, float]] = None, max_events: int = MAX_EVENTS) -> None:
+        self.sources = dict(OBSTACLE_SOURCES if sources is None else sources)
+        self.heard: Dict[str, float] = {}               # source -> when its last message came
+        self.moving: Dict[str, _Open] = {}              # part -> its span under way
+        self.last: Dict[str, float] = {}                # part -> its last sample
+        self._blind: Optional[_Open] = None
+        self.events: Deque[dict] = collections.deque(maxlen=max_events)
+        self.seq = 0
+        self.samples = 0
+
+    # -- samples -----------------------------------------------------------------------------------------------
+    def base(self, t: float, linear: float, angular: float) -> None:
+        moving = abs(linear) > BASE_REST_LINEAR or abs(angular) > BASE_REST_ANGULAR
+        self._sample(BASE, t, moving, max(abs(linear), abs(angular)))
+        self._judge_blind(t, moving)
+
+    def arm(self, t: float, arm: str, held: bool, speed: float) -> None:
+        """An arm that nobody holds (the Hokuyo's, sweeping as the sim's own motion) is not the robot's."""
+        self._sample(arm, t, held and speed > ARM_REST, speed)
+
+    def gripper(self, t: float, speed: float) -> None:
+        self._sample(GRIPPER, t, abs(speed) > GRIPPER_REST, abs(speed))
+
+    def contact(self, t: float, robot_link: str, object_link: str, speed: float) -> None:
+        self._emit({'type': 'contact', 't': t, 'robot_link': robot_link, 'object_link': object_link,
+                    'speed': speed})
+
+    def obstacle(self, t: float, source: str) -> None:
+        self.heard[source] = t
+
+    def tick(self, now: float) -> None:
+        """Close the spans of parts whose samples stopped (``SAMPLES_LOST_S``) at their last sample."""
+        for part, span in list(self.moving.items()):
+            if now - span.last > SAMPLES_LOST_S:
+                self._close(part, span.last, lost=True)
+        if self._blind is not None and now - self._blind.last > SAMPLES_LOST_S:
+            self._close_blind()
+
+    # -- what a reader asks --------------------------------------------------------------------------------------
+    def since(self, seq: int) -> dict:
+        """The events numbered above ``seq``, the spans under way, and each part's last sample."""
+        return {'seq': self.seq, 'events': [e for e in self.events if e['seq'] > seq],
+                'oldest': self.events[0]['seq'] if self.events else self.seq + 1,
+                'moving': {p: {'start': s.start, 'last': s.last, 'peak': s.peak} for p, s in self.moving.items()},
+                'last': dict(self.last), 'samples': self.samples}
+
+    # -- rules -------------------------------------------------------------------------------------------------
+    def fresh(self, t: float) -> bool:
+        return any(t - self.heard[s] <= blind_after(p) for s, p in self.sources.items() if s in self.heard)
+
+    def _sample(self, part: str, t: float, moving: bool, speed: float) -> None:
+        self.samples += 1
+        self.last[part] = t
+        span = self.moving.get(part)
+        if moving:
+            if span is None:
+                self.moving[part] = _Open(t, t, speed)
+            else:
+                span.last, span.peak = t, max(span.peak, speed)
+        elif span is not None:
+            self._close(part, t)
+
+    def _close(self, part: str, end: float, lost: bool = False) -> None:
+        span = self.moving.pop(part)
+        self._emit({'type': 'span', 'part': part, 'start': span.start, 'end': end, 'peak': span.peak,
+                    'lost': lost})
+
+    def _judge_blind(self, t: float, moving: bool) -> None:
+        blind = moving and not self.fresh(t)
+        if blind:
+            if self._blind is None:
+                self._blind = _Open(t, t, 0.0)
+            self._blind.last = t
+        elif self._blind is not None:
+            self._close_blind()
+
+    def _close_blind(self) -> None:
+        span, self._blind = self._blind, None
+        heard = {s: round(span.start - t, 3) for s, t in self.heard.items()}
+        self._emit({'type': 'blind', 'start': span.start, 'end': span.last, 'since_heard': heard})
+
+    def _emit(self, event: dict) -> None:
+        self.seq += 1
+        event['seq'] = self.seq
+        self.events.append(event)
+
+
+def spans_of(events: List[dict]) -> List[dict]:
+    return [e for e in events if e['type'] == 'span']

@@ -1,0 +1,98 @@
+"""chaos_motion_watch: the simulation's ground truth of motion, for the chaos checker (``motion_truth.py``).
+
+It runs on the robot's host, beside the simulation and the navigator, so a cut link does not blind it: it
+hears the sim's own states and the obstacle sources as the navigator does. The runner spares it when the
+robot loses power (it is the test's instrument, not the robot's), and asks it over a Unix socket, which
+every network namespace reaches: ``{"op": "since", "seq": n}`` answers the events numbered above n.
+"""
+from __future__ import annotations
+
+import json
+import socketserver
+import threading
+
+import rospy
+
+from temoto_core import control_socket, params
+from temoto_core.node import init_node, spin
+from vaultbot_sim.msg import ArmState, BaseState, Contact, GripperState
+
+from .motion_truth import GroundTruth
+
+NODE_NAME = 'chaos_motion_watch'
+TICK_S = 0.1
+
+
+class MotionWatch:
+    """The subscriptions, feeding one ``GroundTruth`` under a lock."""
+
+    def __init__(self, robot_namespace: str) -> None:
+        self.truth = GroundTruth()
+        self.lock = threading.Lock()
+        ns = '/' + robot_namespace.strip('/')
+        sim = ns + '/vaultbot_sim/'
+        self._subs = [
+            rospy.Subscriber(sim + 'base_state', BaseState, self._on_base, queue_size=100, tcp_nodelay=True),
+            rospy.Subscriber(sim + 'arm_states', ArmState, self._on_arm, queue_size=100, tcp_nodelay=True),
+            rospy.Subscriber(sim + 'gripper_state', GripperState, self._on_gripper, queue_size=100, tcp_nodelay=True),
+            rospy.Subscriber(sim + 'contacts', Contact, self._on_contact, queue_size=100, tcp_nodelay=True)]
+        # the obstacle sources: only when a message came matters, never what it holds
+        for source in self.truth.sources:
+            self._subs.append(rospy.Subscriber('%s/%s' % (ns, source), rospy.AnyMsg,
+                                               lambda _m, s=source: self._on_obstacle(s), queue_size=1))
+        self._timer = rospy.Timer(rospy.Duration(TICK_S), self._tick)
+
+    def _on_base(self, m: BaseState) -> None:
+        with self.lock:
+            self.truth.base(m.header.stamp.to_sec(), m.linear, m.angular)
+
+    def _on_arm(self, m: ArmState) -> None:
+        with self.lock:
+            self.truth.arm(m.header.stamp.to_sec(), m.arm, m.held, m.speed)
+
+    def _on_gripper(self, m: GripperState) -> None:
+        with self.lock:
+            self.truth.gripper(m.header.stamp.to_sec(), m.speed)
+
+    def _on_contact(self, m: Contact) -> None:
+        with self.lock:
+            self.truth.contact(m.header.stamp.to_sec(), m.robot_link, m.object_link, m.speed)
+
+    def _on_obstacle(self, source: str) -> None:
+        now = rospy.get_time()
+        with self.lock:
+            self.truth.obstacle(now, source)
+
+    def _tick(self, _event) -> None:
+        now = rospy.get_time()
+        with self.lock:
+            self.truth.tick(now)
+
+    def handle(self, cmd: dict) -> dict:
+        if cmd.get('op') == 'since':
+            with self.lock:
+                return dict(self.truth.since(int(cmd.get('seq', 0))), now=rospy.get_time())
+        return {'ok': False, 'error': 'unknown op %r: since' % (cmd.get('op'),)}
+
+
+class _Handler(socketserver.StreamRequestHandler):
+    def handle(self) -> None:
+        for line in self.rfile:
+            try:
+                answer = self.server.watch.handle(json.loads(line))
+            except (ValueError, TypeError) as e:
+                answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
+            self.wfile.write(json.dumps(answer).encode() + b'\n')
+            self.wfile.flush()
+
+
+def main() -> None:
+    init_node(NODE_NAME)
+    watch = MotionWatch(params.text('robot_namespace', 'chaos', empty=False))
+    server = control_socket.Server(params.text('control_socket', '', empty=False), _Handler)
+    server.watch = watch
+    threading.Thread(target=server.serve_forever, name='motion-watch-control', daemon=True).start()
+    try:
+        spin()
+    finally:
+        server.shutdown()

@@ -1,0 +1,208 @@
+"""The motion invariants' rules alone: the ground truth's spans (motion_truth.py) and the ledger that holds
+them against the clients' journals and the faults (motion_checker.py). ``tests/test_chaos.py`` runs them
+against the real robot."""
+import math
+
+import pytest
+
+from temoto_chaos.motion_checker import ALLOWANCE_S, JUDGE_AFTER_S, MotionLedger, stop_bound
+from temoto_chaos.motion_truth import BASE, LEFT_ARM, RIGHT_ARM, SAMPLES_LOST_S, GroundTruth, blind_after
+
+SICK = 'sick/scan'
+
+
+def drive(truth, t0, t1, speed=0.4, dt=0.02, scans=True):
+    """Base samples from t0 to t1 at ``speed``, then one at rest; the SICK heard at every sample."""
+    t = t0
+    while t < t1:
+        if scans:
+            truth.obstacle(t, SICK)
+        truth.base(t, speed, 0.0)
+        t += dt
+    truth.obstacle(t1, SICK)
+    truth.base(t1, 0.0, 0.0)
+
+
+def spans(truth):
+    return [e for e in truth.since(0)['events'] if e['type'] == 'span']
+
+
+def test_a_span_runs_from_the_first_moving_sample_to_the_first_at_rest_with_its_peak():
+    truth = GroundTruth({SICK: 0.04})
+    truth.base(0.0, 0.0, 0.0)
+    drive(truth, 1.0, 2.0)
+    [span] = spans(truth)
+    assert (span['part'], span['start'], span['end'], span['peak']) == (BASE, 1.0, 2.0, 0.4)
+    assert truth.since(span['seq'])['events'] == []
+
+
+def test_an_arm_nobody_holds_sweeps_as_the_sims_own_motion_and_makes_no_span():
+    truth = GroundTruth({})
+    for i in range(10):
+        truth.arm(i * 0.02, RIGHT_ARM, False, 1.57)
+    truth.arm(0.5, LEFT_ARM, True, 0.3)
+    truth.arm(0.6, LEFT_ARM, True, 0.0)
+    assert [(s['part'], s['start'], s['end']) for s in spans(truth)] == [(LEFT_ARM, 0.5, 0.6)]
+
+
+def test_a_span_whose_samples_stop_closes_at_its_last_sample():
+    truth = GroundTruth({SICK: 0.04})
+    truth.obstacle(0.0, SICK)
+    truth.base(0.0, 0.3, 0.0)
+    truth.base(0.1, 0.3, 0.0)
+    truth.tick(0.1 + SAMPLES_LOST_S / 2)
+    assert spans(truth) == [] and BASE in truth.since(0)['moving']
+    truth.tick(0.1 + SAMPLES_LOST_S * 1.5)
+    [span] = spans(truth)
+    assert span['end'] == 0.1 and span['lost']
+
+
+def test_the_base_moving_past_its_sources_freshness_and_braking_drives_blind():
+    truth = GroundTruth({SICK: 0.04})
+    truth.obstacle(0.0, SICK)
+    limit = blind_after(0.04)
+    truth.base(limit - 0.01, 0.3, 0.0)        # braking, still within the bound
+    truth.base(limit + 0.01, 0.3, 0.0)        # blind
+    truth.base(limit + 0.2, 0.3, 0.0)
+    truth.obstacle(limit + 0.25, SICK)
+    truth.base(limit + 0.3, 0.3, 0.0)         # fresh again
+    [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
+    assert math.isclose(blind['start'], limit + 0.01) and math.isclose(blind['end'], limit + 0.2)
+
+
+def test_a_base_with_no_source_ever_heard_drives_blind_at_once():
+    truth = GroundTruth({SICK: 0.04})
+    truth.base(0.0, 0.2, 0.0)
+    truth.base(0.1, 0.0, 0.0)
+    assert sorted(e['type'] for e in truth.since(0)['events']) == ['blind', 'span']
+
+
+# -- the ledger -------------------------------------------------------------------------------------------------
+def ledger_with(truth, *records):
+    ledger = MotionLedger()
+    ledger.journal(records)
+    ledger.truth(truth.since(0))
+    return ledger
+
+
+def goal(mid, t, part=BASE, kind='goal'):
+    return [{'id': mid, 'ev': 'sent', 'part': part, 'kind': kind, 't': t, 'what': 'x'},
+            {'id': mid, 'ev': 'accepted', 't': t + 0.01}]
+
+
+def test_motion_within_a_live_hold_and_its_allowance_keeps_the_invariant():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 3.0 + ALLOWANCE_S[BASE] - 0.05)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9), {'id': '/c_0#1', 'ev': 'ended', 't': 3.0, 'state': 'SUCCEEDED'})
+    assert ledger.check(10.0) == []
+
+
+def test_motion_past_the_holds_end_and_its_allowance_is_a_violation_naming_the_hold():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 3.0 + ALLOWANCE_S[BASE] + 0.5)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9), {'id': '/c_0#1', 'ev': 'ended', 't': 3.0, 'state': 'SUCCEEDED'})
+    [v] = ledger.check(10.0)
+    assert 'the base moved' in v and 'no live holder for 0.5' in v and '/c_0#1' in v
+    assert ledger.check(11.0) == []            # said once
+
+
+def test_a_span_is_judged_only_once_the_journals_have_had_time_to_say_its_holds_end():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 5.0)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+    assert ledger.check(5.0 + JUDGE_AFTER_S / 2) == []
+    ledger.journal([{'id': '/c_0#1', 'ev': 'ended', 't': 2.0, 'state': 'SUCCEEDED'}])
+    [v] = ledger.check(5.0 + JUDGE_AFTER_S + 0.1)
+    assert 'no live holder' in v
+
+
+def test_a_refused_goal_holds_nothing_and_motion_meanwhile_is_laid_to_it():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 2.0)
+    ledger = ledger_with(truth, {'id': '/c_0#1', 'ev': 'sent', 'part': BASE, 'kind': 'goal', 't': 0.99, 'what': 'x'},
+                         {'id': '/c_0#1', 'ev': 'refused', 't': 1.0, 'state': 'REJECTED', 'reason': 'in an obstacle'})
+    [v] = ledger.check(10.0)
+    assert 'a refused goal, /c_0#1' in v
+
+
+def test_a_refusal_or_a_failure_without_a_reason_is_a_violation():
+    ledger = MotionLedger()
+    ledger.journal(goal('/c_0#1', 1.0) + [{'id': '/c_0#1', 'ev': 'ended', 't': 2.0, 'state': 'ABORTED', 'reason': ''}]
+                   + [{'id': '/c_0#2', 'ev': 'sent', 'part': BASE, 'kind': 'goal', 't': 3.0},
+                      {'id': '/c_0#2', 'ev': 'refused', 't': 3.0, 'state': 'REJECTED', 'reason': ''}])
+    out = ledger.check(10.0)
+    assert any('ended ABORTED with no reason' in v for v in out) and any('refused with no reason' in v for v in out)
+
+
+def test_a_goal_that_never_ends_is_a_violation_past_its_bound():
+    ledger = MotionLedger()
+    ledger.journal(goal('/c_0#1', 0.0, GRIPPER_PART, 'grip'))
+    assert ledger.check(5.0) == []
+    [v] = ledger.check(11.0)
+    assert 'has not ended' in v
+
+
+GRIPPER_PART = 'gripper'
+
+
+def test_a_killed_clients_part_must_come_to_rest_within_the_cases_bound():
+    truth = GroundTruth({SICK: 0.04})
+    bound = stop_bound('client_killed', BASE)
+    drive(truth, 1.0, 2.0 + bound - 0.1)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+    ledger.killed('/c_0', 2.0, step=7)
+    assert ledger.check(10.0) == []
+    [row] = ledger.figures()['stop_cases'].values()
+    assert row['measured'] == 1 and row['worst_s'] == pytest.approx(bound - 0.1)
+
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 2.0 + bound + 0.2)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+    ledger.killed('/c_0', 2.0, step=7)
+    out = ledger.check(10.0)
+    assert any('still moving' in v and 'step 7' in v and 'client killed' in v for v in out), out
+
+
+def test_a_killed_clients_stop_is_not_owed_while_another_client_holds_the_part():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 6.0)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9), *goal('/c_1#1', 1.5))
+    ledger.killed('/c_0', 2.0, step=7)
+    assert ledger.check(20.0) == []
+    assert ledger.figures()['stop_cases']['client_killed/base']['held'] == 1
+
+
+def test_a_controller_fault_holds_the_part_to_its_bound_whoever_holds_it_but_a_new_goal_restarts_it():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 4.0)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+    ledger.fault('controller_stalled', 2.0, BASE, step=3)
+    [v] = ledger.check(20.0)
+    assert 'still moving 2.000 s after step 3 (controller stalled' in v
+
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9), *goal('/c_1#1', 2.1))
+    ledger.fault('controller_stalled', 2.0, BASE, step=3)
+    assert ledger.check(20.0) == []
+    assert ledger.figures()['stop_cases']['controller_stalled/base']['restarted'] == 1
+
+
+def test_a_fault_while_the_part_was_at_rest_is_counted_as_such():
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.0, 2.0)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+    ledger.fault('obstacle_unplugged', 5.0, BASE, step=3)
+    assert ledger.check(5.0 + JUDGE_AFTER_S + 0.1) == []
+    assert ledger.figures()['stop_cases']['obstacle_unplugged/base']['was_at_rest'] == 1
+
+
+def test_a_contact_and_a_blind_drive_are_violations():
+    truth = GroundTruth({SICK: 0.04})
+    truth.contact(1.0, 'base_link', 'table', 0.3)
+    truth.base(2.0, 0.3, 0.0)
+    out = ledger_with(truth).check(2.1)
+    assert any('a contact: base_link touched table' in v for v in out)
+    assert not any('blind' in v for v in out)          # still under way: said when it ends
+    truth.obstacle(2.5, SICK)
+    truth.base(2.5, 0.3, 0.0)
+    ledger = ledger_with(truth)
+    assert any('moved blind' in v for v in ledger.check(2.6))
