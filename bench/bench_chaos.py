@@ -3,7 +3,9 @@
 every step (``temoto chaos``, docs/chaos.md).
 
 Goals (issue: proof under chaos): 10,000 steps over two hosts with every kind of fault and 0 violations,
-within 30 minutes (1,800 s: 5.56 steps per second). ``make bench`` runs exactly that (the defaults); ``--steps`` and
+within 30 minutes (1,800 s: 5.56 steps per second), the checker's share beside it. From history 5 the clients
+hold motion too, and each stop case's worst time from the fault to the part at rest (the simulation's ground
+truth) is printed beside its bound. ``make bench`` runs exactly that (the defaults); ``--steps`` and
 ``--hosts 1`` run less. Besides the summary, the time of the run is split by kind of step (doing it, then
 checking until the system settled), which says where the throughput goes.
 
@@ -70,6 +72,35 @@ def waited_for(log: list, top: int = 5) -> list:
     return sorted(((w, n, t) for w, (n, t) in seen.items()), key=lambda row: -row[2])[:top]
 
 
+def motion_tables(motion) -> None:
+    """History 5: what the clients moved, and per stop case the worst time from the fault to the part at rest
+    (the simulation's ground truth) beside its bound."""
+    if not motion:
+        return
+    counts = motion.get('counts', {})
+    print()
+    print('| motion (history 5; the simulation\'s ground truth) | value | goal |')
+    print('| --- | --- | --- |')
+    print('| motion goals sent: drives, servo streams, gripper goals | %d, %d, %d | - |' % (
+        counts.get('goals goal', 0), counts.get('goals servo', 0), counts.get('goals grip', 0)))
+    print('| refused at once (a bad goal): drives, gripper goals | %d, %d (each moved nothing) | - |' % (
+        counts.get('refused goal', 0), counts.get('refused grip', 0)))
+    ended = sorted((k[len('ended '):], v) for k, v in counts.items() if k.startswith('ended '))
+    print('| how motion goals ended | %s | each with a reason |' % ', '.join('%s %d' % kv for kv in ended))
+    print('| motion with no live holder (beyond the stop allowance) | %.3f s | 0 |'
+          % motion.get('worst_uncovered_s', 0.0))
+    print('| contacts; blind drives (the base moving with no fresh obstacle source) | %d; %d | 0; 0 |' % (
+        counts.get('contacts', 0), counts.get('blind drives', 0)))
+    print()
+    print('| stop case / part | faults while it moved: measured | worst fault → at rest | bound | '
+          'at rest already | a new goal or another holder moved it on |')
+    print('| --- | --- | --- | --- | --- | --- |')
+    for key, row in sorted(motion.get('stop_cases', {}).items()):
+        print('| %s | %d | %s | %.3f s | %d | %d |' % (
+            key.replace('_', ' '), row['measured'], '%.3f s' % row['worst_s'] if row['measured'] else '-',
+            row['bound_s'], row['was_at_rest'], row['restarted'] + row['held']))
+
+
 def percentile(values: list, q: float) -> float:
     values = sorted(values)
     return values[min(len(values) - 1, int(q * len(values)))] if values else 0.0
@@ -131,10 +162,16 @@ def main(argv=None) -> int:
         summary.get('failed_step'), '; '.join(summary['violations'])[:300])) if summary.get('violations') else ''))
     print('| throughput | %.2f steps/s (%.0f s) | ≥ %.2f steps/s (10,000 steps in 30 min) |'
           % (summary.get('steps_per_s', 0.0), summary.get('seconds', 0.0), GOAL_STEPS_PER_S))
+    print('| the checker\'s share of that time (reading every registry, client and process; the motion ledger) | '
+          '%.0f s, %.0f %% (motion: %.1f s) | - |' % (
+              summary.get('check_seconds', 0.0),
+              100.0 * summary.get('check_seconds', 0.0) / max(summary.get('seconds', 0.0), 1e-9),
+              summary.get('motion_check_seconds', 0.0)))
     print('| processes left behind | %d | 0 |' % summary.get('leftovers', -1))
     during = [e['kind'] in CLIENT_STEPS for e in result['log'] if 'during' in e]
     print('| steps while a fault lasted (checked once it ended): clients\' steps queued, faults | %d, %d | - |'
           % (during.count(True), during.count(False)))
+    motion_tables(summary.get('motion'))
     print()
     print('| kind of step | steps | runner doing it: total (mean) | checking after it: total (mean) | '
           'the client\'s call: mean |')

@@ -34,9 +34,11 @@ CLIENT_OPS[4] = CLIENT_OPS[3]
 # version 5: the clients also hold motion (a drive to a point of the lab, a servo stream, a gripper goal, a
 # cancel), and the nemesis hits what moves (a controller killed or stalled, the obstacle source the base
 # drives on, the hand an arm follows; the Robot Manager among the managers)
-CLIENT_OPS[5] = CLIENT_OPS[3] + [('navigate', 2.5), ('servo', 2.0), ('grip', 1.0), ('cancel_motion', 1.0)]
-NEMESIS[5] = NEMESIS[2] + [('kill_controller', 1), ('stop_controller', 1), ('unplug_obstacle', 0.75),
-                           ('unplug_hand', 0.5)]
+CLIENT_OPS[5] = [(k, 6 if k == 'unload' else w) for k, w in CLIENT_OPS[3]] + [
+    ('navigate', 3.0), ('servo', 2.5), ('grip', 1.0), ('cancel_motion', 1.0)]
+NEMESIS[5] = [(k, 3 if k == 'replug' else w) for k, w in NEMESIS[2]] + [
+    ('kill_controller', 1), ('stop_controller', 1), ('unplug_obstacle', 0.75), ('unplug_hand', 0.5)]
+# (a replug is as frequent as the three ways of pulling a cable: a device does not stay unplugged for good)
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
@@ -73,7 +75,7 @@ BAD_GOALS = (('world', 25.0, 0.0), ('nowhere', 1.0, 0.0), ('world', float('nan')
 ARMS = ('left_arm', 'left_arm', 'right_arm')          # the camera's arm carries the gripper: servoed more
 SCALES = (0.1, 0.25, 0.5, 1.0)                        # the dial, for a servo that follows the hand
 GRIPPER_STROKE = 0.085
-CONTROLLERS = ('base_controller', 'left_arm_controller', 'right_arm_controller', 'gripper_controller')
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,10 +137,10 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
         return Step(index, kind, {'seconds': round(rng.uniform(1.0, 3.0), 2)})
     if kind == 'kill_robot':
         return Step(index, kind, {})
-    if kind == 'kill_controller':
-        return Step(index, kind, {'controller': rng.choice(CONTROLLERS)})
+    if kind == 'kill_controller':          # which: of the controllers of the parts moving then, if any move
+        return Step(index, kind, {'pick': rng.randrange(1 << 30)})
     if kind == 'stop_controller':
-        return Step(index, kind, {'controller': rng.choice(CONTROLLERS), 'seconds': round(rng.uniform(0.2, 1.5), 2)})
+        return Step(index, kind, {'pick': rng.randrange(1 << 30), 'seconds': round(rng.uniform(0.2, 1.5), 2)})
     if kind in ('unplug_obstacle', 'unplug_hand'):
         return Step(index, kind, {'mode': rng.choice(MODES)})
     devices = DEVICES_WITH_HAND if version >= MOTION_FROM else DEVICES

@@ -118,7 +118,8 @@ class MotionLedger:
             if ev == 'accepted':
                 hold.accepted = True
             elif ev == 'refused':
-                hold.refused, hold.end, hold.state, hold.reason = r['t'], r['t'], r.get('state', ''), r.get('reason', '')
+                hold.refused = hold.end = r['t']
+                hold.state, hold.reason = r.get('state', ''), r.get('reason', '')
                 self.counts['refused %s' % hold.kind] += 1
                 if not hold.reason:
                     self.finding.append('motion: %s (%s, %s) was refused with no reason' % (mid, hold.kind, hold.what))

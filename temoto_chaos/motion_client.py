@@ -36,11 +36,13 @@ from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.dial import Dial
 from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
 from temoto_robot_manager.obstacle_points import matrix_of_pose
+from vaultbot_sim.srv import SetSweep
 
 SERVER_WAIT_S = 30.0          # a part's action server appears within its start (its load has returned)
 ANSWER_WAIT_S = 5.0           # a goal is accepted or refused within this (a refusal takes milliseconds)
 STREAM_PERIOD_S = 0.02        # the servo stream's 50 Hz
 JOINTS_WAIT_S = 2.0           # where the arm is, from one joint_states message
+SWEEP_ARM = 'right_arm'        # the Hokuyo's: it sweeps until held
 HAND_PERIOD_S = 0.01          # the simulated hand tracker's 100 Hz (hands.yaml)
 UR5_JOINTS = ('shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
               'wrist_3_joint')
@@ -187,6 +189,7 @@ class MotionClient:
                 motion.stop.wait(STREAM_PERIOD_S)
             with self.lock:
                 self._end(motion, 'stream_done')
+            self._give_back(info, arm)
         threading.Thread(target=stream, name='servo-%s' % motion.id, daemon=True).start()
         return {'ok': True, 'id': motion.id}
 
@@ -249,8 +252,22 @@ class MotionClient:
                 send(follower.lost('the stream ended'))
             with self.lock:
                 self._end(motion, 'stream_done')
+            self._give_back(info, arm)
         threading.Thread(target=watch, name='hand-%s' % motion.id, daemon=True).start()
         return {'ok': True, 'id': motion.id}
+
+    def _give_back(self, info: dict, arm: str) -> None:
+        """The Hokuyo's arm, given back to its sweep once this client streams to it no more, as an operator
+        would: held, it stops the sweep for good, and with it the stitched cloud (an obstacle source)."""
+        if arm != SWEEP_ARM:
+            return
+        with self.lock:
+            if any(m.part == arm for m in self.motions.values()):
+                return
+        try:
+            rospy.ServiceProxy(self._topic(info, 'vaultbot_sim/set_sweep'), SetSweep)(True, 0.0)
+        except (rospy.ServiceException, rospy.ROSException, OSError) as err:
+            rospy.logwarn('chaos client: the %s not given back to its sweep: %s', arm, err)
 
     # -- the robot's end, and this client's --------------------------------------------------------------------
     def robot_failed(self, robot: int, message: str) -> None:

@@ -15,7 +15,12 @@ From history 4 the clients work concurrently, as Jepsen's do: each has a worker 
 in the history's order, and the runner goes on to the next step (and the checks) as soon as a call is
 queued. The checker then sees a system at work, and defers what a call under way leaves in flux
 (checker.py). A fault that lasts (a cut link, a stopped manager, a killed one until it is back) goes on
-meanwhile in a thread of its own while the clients' next steps are queued (lasting.py); ``--serial`` runs one step at a time.
+meanwhile in a thread of its own while the clients' next steps are queued (lasting.py); ``--serial`` runs one
+step at a time.
+
+From history 5 the clients hold motion too (drives, servo streams, gripper goals), and the nemesis hits what
+moves. A watch on the robot's host turns the simulation's ground truth into spans of motion, and the motion
+ledger holds them against the clients' journals and the faults (motion_checker.py).
 """
 from __future__ import annotations
 
@@ -174,6 +179,8 @@ class Chaos:
         self._journals: Dict[str, int] = {}
         self.motion = MotionLedger()
         self.motion_violations: List[str] = []
+        self.check_seconds = 0.0                  # the checker's share of the run's time
+        self.motion_check_seconds = 0.0
         self.launcher: Optional[ProcessGroupLauncher] = None
         self.clients: Dict[int, ClientHandle] = {}
         self.generations: Dict[int, int] = collections.Counter()
@@ -278,6 +285,7 @@ class Chaos:
         journal = os.path.join(self.opts.out_dir, 'clients', 'motion_%d_%d.jsonl' % (index, self.generations[index])) \
             if self.opts.motion else ''
         if journal:
+            os.makedirs(os.path.dirname(journal), exist_ok=True)
             self._journals.setdefault(journal, 0)
         self.clients[index] = ClientHandle(self.launcher, index, self.generations[index], path,
                                            STATION if self.opts.station else '', journal)
@@ -382,12 +390,15 @@ class Chaos:
     def _hit_controller(self, step: Step) -> Union[str, Callable[[], str]]:
         """SIGKILL a controller (the base's respawns; an arm's or the gripper's is the Robot Manager's part,
         which FAILs), or SIGSTOP it for a while: either way its motors' watchdog stops the part."""
-        name = '/%s/%s' % (ROBOT, step.args['controller'])
+        moving = self._moving_parts()
+        candidates = sorted(c for c, p in CONTROLLED.items() if p in moving) or sorted(CONTROLLED)
+        controller = candidates[step.args['pick'] % len(candidates)]
+        name = '/%s/%s' % (ROBOT, controller)
         uri = lookup_node(self.master.uri, name)
         pid = node_pid(uri) if uri else None
         if pid is None:
             return '%s not registered' % name
-        part = CONTROLLED[step.args['controller']]
+        part = CONTROLLED[controller]
         if step.kind == 'kill_controller':
             self._stop_cases('controller_killed', step, [part])
             os.kill(pid, signal.SIGKILL)
@@ -397,6 +408,14 @@ class Chaos:
         if self.opts.concurrent:
             return lambda: self._resume(name, pid, step.args['seconds'])
         return self._resume(name, pid, step.args['seconds'])
+
+    def _moving_parts(self) -> List[str]:
+        """The parts moving now, as the ground truth says (the ledger reads it on)."""
+        try:
+            self.motion.truth(control_socket.ask(self._watch_socket, {'op': 'since', 'seq': self.motion.seq}, 10.0))
+        except (OSError, ValueError) as err:
+            self.motion_violations.append('motion: the ground-truth watch does not answer: %s' % err)
+        return sorted(self.motion.moving)
 
     def _unplug_obstacle(self, step: Step) -> str:
         """Pull the cable of the device the navigator's obstacle source comes from (the Robot Manager's latched
@@ -679,6 +698,13 @@ class Chaos:
         first look saw, if the system had to settle, is kept in ``waited_for`` (where a history's time goes)."""
         deadline = time.monotonic() + self.opts.settle_s
         self.waited_for = ''
+        began = time.monotonic()
+        try:
+            return self._check_until_settled(deadline)
+        finally:
+            self.check_seconds += time.monotonic() - began
+
+    def _check_until_settled(self, deadline: float) -> List[str]:
         while True:
             snap = checker.take(self.reader, self.managers, ROBOT, self._states,
                                 lambda: [pid for pid, _ in leftover_processes(self.token)])
@@ -705,10 +731,12 @@ class Chaos:
         except (OSError, ValueError) as err:
             self.motion_violations.append('motion: the ground-truth watch does not answer: %s' % err)
             return self.motion_violations
+        began = time.monotonic()
         self.motion.truth(answer)
         self._read_journals()
         now = answer['now'] + (motion_checker.JUDGE_AFTER_S if final else 0.0)
         self.motion_violations += self.motion.check(now)
+        self.motion_check_seconds += time.monotonic() - began
         return self.motion_violations
 
     def _read_journals(self) -> None:
@@ -820,7 +848,9 @@ class Chaos:
         return {'seed': self.opts.seed, 'history': self.opts.version, 'hosts': self.opts.hosts, 'steps': done,
                 'faults': dict(self.faults), 'checks': self.checks,
                 'violations': self.violations, 'failed_step': self.failed_step, 'seconds': took,
-                **({'motion': self.motion.figures()} if self.opts.motion else {}),
+                'check_seconds': round(self.check_seconds, 1),
+                **({'motion': self.motion.figures(), 'motion_check_seconds': round(self.motion_check_seconds, 1)}
+                   if self.opts.motion else {}),
                 'steps_per_s': done / took if took > 0 else 0.0}
 
 
