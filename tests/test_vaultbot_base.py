@@ -12,6 +12,7 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import JointState
 
+from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.sensor_manager import set_cable
 from vaultbot_sim.base import (HUSKY, BasePlant, CommandShaper, Contact, WheelOdometry, body_velocity, ramp,
@@ -270,3 +271,28 @@ def test_bad_commands_are_refused_by_name_and_move_nothing(base, rospy_client):
     since = time.time()
     wait_for(lambda: latest(truth).header.stamp.to_sec() > since + 0.5, HANG, 'half a second of truth')
     assert all(s.linear == 0.0 and s.commanded_linear == 0.0 and s.x == 0.0 for s in stamps(truth, 0.0))
+
+
+def _controller_pid():
+    uri = lookup_node(os.environ['ROS_MASTER_URI'], '/base_controller')
+    return node_pid(uri) if uri else None
+
+
+def test_base_launch_starts_a_killed_controller_again_and_it_drives(procs, rospy_client, collect):
+    """The chaos history (5) kills the base controller: as the robot's own launch it must come back, or the
+    base could never drive again until the robot lost power."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
+    procs.launch('vaultbot_sim', 'base.launch')
+    first = wait_for(_controller_pid, HANG, 'the base controller to register')
+    os.kill(first, signal.SIGKILL)
+    second = wait_for(lambda: (_controller_pid() or first) != first and _controller_pid(), HANG,
+                      'the base controller to be started again')
+    assert second != first
+    cmd = CmdVel(rospy_client)
+    try:
+        wait_for(lambda: cmd.pub.get_num_connections() > 0, HANG, 'the new controller to subscribe to cmd_vel')
+        cmd.send(0.3)
+        wait_for(lambda: truth.last() is not None and truth.last().linear >= 0.25, HANG, 'the base to drive')
+    finally:
+        cmd.close()
