@@ -41,6 +41,9 @@ DETECTION_S = {
     'obstacle_unplugged': 0.14,  # the active obstacle source goes stale: 3 of the SICK's periods + 20 ms
     'hand_unplugged': 0.04,      # the hand source goes stale while an arm follows it: 2 periods + 20 ms
     'link_cut': 0.2,             # the servo stream is cut: the stream's 0.1 s timeout, the controller's deadman
+    # a drive's client is cut off: the kernel drops the navigator's unacknowledged status after 0.4 s
+    # (goal_holders.py), at its retransmission timer's next firing (up to 0.4 s more), then the next tick
+    ('link_cut', BASE): 1.0,
 }
 # a goal's end: the longest a goal of each kind may run before it ends by itself (a drive across the lab at
 # the navigator's speed, with replanning; a gripper's stroke and its 1 s; a stream's own length is its end)
@@ -52,11 +55,13 @@ TOLERANCE_S = 0.03       # an uncovered sliver shorter than this is the samples'
 
 
 def stop_bound(case: str, part: str) -> float:
-    return DETECTION_S[case] + BRAKING_S[part]
+    return DETECTION_S.get((case, part), DETECTION_S[case]) + BRAKING_S[part]
 
 
-# the longest stop case of each part: motion after a hold ends is allowed for this long
-ALLOWANCE_S = {part: max(stop_bound(c, part) for c in ('client_killed', 'manager_killed')) for part in BRAKING_S}
+# the longest stop case of each part whose holder may let go before the robot hears it (a killed client, a cut
+# link): motion after a hold ends is allowed for this long
+ALLOWANCE_S = {part: max(stop_bound(c, part) for c in ('client_killed', 'manager_killed', 'link_cut'))
+               for part in BRAKING_S}
 
 
 @dataclasses.dataclass

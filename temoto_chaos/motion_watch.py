@@ -29,7 +29,7 @@ class MotionWatch:
     def __init__(self, robot_namespace: str) -> None:
         self.truth = GroundTruth()
         self.lock = threading.Lock()
-        ns = '/' + robot_namespace.strip('/')
+        ns = '/' + robot_namespace.strip('/') if robot_namespace.strip('/') else ''
         sim = ns + '/vaultbot_sim/'
         self._subs = [
             rospy.Subscriber(sim + 'base_state', BaseState, self._on_base, queue_size=100, tcp_nodelay=True),
@@ -88,7 +88,7 @@ class _Handler(socketserver.StreamRequestHandler):
 
 def main() -> None:
     init_node(NODE_NAME)
-    watch = MotionWatch(params.text('robot_namespace', 'chaos', empty=False))
+    watch = MotionWatch(params.text('robot_namespace', 'chaos'))
     server = control_socket.Server(params.text('control_socket', '', empty=False), _Handler)
     server.watch = watch
     threading.Thread(target=server.serve_forever, name='motion-watch-control', daemon=True).start()

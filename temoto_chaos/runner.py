@@ -617,7 +617,9 @@ class Chaos:
                 for i, state in self._states(clients).items()}
         if self.opts.motion:
             self._read_journals()
-            servoed = sorted({h.part for h in self.motion.holds.values() if h.kind == 'servo' and h.end is None})
+            # a stream is cut, and a drive's client cut off: the navigator stops it (goal_holders.py)
+            servoed = sorted({h.part for h in self.motion.holds.values()
+                              if h.kind in ('servo', 'goal') and h.end is None and h.accepted})
             for part in servoed:
                 self.motion.fault('link_cut', time.time(), part, getattr(self, '_step_index', -1))
         cut = time.monotonic()

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import socket
 import threading
-from typing import Callable, Dict, Set, Tuple
+from typing import Callable, Dict, Optional, Set, Tuple
 
 import rospy
 import rospy.core
@@ -129,14 +129,34 @@ def _open(conn) -> bool:
     return True
 
 
-def live_subscribers(publisher: rospy.Publisher) -> Set[str]:
+def live_subscribers(publisher: rospy.Publisher, unreachable_s: Optional[float] = None) -> Set[str]:
     """The names of ``publisher``'s subscribers whose connection is open now.
 
     A subscriber that dies has its socket closed by its kernel at once; here that reads as an end of
     file (a TCPROS subscriber sends nothing after its handshake, so a peek takes nothing from the
     stream). rospy itself drops the connection only when a later write to it fails: the second write
-    after the death, 0.4 s for an action's 5 Hz status."""
-    return {conn.endpoint_id for conn in list(publisher.impl.connections) if _open(conn)}
+    after the death, 0.4 s for an action's 5 Hz status.
+
+    A subscriber cut off (a link down, its host gone) closes nothing: TCP retransmits for minutes. With
+    ``unreachable_s``, each connection's kernel drops it once what this end sent has gone unacknowledged
+    that long (``TCP_USER_TIMEOUT``), which reads here as a closed connection: a publisher that sends
+    regularly (an action's status) then tells a subscriber out of reach within about that bound."""
+    conns = list(publisher.impl.connections)
+    if unreachable_s is not None:
+        for conn in conns:
+            _bound_unacknowledged(conn, unreachable_s)
+    return {conn.endpoint_id for conn in conns if _open(conn)}
+
+
+def _bound_unacknowledged(conn, seconds: float) -> None:
+    sock = getattr(conn, 'socket', None)
+    if sock is None or getattr(conn, '_temoto_user_timeout', None) == seconds:
+        return
+    try:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(seconds * 1000))
+    except OSError:             # closed meanwhile, or not TCP: _open says which
+        return
+    conn._temoto_user_timeout = seconds
 
 
 def live_publishers(subscriber: rospy.Subscriber) -> Set[str]:

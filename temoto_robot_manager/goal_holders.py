@@ -5,7 +5,12 @@ of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched
 
 - the goal's action client: its subscription to the status the server publishes, read for an end of file
   on every look (``rospy_internals.live_subscribers``). A goal sent with no client (``rostopic pub``) or by
-  a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned;
+  a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned.
+  A client cut off (the operator's link down) closes nothing, and TCP would retransmit for minutes: the
+  status, sent at 5 Hz, is dropped by the kernel once it has gone unacknowledged for
+  ``CLIENT_UNREACHABLE_S``, which reads as a client gone. Its client let go by then (its registrar calls the
+  Robot Manager cut off after 0.7 s), and nobody could stop the robot (chaos, history 5: a drive went on
+  until the link came back);
 - the Robot Manager that started the node: the latched topic it publishes to the node, once seen, its
   connection read for an end of file the same way (``rospy_internals.live_publishers``).
 """
@@ -19,6 +24,9 @@ import rospy
 from temoto_core.rospy_internals import live_publishers, live_subscribers
 
 OWNER_LOOK_S = 0.05            # how often the manager's connection is looked for until it is first seen
+# s a goal's client may leave the status unacknowledged before it counts as gone: under the client side's own
+# 0.7 s (a registrar's owner liveness), above a loaded host's hiccup (the status goes every 0.2 s)
+CLIENT_UNREACHABLE_S = 0.4
 
 
 class GoalHolders:
@@ -76,7 +84,7 @@ class GoalHolders:
         if self._fire_and_forget and goal_id.startswith(self._fire_and_forget):
             return None
         client = goal_id.split('-', 1)[0]
-        if client in live_subscribers(self._server.status_pub):
+        if client in live_subscribers(self._server.status_pub, CLIENT_UNREACHABLE_S):
             self._client_seen = True
         elif self._client_seen:
             return 'its client %s is gone' % client

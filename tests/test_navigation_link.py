@@ -1,0 +1,68 @@
+"""A drive whose goal's client is cut off stops: the operator's station and the robot on two hosts, the link
+cut mid-drive, the stop measured from the simulation's ground truth (the chaos history's motion watch, on
+the robot's host, which the cut does not blind).
+
+Found by the chaos history (5): the client called its goal FAILED 0.7 s after the cut (its registrar's owner
+liveness) and let go, but the navigator watched only for the client's connection to close, which a cut link
+never does, and drove on until the link came back."""
+import os
+import time
+
+import pytest
+
+from temoto_core import control_socket
+from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
+from temoto_testing import wait_for
+from temoto_testing.motion import GOAL_CLIENT
+
+HANG = 60.0
+# cut → at rest: the kernel drops the unacknowledged status (0.4 s, within its retransmission timer's next
+# firing), the navigator's next tick, the braking (0.5 s from top speed); generous, to catch a drive that goes on
+STOPPED_WITHIN_S = 3.0
+CUT_S = 6.0                  # the drive to the shelf takes longer: without the stop, the base moves on all along
+
+
+@pytest.fixture
+def drive_across(two_hosts, tmp_path, session_token):
+    """The navigator, the sim and the motion watch on the robot's host; a goal's client on the station."""
+    two_hosts.link(True)
+    master = two_hosts.master(str(tmp_path / 'master'), session_token)
+    os.makedirs(master.workdir)
+    robot = two_hosts.launcher(two_hosts.robot, master, str(tmp_path))
+    station = two_hosts.launcher(two_hosts.operator, master, str(tmp_path))
+    watch = str(tmp_path / 'watch.sock')
+    try:
+        master.start()
+        robot.node('vaultbot_sim', 'vaultbot_sim', params={'world': 'lab', 'sweep': False, 'hand_motion': False})
+        robot.node('vaultbot_sim', 'base_controller')
+        robot.node('vaultbot_sim', 'sick_driver')
+        robot.node('temoto_robot_manager', 'navigator', params={
+            'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan'})
+        robot.node('temoto_chaos', 'chaos_motion_watch', params={'control_socket': watch, 'robot_namespace': '/'})
+        wait_for(lambda: os.path.exists(watch), HANG, 'the motion watch')
+        yield station, lambda: control_socket.ask(watch, {'op': 'since', 'seq': 0}, HANG)
+    finally:
+        two_hosts.link(True)
+        station.stop_all()
+        robot.stop_all()
+        master.stop()
+
+
+def test_a_drive_whose_client_is_cut_off_stops_and_stays_stopped(two_hosts, drive_across):
+    station, truth = drive_across
+    client = station.command(GOAL_CLIENT + ['0.5', '2.1', '1.571'], 'goal_client')       # the shelf
+    wait_for(lambda: 'base' in truth()['moving'], HANG, 'the base to drive')
+    cut = time.time()
+    two_hosts.link(False)
+    try:
+        at_rest = wait_for(lambda: next((e['end'] for e in truth()['events'] if e['type'] == 'span'
+                                         and e['part'] == 'base' and e['start'] <= cut <= e['end']), None),
+                           CUT_S, 'the base to come to rest while its client is cut off')
+        assert at_rest - cut <= STOPPED_WITHIN_S, 'at rest %.2f s after the cut' % (at_rest - cut)
+        # and it stays so for as long as the link is down: the goal is over, not paused
+        wait_for(lambda: time.time() - cut > CUT_S, CUT_S + 1.0, 'the cut to last')
+        later = [e for e in truth()['events'] if e['type'] == 'span' and e['part'] == 'base' and e['start'] > at_rest]
+        assert later == [] and 'base' not in truth()['moving'], later
+    finally:
+        two_hosts.link(True)
+    client.stop()
