@@ -59,10 +59,12 @@ def test_a_seeded_history_with_every_fault_keeps_every_invariant_and_replays_fro
     stopped, unplugged = result['log'][137], result['log'][138]
     assert stopped['kind'] == 'stop_manager' and stopped['did'].startswith('SIGSTOP'), stopped
     assert unplugged['kind'].startswith('unplug') and unplugged.get('during') == 137, unplugged
+    # (a tracked hand is mostly refused once the robot has moved: the person's hand is out of the camera's
+    # view, and the tracker says it saw nothing; history 4's static robot has it acknowledged)
     for kind, acknowledged in (('load_sensor', ': realsense_d435'), ('load_process', 'throttle pid'),
-                               ('track_object', 'hand by green_hand_rgbd'), ('show_display', 'display '),
-                               ('navigate', ' accepted'), ('navigate', 'REJECTED: '), ('servo', ' streaming'),
-                               ('grip', ' accepted')):
+                               ('track_object', 'refused: /chaos/temoto_context_manager/track_object refused'),
+                               ('show_display', 'display '), ('navigate', ' accepted'), ('navigate', 'REJECTED: '),
+                               ('servo', ' streaming'), ('grip', ' accepted')):
         assert any(acknowledged in text for text in did[kind]), (kind, did[kind])
     # the motion invariants were held against the simulation's ground truth: goals of every kind were sent,
     # some refused, and a part that moved when a stop-case fault hit it came to rest within the case's bound
