@@ -144,6 +144,11 @@ class MotionClient:
                 self.journal.write(id=motion.id, ev='accepted')
             if gh.get_comm_state() == actionlib.CommState.DONE or status in DONE_STATES:
                 text = gh.get_goal_status_text()
+                if not motion.accepted.is_set() and status not in (GoalStatus.REJECTED, GoalStatus.RECALLED):
+                    # it ran (it succeeded, was aborted or preempted), though its ACTIVE never reached this
+                    # client: the status is published at 5 Hz, and a goal preempted at once is not in any
+                    motion.accepted.set()
+                    self.journal.write(id=motion.id, ev='accepted')
                 if not motion.accepted.is_set():
                     self.journal.write(id=motion.id, ev='refused', state=STATE_NAMES.get(status, '?'), reason=text)
                     motion.answered.set()

@@ -50,6 +50,7 @@ node gets it from ``temoto_core.node.init_node``.
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 from typing import Callable, Dict, Optional, Set, Tuple
 
@@ -138,25 +139,34 @@ def live_subscribers(publisher: rospy.Publisher, unreachable_s: Optional[float] 
     after the death, 0.4 s for an action's 5 Hz status.
 
     A subscriber cut off (a link down, its host gone) closes nothing: TCP retransmits for minutes. With
-    ``unreachable_s``, each connection's kernel drops it once what this end sent has gone unacknowledged
-    that long (``TCP_USER_TIMEOUT``), which reads here as a closed connection: a publisher that sends
-    regularly (an action's status) then tells a subscriber out of reach within about that bound."""
+    ``unreachable_s``, a subscriber whose kernel has acknowledged nothing for that long while this end has
+    had to retransmit (``unreachable``) is left out too: a publisher that sends regularly (an action's
+    status) tells a subscriber out of reach within about that bound. The connection itself is kept, so it
+    carries on once the link is back (dropped, the subscriber would not know for a minute: rospy's
+    keepalive)."""
     conns = list(publisher.impl.connections)
-    if unreachable_s is not None:
-        for conn in conns:
-            _bound_unacknowledged(conn, unreachable_s)
-    return {conn.endpoint_id for conn in conns if _open(conn)}
+    return {conn.endpoint_id for conn in conns
+            if _open(conn) and (unreachable_s is None or not unreachable(conn, unreachable_s))}
 
 
-def _bound_unacknowledged(conn, seconds: float) -> None:
+# struct tcp_info (linux/tcp.h): 8 bytes of state, then u32s: rto, ato, snd_mss, rcv_mss, unacked, sacked, lost,
+# retrans, fackets, last_data_sent, last_ack_sent, last_data_recv, last_ack_recv (ms ago), ...
+_TCP_INFO = struct.Struct('8B13I')
+_RETRANSMITS, _LAST_ACK_RECV = 2, 8 + 12
+
+
+def unreachable(conn, seconds: float) -> bool:
+    """Whether a connection's peer has acknowledged nothing for ``seconds`` while this end had to retransmit
+    (its retransmission timer, 0.2 s at least, fired): the peer is out of reach, though not gone. A healthy
+    peer's kernel acknowledges within milliseconds, whatever its process does (stopped, busy)."""
     sock = getattr(conn, 'socket', None)
-    if sock is None or getattr(conn, '_temoto_user_timeout', None) == seconds:
-        return
+    if sock is None:
+        return False
     try:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, int(seconds * 1000))
-    except OSError:             # closed meanwhile, or not TCP: _open says which
-        return
-    conn._temoto_user_timeout = seconds
+        info = _TCP_INFO.unpack_from(sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO.size))
+    except (OSError, struct.error):         # closed meanwhile, or not TCP: _open says which
+        return False
+    return info[_RETRANSMITS] > 0 and info[_LAST_ACK_RECV] >= seconds * 1000.0
 
 
 def live_publishers(subscriber: rospy.Subscriber) -> Set[str]:

@@ -6,11 +6,12 @@ of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched
 - the goal's action client: its subscription to the status the server publishes, read for an end of file
   on every look (``rospy_internals.live_subscribers``). A goal sent with no client (``rostopic pub``) or by
   a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned.
-  A client cut off (the operator's link down) closes nothing, and TCP would retransmit for minutes: the
-  status, sent at 5 Hz, is dropped by the kernel once it has gone unacknowledged for
-  ``CLIENT_UNREACHABLE_S``, which reads as a client gone. Its client let go by then (its registrar calls the
-  Robot Manager cut off after 0.7 s), and nobody could stop the robot (chaos, history 5: a drive went on
-  until the link came back);
+  A client cut off (the operator's link down) closes nothing, and TCP would retransmit for minutes: a
+  client whose kernel has acknowledged none of the status (sent at 5 Hz) for ``CLIENT_UNREACHABLE_S``
+  while it was retransmitted counts as gone (``rospy_internals.unreachable``). Its client let go by then
+  (its registrar calls the Robot Manager cut off after 0.7 s), and nobody could stop the robot (chaos,
+  history 5: a drive went on until the link came back). The connection stays, and carries the goal's end
+  to the client once the link is back;
 - the Robot Manager that started the node: the latched topic it publishes to the node, once seen, its
   connection read for an end of file the same way (``rospy_internals.live_publishers``).
 """
@@ -24,8 +25,8 @@ import rospy
 from temoto_core.rospy_internals import live_publishers, live_subscribers
 
 OWNER_LOOK_S = 0.05            # how often the manager's connection is looked for until it is first seen
-# s a goal's client may leave the status unacknowledged before it counts as gone: under the client side's own
-# 0.7 s (a registrar's owner liveness), above a loaded host's hiccup (the status goes every 0.2 s)
+# s a goal's client may acknowledge nothing, while the status is retransmitted, before it counts as gone: under
+# the client side's own 0.7 s (a registrar's owner liveness); a reachable client's kernel acknowledges in ms
 CLIENT_UNREACHABLE_S = 0.4
 
 

@@ -3,8 +3,10 @@
 Usage: python -m temoto_testing.goal_client X Y YAW (world frame)."""
 import math
 import sys
+import time
 
 import rospy
+from actionlib_msgs.msg import GoalStatusArray
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from temoto_core.action_client import TrackingActionClient
 
@@ -18,7 +20,17 @@ def main() -> None:
     goal.target_pose.header.frame_id = 'world'
     goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = x, y
     goal.target_pose.pose.orientation.z, goal.target_pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
-    client.send_goal(goal)
+    # the status as it reaches this node, a line a second: a test sees the connection carry on after a cut link
+    heard = {'said': 0.0}
+
+    def on_status(_msg) -> None:
+        now = time.time()
+        if now - heard['said'] >= 1.0:
+            heard['said'] = now
+            print('status heard at %.3f' % now, flush=True)
+    rospy.Subscriber('/move_base/status', GoalStatusArray, on_status, queue_size=1)
+    client.send_goal(goal, done_cb=lambda state, result: print(
+        'goal ended %s: %s' % (state, client.get_goal_status_text()), flush=True))
     rospy.spin()
 
 

@@ -4,7 +4,9 @@ the robot's host, which the cut does not blind).
 
 Found by the chaos history (5): the client called its goal FAILED 0.7 s after the cut (its registrar's owner
 liveness) and let go, but the navigator watched only for the client's connection to close, which a cut link
-never does, and drove on until the link came back."""
+never does, and drove on until the link came back. The first fix dropped the connection to the cut client
+(TCP_USER_TIMEOUT): the base stopped, but the client heard no status for a minute once the link was back
+(chaos, the same seed, step 578), so the connection is kept now and the client judged from TCP's own state."""
 import os
 import time
 
@@ -65,4 +67,12 @@ def test_a_drive_whose_client_is_cut_off_stops_and_stays_stopped(two_hosts, driv
         assert later == [] and 'base' not in truth()['moving'], later
     finally:
         two_hosts.link(True)
+    healed = time.time()
+    # the connections were kept: once the link is back the client hears the status again, and its goal's end,
+    # with the reason (a connection dropped would have left it deaf for a minute, until rospy's keepalive)
+    wait_for(lambda: any(float(line.split()[-1]) > healed + 0.5 for line in client.log().splitlines()
+                         if line.startswith('status heard at')), HANG, 'the status to reach the client again')
+    ended = wait_for(lambda: next((line for line in client.log().splitlines() if line.startswith('goal ended')), None),
+                     HANG, 'the goal\'s end to reach its client')
+    assert ended.startswith('goal ended 4:') and 'is gone' in ended, ended       # ABORTED, naming the client
     client.stop()
