@@ -437,8 +437,10 @@ class Chaos:
         if self.opts.motion:
             self._read_journals()
             affected = ()
-            if hand_only:      # the arms that follow the hand: another hold of the arm still moves it
-                affected = tuple(h.id for h in self.motion.holds.values() if h.what.startswith('hand '))
+            if hand_only:      # only the arms that follow the hand; another hold of such an arm still moves it
+                following = [h for h in self.motion.holds.values() if h.what.startswith('hand ') and h.end is None]
+                affected = tuple(h.id for h in following)
+                parts = [p for p in parts if any(h.part == p for h in following)]
             for part in parts:
                 self.motion.fault(case, time.time(), part, step.index, affected)
 
