@@ -167,7 +167,7 @@ class MotionLedger:
             elif e['type'] == 'blind':
                 self.counts['blind drives'] += 1
                 self.finding.append('motion: the base moved blind from t %.3f to %.3f: no obstacle source fresh '
-                                    '(s since each was heard: %s)' % (e['start'], e['end'], e['since_heard']))
+                                    '(each source: s since it was heard, its period: %s)' % (e['start'], e['end'], e['since_heard']))
         self.seq = answer['seq']
         self.moving = answer['moving']
         self.rest_since = {p: t for p, t in answer['last'].items() if p not in self.moving}

@@ -9,8 +9,11 @@ ROS so that every rule is tested alone:
   it (or to the part's last sample, when the samples stop: the robot lost power), with its peak speed;
 - each contact;
 - a *blind* span: the base moving while no obstacle source has sent anything within its freshness bound
-  (three of its declared periods and 20 ms, the navigator's rule) plus the base's braking time, which a
-  stop that came in time still needs.
+  plus the base's braking time, which a stop that came in time still needs. The bound is the navigator's
+  contract (docs/robots.md), judged here on its own from the messages' arrivals: three of the source's
+  periods and 20 ms, the period being the one a scan declares (or the median of its last 5 intervals, if
+  slower), or, for a cloud, which declares none, the 90th percentile of its last 20 intervals (a camera
+  rendered on a busy machine is slow, and is allowed its own pace).
 
 The events are numbered, so a reader asks for what came after the last one it saw; a bounded deque keeps
 the newest (a reader that asks every check never misses one).
@@ -32,17 +35,44 @@ GRIPPER_REST = 0.002         # m/s of the gap
 SAMPLES_LOST_S = 0.5
 # the base's braking from top speed (docs/robots.md: 2 m/s² from 0.5 m/s, and 0.25 s more to turn from top)
 BASE_BRAKING_S = 0.5
-# the navigator's obstacle sources (the robot description's, in the robot's namespace) and their declared
-# periods; a source is fresh within 3 periods + 20 ms of its last message (temoto_robot_manager/freshness.py)
-OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': 1 / 10.0,
-                    'd435/depth_registered/points': 1 / 30.0}
+# the navigator's obstacle sources (the robot description's, in the robot's namespace) and the period each
+# declares (a LaserScan's scan_time), or None (a PointCloud2 declares none)
+OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': None, 'd435/depth_registered/points': None}
 STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
+RECENT, WINDOW, PERCENTILE = 5, 20, 0.9
 MAX_EVENTS = 20000
 
 
 def blind_after(period: float) -> float:
     """s after a source's last message beyond which a base still moving drove blind."""
     return STALE_PERIODS * period + STALE_MARGIN_S + BASE_BRAKING_S
+
+
+class SourceClock:
+    """When a source's messages came, and the period the contract holds it to."""
+
+    def __init__(self, declared: Optional[float]) -> None:
+        self.declared = declared
+        self.last: Optional[float] = None
+        self.intervals: Deque[float] = collections.deque(maxlen=WINDOW)
+
+    def heard(self, t: float) -> None:
+        if self.last is not None and t > self.last:
+            self.intervals.append(t - self.last)
+        self.last = t
+
+    def period(self) -> Optional[float]:
+        if self.declared is not None:
+            recent = sorted(list(self.intervals)[-RECENT:])
+            return max(self.declared, recent[len(recent) // 2]) if len(recent) >= 3 else self.declared
+        if len(self.intervals) >= 3:
+            ordered = sorted(self.intervals)
+            return ordered[int(PERCENTILE * (len(ordered) - 1))]
+        return max(self.intervals) if self.intervals else None
+
+    def fresh(self, t: float) -> bool:
+        period = self.period()
+        return self.last is not None and period is not None and t - self.last <= blind_after(period)
 
 
 @dataclasses.dataclass
@@ -54,8 +84,7 @@ class _Open:
 
 class GroundTruth:
     def __init__(self, sources: Optional[Dict[str, float]] = None, max_events: int = MAX_EVENTS) -> None:
-        self.sources = dict(OBSTACLE_SOURCES if sources is None else sources)
-        self.heard: Dict[str, float] = {}               # source -> when its last message came
+        self.sources = {s: SourceClock(p) for s, p in (OBSTACLE_SOURCES if sources is None else sources).items()}
         self.moving: Dict[str, _Open] = {}              # part -> its span under way
         self.last: Dict[str, float] = {}                # part -> its last sample
         self._blind: Optional[_Open] = None
@@ -81,7 +110,7 @@ class GroundTruth:
                     'speed': speed})
 
     def obstacle(self, t: float, source: str) -> None:
-        self.heard[source] = t
+        self.sources[source].heard(t)
 
     def tick(self, now: float) -> None:
         """Close the spans of parts whose samples stopped (``SAMPLES_LOST_S``) at their last sample."""
@@ -101,7 +130,7 @@ class GroundTruth:
 
     # -- rules -------------------------------------------------------------------------------------------------
     def fresh(self, t: float) -> bool:
-        return any(t - self.heard[s] <= blind_after(p) for s, p in self.sources.items() if s in self.heard)
+        return any(clock.fresh(t) for clock in self.sources.values())
 
     def _sample(self, part: str, t: float, moving: bool, speed: float) -> None:
         self.samples += 1
@@ -131,7 +160,8 @@ class GroundTruth:
 
     def _close_blind(self) -> None:
         span, self._blind = self._blind, None
-        heard = {s: round(span.start - t, 3) for s, t in self.heard.items()}
+        heard = {s: (round(span.start - c.last, 3), round(c.period() or 0.0, 3))
+                 for s, c in self.sources.items() if c.last is not None}
         self._emit({'type': 'blind', 'start': span.start, 'end': span.last, 'since_heard': heard})
 
     def _emit(self, event: dict) -> None:

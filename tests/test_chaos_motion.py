@@ -206,3 +206,19 @@ def test_a_contact_and_a_blind_drive_are_violations():
     truth.base(2.5, 0.3, 0.0)
     ledger = ledger_with(truth)
     assert any('moved blind' in v for v in ledger.check(2.6))
+
+
+def test_a_cloud_is_held_to_its_own_pace_and_a_silent_one_leaves_the_base_blind():
+    """A cloud declares no period: the contract holds it to the 90th percentile of its last intervals (a
+    camera rendered on a busy machine), as the navigator does; silent past three of them, it is stale."""
+    cloud = 'd435/depth_registered/points'
+    truth = GroundTruth({cloud: None})
+    for i in range(10):
+        truth.obstacle(i * 0.3, cloud)              # 3.3 Hz
+    last = 2.7
+    truth.base(last + blind_after(0.3) - 0.05, 0.3, 0.0)     # slow, but fresh by its own pace
+    truth.base(last + blind_after(0.3) + 0.05, 0.3, 0.0)     # silent past it: blind
+    truth.base(last + blind_after(0.3) + 0.1, 0.0, 0.0)
+    [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
+    assert math.isclose(blind['start'], last + blind_after(0.3) + 0.05)
+    assert blind['since_heard'][cloud][1] == pytest.approx(0.3)
