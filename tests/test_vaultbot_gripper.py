@@ -2,6 +2,7 @@
 actionlib client. It opens, closes on a pole and says it stalled there, refuses bad goals naming the field, and
 its faults leave the fingers still. Judged by the sim's ground truth (``/vaultbot_sim/gripper_state``)."""
 import math
+import sys
 import os
 import signal
 
@@ -179,3 +180,26 @@ def test_an_unplugged_gripper_fails_as_a_controller_does_and_the_fingers_stay(gr
             assert client.get_state() == GoalStatus.ACTIVE      # silent: no result, as a hung driver gives none
     finally:
         set_cable('gripper', 'plugged')
+
+
+def test_a_goals_client_killed_mid_stroke_stops_the_fingers(gripper, procs):
+    """Found by chaos (history 5): the fingers went on to the end of their stroke after the goal's client died."""
+    states = gripper['states']
+    command(gripper['client'], 0.0)                       # closed on the pole
+    script = ('import rospy, actionlib, sys\n'
+              'from control_msgs.msg import GripperCommandAction, GripperCommandGoal, GripperCommand\n'
+              'rospy.init_node("gripper_goal_client", anonymous=True)\n'
+              'c = actionlib.SimpleActionClient("%s", GripperCommandAction)\n'
+              'c.wait_for_server(rospy.Duration(60))\n'
+              'c.send_goal(GripperCommandGoal(command=GripperCommand(position=%r)))\n'
+              'print("sent", flush=True)\n'
+              'rospy.spin()\n' % (ACTION, STROKE))
+    other = procs.command([sys.executable, '-c', script], 'gripper_goal_client')
+    wait_for(lambda: last(states).speed > 0.0, HANG, 'the fingers to open for the other client')
+    os.kill(other.pid, signal.SIGKILL)
+    killed = rospy.Time.now().to_sec()
+    at_rest = wait_for(lambda: next((m for m in reversed(states.msgs) if m.header.stamp.to_sec() > killed
+                                     and m.speed == 0.0), None), HANG, 'the fingers at rest')
+    assert at_rest.header.stamp.to_sec() - killed < 0.4, 'the fingers moved on %.2f s after their client died' % (
+        at_rest.header.stamp.to_sec() - killed)
+    assert at_rest.gap < STROKE - 0.005, 'they went on to the end of the stroke'

@@ -9,7 +9,10 @@
     pads: a grasp). The controller reads its stall from the fingers' joint states, as a real one reads
     its encoders, not from the simulation's word;
   - ABORTED: neither within the stroke's time plus a second.
-  A new goal preempts the one running; a cancel stops the fingers where they are.
+  A new goal preempts the one running; a cancel stops the fingers where they are, and so does the end of
+  the goal's client (its process died, or it is out of reach), as the arms' manipulators do: ABORTED,
+  naming it. Nothing moves for a holder that is gone (chaos, history 5: a client killed mid-stroke, and
+  the fingers went on for 0.56 s).
 - between goals it sends nothing: the motor holds the fingers where the last setpoint left them (its
   watchdog, ``gripper.py``, stops them if the controller dies mid-motion);
 - its cable is the sim's ``gripper`` device: crash exits 1, stall silences it, action included.
@@ -28,6 +31,7 @@ from sensor_msgs.msg import JointState
 
 from temoto_core import params
 from temoto_core.node import init_node, ok, spin
+from temoto_core.rospy_internals import live_subscribers
 from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.gripper import SPEED, STROKE
 from vaultbot_sim.spec import GRIPPER_JOINTS
@@ -39,6 +43,7 @@ STALL_TIME_S = 0.2          # s without the gap moving STALL_MOTION: stalled
 STALL_MOTION = 0.0005       # m
 DEFAULT_EFFORT = 100.0      # N, when the goal gives 0 (a 2F-85 closes with 20 to 235 N)
 MAX_EFFORT = 235.0          # N
+CLIENT_UNREACHABLE_S = 0.4  # s a goal's client may acknowledge none of the status before it counts as gone
 
 
 class Refused(ValueError):
@@ -121,6 +126,10 @@ class GripperController:
             return
         period = 1.0 / self.rate
         budget = STROKE / self.speed + 1.0
+        # the goal's client, watched through its subscription to the status (a goal sent with no client, by
+        # rostopic, has none to watch)
+        client = self.server.current_goal.get_goal_id().id.split('-', 1)[0]
+        client_seen = False
         ticks = Ticks(period)
         t0 = time.monotonic()
         still_since, still_gap = t0, self._gap()
@@ -133,6 +142,13 @@ class GripperController:
                 self.stop()
                 self._end(self._result(False, False, 0.0), 'preempted: stopped at %.1f mm' % (1000 * self._gap()),
                           preempted=True)
+                return
+            if client in live_subscribers(self.server.action_server.status_pub, CLIENT_UNREACHABLE_S):
+                client_seen = True
+            elif client_seen:
+                self.stop()
+                self._end(self._result(False, False, 0.0), 'its client %s is gone: stopped at %.1f mm'
+                          % (client, 1000 * self._gap()), aborted=True)
                 return
             self.send(target)
             gap, now = self._gap(), time.monotonic()
