@@ -70,7 +70,7 @@ class Hold:
     part: str
     kind: str
     sent: float
-    accepted: bool = False
+    accepted: bool = False               # its acceptance reached the client (it may not: a cut link)
     refused: Optional[float] = None      # when, for a goal refused
     end: Optional[float] = None          # when the client let go (the goal ended, or it cancelled, or died)
     cause: str = ''
@@ -80,6 +80,12 @@ class Hold:
 
     def until(self) -> float:
         return math.inf if self.end is None else self.end
+
+    @property
+    def holds(self) -> bool:
+        """Whether the robot may act on it: any goal not refused, whether its acceptance reached the client
+        or not (a link cut right after the goal went out: the robot drives, the client hears nothing)."""
+        return self.refused is None
 
 
 @dataclasses.dataclass
@@ -144,7 +150,7 @@ class MotionLedger:
         for hold in self.holds.values():
             if hold.id.startswith(prefix) and hold.end is None:
                 hold.end, hold.cause = t, 'client killed'
-                if hold.accepted:
+                if hold.holds:
                     parts.add(hold.part)
         for part in sorted(parts):
             self.fault('client_killed', t, part, step, mine)
@@ -198,7 +204,7 @@ class MotionLedger:
 
     def _judge_span(self, part: str, start: float, end: float, peak: float) -> List[str]:
         covers = sorted((h.sent, h.until() + ALLOWANCE_S[part]) for h in self.holds.values()
-                        if h.part == part and h.accepted)
+                        if h.part == part and h.holds)
         gaps = _uncovered(start, end, covers)
         gaps = [(a, b) for a, b in gaps if b - a > TOLERANCE_S]
         if not gaps:
@@ -231,9 +237,9 @@ class MotionLedger:
                 if now - case.t > JUDGE_AFTER_S:
                     case.outcome = 'was at rest'
                 continue
-            started = [h for h in self.holds.values() if h.part == case.part and h.accepted
+            started = [h for h in self.holds.values() if h.part == case.part and h.holds
                        and case.t < h.sent <= case.t + bound]
-            held = case.affected and [h for h in self.holds.values() if h.part == case.part and h.accepted
+            held = case.affected and [h for h in self.holds.values() if h.part == case.part and h.holds
                                       and h.sent <= case.t < h.until() and h.id not in case.affected]
             end = moving_at.get('end')
             if held:

@@ -39,7 +39,7 @@ from temoto_robot_manager.obstacle_points import matrix_of_pose
 from vaultbot_sim.srv import SetSweep
 
 SERVER_WAIT_S = 30.0          # a part's action server appears within its start (its load has returned)
-ANSWER_WAIT_S = 5.0           # a goal is accepted or refused within this (a refusal takes milliseconds)
+ANSWER_WAIT_S = 2.0           # the call waits this long for the acceptance or the refusal (ms, unless cut)
 STREAM_PERIOD_S = 0.02        # the servo stream's 50 Hz
 JOINTS_WAIT_S = 2.0           # where the arm is, from one joint_states message
 SWEEP_ARM = 'right_arm'        # the Hokuyo's: it sweeps until held

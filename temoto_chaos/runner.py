@@ -621,7 +621,7 @@ class Chaos:
             self._read_journals()
             # a stream is cut, and a drive's client cut off: the navigator stops it (goal_holders.py)
             servoed = sorted({h.part for h in self.motion.holds.values()
-                              if h.kind in ('servo', 'goal') and h.end is None and h.accepted})
+                              if h.kind in ('servo', 'goal') and h.end is None and h.holds})
             for part in servoed:
                 self.motion.fault('link_cut', time.time(), part, getattr(self, '_step_index', -1))
         cut = time.monotonic()

@@ -222,3 +222,15 @@ def test_a_cloud_is_held_to_its_own_pace_and_a_silent_one_leaves_the_base_blind(
     [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
     assert math.isclose(blind['start'], last + blind_after(0.3) + 0.05)
     assert blind['since_heard'][cloud][1] == pytest.approx(0.3)
+
+
+def test_a_goal_whose_acceptance_never_reached_its_client_still_holds_the_part():
+    """Chaos seed 17, step 407 (two hosts): the link was cut as a drive began; the robot drove (and stopped,
+    its client out of reach), the client heard neither the acceptance nor the end, and let go at its robot's
+    FAILED. Sent and not refused, the goal held the base all along."""
+    truth = GroundTruth({SICK: 0.04})
+    drive(truth, 1.2, 1.6)
+    ledger = ledger_with(truth, {'id': '/c_0#1', 'ev': 'sent', 'part': BASE, 'kind': 'goal', 't': 1.0, 'what': 'x'},
+                         {'id': '/c_0#1', 'ev': 'ended', 't': 1.8, 'cause': 'robot_failed', 'state': 'FAILED',
+                          'reason': 'cut off'})
+    assert ledger.check(10.0) == []
