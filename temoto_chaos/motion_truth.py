@@ -40,6 +40,10 @@ BASE_BRAKING_S = 0.5
 OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': None, 'd435/depth_registered/points': None}
 STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
 RECENT, WINDOW, PERCENTILE = 5, 20, 0.9
+# a period learnt from arrivals (a cloud's) is learnt by two observers, the navigator and the watch, each
+# receiving a megabyte-sized message when its own threads get a CPU: their estimates differ by tens of ms on
+# a loaded machine (seed 17, step 2086: one base sample 14 ms past the watch's bound)
+LEARNT_TOLERANCE_S = 0.05
 MAX_EVENTS = 20000
 
 
@@ -72,7 +76,8 @@ class SourceClock:
 
     def fresh(self, t: float) -> bool:
         period = self.period()
-        return self.last is not None and period is not None and t - self.last <= blind_after(period)
+        tolerance = 0.0 if self.declared is not None else LEARNT_TOLERANCE_S
+        return self.last is not None and period is not None and t - self.last <= blind_after(period) + tolerance
 
 
 @dataclasses.dataclass

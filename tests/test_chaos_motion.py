@@ -6,7 +6,8 @@ import math
 import pytest
 
 from temoto_chaos.motion_checker import ALLOWANCE_S, JUDGE_AFTER_S, MotionLedger, stop_bound
-from temoto_chaos.motion_truth import BASE, LEFT_ARM, RIGHT_ARM, SAMPLES_LOST_S, GroundTruth, blind_after
+from temoto_chaos.motion_truth import (BASE, LEARNT_TOLERANCE_S, LEFT_ARM, RIGHT_ARM, SAMPLES_LOST_S, GroundTruth,
+                                      blind_after)
 
 SICK = 'sick/scan'
 
@@ -215,12 +216,12 @@ def test_a_cloud_is_held_to_its_own_pace_and_a_silent_one_leaves_the_base_blind(
     truth = GroundTruth({cloud: None})
     for i in range(10):
         truth.obstacle(i * 0.3, cloud)              # 3.3 Hz
-    last = 2.7
-    truth.base(last + blind_after(0.3) - 0.05, 0.3, 0.0)     # slow, but fresh by its own pace
-    truth.base(last + blind_after(0.3) + 0.05, 0.3, 0.0)     # silent past it: blind
-    truth.base(last + blind_after(0.3) + 0.1, 0.0, 0.0)
+    last, bound = 2.7, blind_after(0.3) + LEARNT_TOLERANCE_S
+    truth.base(last + bound - 0.01, 0.3, 0.0)     # slow, but fresh by its own pace
+    truth.base(last + bound + 0.01, 0.3, 0.0)     # silent past it: blind
+    truth.base(last + bound + 0.1, 0.0, 0.0)
     [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
-    assert math.isclose(blind['start'], last + blind_after(0.3) + 0.05)
+    assert math.isclose(blind['start'], last + bound + 0.01)
     assert blind['since_heard'][cloud][1] == pytest.approx(0.3)
 
 
