@@ -11,6 +11,13 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from temoto_core.action_client import TrackingActionClient
 
 
+def _say(line: str) -> None:
+    """One whole line in one write: print() writes the text and its newline apart, and two threads' lines
+    interleaved (a status line took the goal's end as its last word, in a CI run)."""
+    sys.stdout.write(line + '\n')
+    sys.stdout.flush()
+
+
 def main() -> None:
     x, y, yaw = (float(v) for v in sys.argv[1:4])
     rospy.init_node('goal_client', anonymous=True)
@@ -27,10 +34,10 @@ def main() -> None:
         now = time.time()
         if now - heard['said'] >= 1.0:
             heard['said'] = now
-            print('status heard at %.3f' % now, flush=True)
+            _say('status heard at %.3f' % now)
     rospy.Subscriber('/move_base/status', GoalStatusArray, on_status, queue_size=1)
-    client.send_goal(goal, done_cb=lambda state, result: print(
-        'goal ended %s: %s' % (state, client.get_goal_status_text()), flush=True))
+    client.send_goal(goal, done_cb=lambda state, result: _say(
+        'goal ended %s: %s' % (state, client.get_goal_status_text())))
     rospy.spin()
 
 
