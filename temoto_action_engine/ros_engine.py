@@ -171,6 +171,7 @@ def run_node(name: str = 'temoto_action_engine') -> None:
     """Entry of the node script: signals stop the graphs first, then rospy."""
     clear_stale_registration(name)
     rospy_internals.install_bounded_handshake()
+    rospy_internals.install_shutdown_guard()
     rospy.init_node(name, disable_signals=True)
     # the station's engine outlives a master on a robot that lost power: it registers again (node.py)
     after_init_node()

@@ -103,6 +103,7 @@ def init_node(name: str, **kwargs) -> None:
     kwargs['disable_signals'] = True
     clear_stale_registration(name, kwargs.get('anonymous', False))
     rospy_internals.install_bounded_handshake()   # one silent peer must not hold up every connection to this node
+    rospy_internals.install_shutdown_guard()      # nor may a master's shutdown meant for a dead node on its port
     rospy.init_node(name, **kwargs)
     rospy.on_shutdown(_wake.set)
     after_init_node()
@@ -112,6 +113,7 @@ def after_init_node() -> None:
     """What every TeMoto node sets up right after ``rospy.init_node``, this module's ``init_node`` or its
     own (the RViz host's and the action engine's, which handle their signals themselves)."""
     prime_log_parameter()
+    rospy_internals.install_shutdown_guard()   # here too for the nodes that call rospy.init_node themselves
     # a node whose own locks wedge kills itself with its stacks written, rather than answer nothing for good
     watchdog.install(params.seconds('watchdog_bound', watchdog.DEFAULT_BOUND_S))
     master_rejoin.ensure_started()      # a master that restarts gets this node's registrations back

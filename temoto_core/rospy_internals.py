@@ -19,7 +19,9 @@ What is taken, and why:
   stall detector), and what type it is (the navigator's obstacle sources);
 - a publisher's open connections (``Publisher.impl.connections``, each with its socket and the
   subscriber's name): which subscribers are alive now, not after rospy's next failed write
-  (the navigator watches a goal's client so).
+  (the navigator watches a goal's client so);
+- ``rospy.impl.masterslave.ROSHandler.shutdown``: a master's shutdown meant for another node is refused
+  (below, the shutdown guard).
 
 The bounded handshake. A node's TCPROS server no longer waits for ever on one peer's handshake.
 
@@ -46,9 +48,20 @@ and its FAILED with it, twice in one day's clean-clone suites.
 
 ``install_bounded_handshake()`` patches rospy's ``TCPROSServer`` once per process, before its server starts; every TeMoto
 node gets it from ``temoto_core.node.init_node``.
+
+The shutdown guard. When a node registers under a name the master already knows at another URI, the master
+tells that URI to shut down, naming the node it means ("[/name] Reason: new node registered with same
+name"). If the earlier node died and its port went to another process, that process is shut down instead:
+any node of any master on the host. ``clear_stale_registration`` removes most such leftovers first, but not
+all (a node that unregistered its topics as it died leaves only its parameter subscriptions, and cannot be
+told from a live one by them). A clean-clone suite lost a Sensor Manager so: another test's master, replacing
+its ``/temoto_action_engine``, shut down the Sensor Manager that had been given the dead engine's port. With
+``install_shutdown_guard()``, a node refuses such a request when it names another node, and logs it. Every
+other shutdown request (``rosnode kill``, or the master's for this node's own name) is obeyed as before.
 """
 from __future__ import annotations
 
+import re
 import socket
 import struct
 import threading
@@ -57,6 +70,7 @@ from typing import Callable, Dict, Optional, Set, Tuple
 import rospy
 import rospy.core
 import rospy.impl.paramserver
+import rospy.impl.masterslave
 import rospy.impl.registration
 import rospy.impl.tcpros_base as tcpros_base
 import rospy.impl.tcpros_service
@@ -67,7 +81,8 @@ WRITTEN_FOR = '1.15.15'     # the rospy these internals were read in
 USED = [(rospy.core, 'is_shutdown_requested'), (rospy.core, 'is_initialized'), (rospy.core, 'parse_rosrpc_uri'),
         (rospy.impl.paramserver, 'get_param_server_cache'), (rospy.impl.registration, 'get_topic_manager'),
         (rospy.impl.registration, 'get_service_manager'), (rospy.impl.tcpros_service, 'TCPROSTransport'),
-        (tcpros_base, 'TCPROSServer'), (tcpros_base, 'read_ros_handshake_header')]
+        (tcpros_base, 'TCPROSServer'), (tcpros_base, 'read_ros_handshake_header'),
+        (rospy.impl.masterslave, 'ROSHandler')]
 
 
 def missing(used=USED) -> list:
@@ -219,3 +234,32 @@ def install_bounded_handshake() -> None:
 
 def bounded_handshake_installed() -> bool:
     return tcpros_base.TCPROSServer._tcp_server_callback is _accepted
+
+
+_original_shutdown = rospy.impl.masterslave.ROSHandler.shutdown
+_BUMPED = re.compile(r'^\[(?P<name>[^\]]+)\] Reason: new node registered with same name$')  # rosmaster's words
+
+
+def bumped_node(msg: str) -> Optional[str]:
+    """The node a master's "new node registered with same name" shutdown means; None for any other request."""
+    found = _BUMPED.match(msg or '')
+    return found.group('name') if found else None
+
+
+def _guarded_shutdown(handler, caller_id, msg=''):
+    """rospy's slave-API ``shutdown``, refusing a master's request that names another node."""
+    meant = bumped_node(msg)
+    if meant is not None and meant != rospy.get_name():
+        rospy.logwarn('refused a shutdown from %s meant for %s (this is %s): that node is gone, and its port '
+                      'is now this node\'s', caller_id, meant, rospy.get_name())
+        return 0, 'this is %s, not %s' % (rospy.get_name(), meant), 0
+    return _original_shutdown(handler, caller_id, msg)
+
+
+def install_shutdown_guard() -> None:
+    """Refuse, from now on, a master's shutdown request that names another node (see the module's doc)."""
+    rospy.impl.masterslave.ROSHandler.shutdown = _guarded_shutdown
+
+
+def shutdown_guard_installed() -> bool:
+    return rospy.impl.masterslave.ROSHandler.shutdown is _guarded_shutdown

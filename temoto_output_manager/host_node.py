@@ -253,6 +253,7 @@ def main(argv=None) -> int:
         from python_qt_binding import QtCore, QtWidgets    # lazy: Qt needs the display started above
         app = QtWidgets.QApplication([sys.argv[0]])
         rospy_internals.install_bounded_handshake()
+        rospy_internals.install_shutdown_guard()
         rospy.init_node('rviz_host', argv=argv, disable_signals=True)
         # the station's screen outlives a master on the robot that lost power: the new master learns its
         # services again (a host with no registrar has no other way back); its logging must not wait for the

@@ -115,6 +115,8 @@ def test_a_goal_pointed_in_rviz_is_kept_until_robot_please_go_drives_there(op, r
     point(rospy_client, 'drums')
     wait_for(lambda: pointed.last() is not None and pointed.last().header.frame_id == 'world', 20,
              'the pointed goal kept')
+    # the marker is another topic, on its own connection: it may arrive after the goal
+    wait_for(lambda: marker.last() is not None, 20, 'the pointed goal\'s marker')
     assert marker.last().action == Marker.ADD and marker.last().type == Marker.ARROW
     assert not any('navigator' in str(p['command']) for p in er_processes()), 'pointing alone drives nothing'
     # without the wake phrase, speech starts no motion
