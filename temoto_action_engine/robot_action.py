@@ -27,7 +27,6 @@ from .scene import SceneDisplay, SceneDisplays
 SERVER_WAIT_S = 30.0           # a part's action server appears within its start (the load returned already)
 POLL_S = 0.1                   # the goal loop's wake-up when nothing is posted
 PROGRESS_PERIOD_S = 2.0        # between two progress sentences
-ACTIVE = (GoalStatus.PENDING, GoalStatus.ACTIVE, GoalStatus.PREEMPTING, GoalStatus.RECALLING)
 STATE_NAMES = {v: k for k, v in vars(GoalStatus).items() if k.isupper() and isinstance(v, int)}
 
 
@@ -105,7 +104,7 @@ class RobotAction(ActionBase):
         deadline = time.monotonic() + timeout
         said = time.monotonic()
         try:
-            while client.get_state() in ACTIVE:
+            while not client.ended():
                 item = self.next_item(POLL_S)
                 if not self.action_ok():
                     client.cancel_goal()
