@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import json
 import os
-import socketserver
 import threading
 import time
 from typing import Callable, Deque, Dict, Iterator, List, Optional
@@ -279,27 +277,12 @@ class ChaosClient:
                                       'navigate, grip, servo, cancel_motion, unload or state' % (op,)}
 
 
-class _Handler(socketserver.StreamRequestHandler):
-    def handle(self) -> None:
-        for line in self.rfile:
-            try:
-                answer = self.server.client.handle(json.loads(line))
-            except (ValueError, KeyError, TypeError) as e:
-                answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
-            except Exception as e:      # an interface that raised something other than a TemotoError: reported
-                answer = self.server.client.unexpected_error(line, e)
-            self.wfile.write(json.dumps(answer).encode() + b'\n')
-            self.wfile.flush()
-
-
 def main() -> None:
     init_node(NODE_NAME)
     namespace = params.text('temoto_namespace', 'temoto', empty=False)
     socket_path = params.text('control_socket', '', empty=False)
     client = ChaosClient(namespace, params.text('station_namespace', ''), params.text('motion_journal', ''))
-    server = control_socket.Server(socket_path, _Handler)
-    server.client = client
-    threading.Thread(target=server.serve_forever, name='chaos-control', daemon=True).start()
+    server = control_socket.serve(socket_path, client.handle, 'chaos-control', client.unexpected_error)
     try:
         spin()
     finally:

@@ -7,8 +7,6 @@ every network namespace reaches: ``{"op": "since", "seq": n}`` answers the event
 """
 from __future__ import annotations
 
-import json
-import socketserver
 import threading
 
 import rospy
@@ -75,23 +73,10 @@ class MotionWatch:
         return {'ok': False, 'error': 'unknown op %r: since' % (cmd.get('op'),)}
 
 
-class _Handler(socketserver.StreamRequestHandler):
-    def handle(self) -> None:
-        for line in self.rfile:
-            try:
-                answer = self.server.watch.handle(json.loads(line))
-            except (ValueError, TypeError) as e:
-                answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
-            self.wfile.write(json.dumps(answer).encode() + b'\n')
-            self.wfile.flush()
-
-
 def main() -> None:
     init_node(NODE_NAME)
     watch = MotionWatch(params.text('robot_namespace', 'chaos'))
-    server = control_socket.Server(params.text('control_socket', '', empty=False), _Handler)
-    server.watch = watch
-    threading.Thread(target=server.serve_forever, name='motion-watch-control', daemon=True).start()
+    server = control_socket.serve(params.text('control_socket', '', empty=False), watch.handle, 'motion-watch-control')
     try:
         spin()
     finally:

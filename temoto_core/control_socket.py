@@ -7,6 +7,10 @@ import json
 import os
 import socket
 import socketserver
+import threading
+from typing import Callable, Optional
+
+BAD_COMMAND = (ValueError, KeyError, TypeError)    # a line that is not JSON, or a command missing or mistyping a field
 
 
 def ask(path: str, cmd: dict, timeout: float) -> dict:
@@ -44,3 +48,31 @@ class Server(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
             os.unlink(private)
             raise
         self.server_address = path
+
+
+def serve(path: str, handle: Callable[[dict], dict], thread_name: str,
+          unexpected: Optional[Callable[[bytes, Exception], dict]] = None) -> Server:
+    """Answer, from a daemon thread, each JSON line sent to ``path`` with ``handle(command)``; the server,
+    to ``shutdown()`` when the node ends.
+
+    A bad command (``BAD_COMMAND``) is answered ``{'ok': False, 'error': ...}`` naming the line. Anything else
+    ``handle`` raises goes to ``unexpected(line, error)`` for its answer, when given; otherwise it ends that
+    connection, and the runner's read of the answer fails.
+    """
+    class Handler(socketserver.StreamRequestHandler):
+        def handle(self) -> None:
+            for line in self.rfile:
+                try:
+                    answer = handle(json.loads(line))
+                except BAD_COMMAND as e:
+                    answer = {'ok': False, 'error': 'bad command %r: %s' % (line[:200], e)}
+                except Exception as e:
+                    if unexpected is None:
+                        raise
+                    answer = unexpected(line, e)
+                self.wfile.write(json.dumps(answer).encode() + b'\n')
+                self.wfile.flush()
+
+    server = Server(path, Handler)
+    threading.Thread(target=server.serve_forever, name=thread_name, daemon=True).start()
+    return server

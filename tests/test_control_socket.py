@@ -43,3 +43,26 @@ def test_a_socket_file_a_killed_incarnation_left_is_replaced_and_answers(tmp_pat
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_serve_answers_each_command_and_names_a_bad_one(tmp_path):
+    path = str(tmp_path / 'node.sock')
+    seen = []
+
+    def handle(cmd: dict) -> dict:
+        if cmd['op'] == 'boom':
+            raise RuntimeError('kaput')
+        seen.append(cmd)
+        return {'ok': True, 'op': cmd['op']}
+
+    server = control_socket.serve(path, handle, 'test-control',
+                                  lambda line, e: {'ok': False, 'unexpected': '%s: %s' % (type(e).__name__, e)})
+    try:
+        assert control_socket.ask(path, {'op': 'state'}, 5.0) == {'ok': True, 'op': 'state'}
+        missing = control_socket.ask(path, {'no_op': 1}, 5.0)       # KeyError in handle: a bad command
+        assert missing['ok'] is False and 'bad command' in missing['error'] and 'no_op' in missing['error']
+        assert control_socket.ask(path, {'op': 'boom'}, 5.0) == {'ok': False, 'unexpected': 'RuntimeError: kaput'}
+        assert seen == [{'op': 'state'}]
+    finally:
+        server.shutdown()
+        server.server_close()
