@@ -253,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     worker = GraphWorker(out, args.temoto_namespace, args.stop_timeout)
     on_signals(lambda signum: _abort(worker, signum), (signal.SIGTERM, signal.SIGINT))
     rospy_internals.install_bounded_handshake()
+    rospy_internals.install_shutdown_guard()
     rospy.init_node(args.node_name, disable_signals=True)
     prime_log_parameter()      # its logging must not wait for the master (node.py)
     out.send(kind=wp.READY, pid=os.getpid(), node=rospy.get_name())

@@ -40,7 +40,7 @@ import rospy
 from std_msgs.msg import String
 
 from temoto_demo.stack import Stack
-from temoto_core import control_socket
+from temoto_core import control_socket, rospy_internals
 from temoto_core.hosts import TwoHosts
 from temoto_core.latched import NoPublisher, latched_message
 from temoto_core.master import RosMaster
@@ -255,6 +255,7 @@ class Chaos:
             self._watch_launcher = self.hosts.launcher(self.hosts.robot, self.master, watch_dir) \
                 if self.hosts is not None else ProcessGroupLauncher(env, watch_dir)
             self._start_watch()
+        rospy_internals.install_shutdown_guard()     # another master's bump of a dead node on this port
         rospy.init_node('temoto_chaos', disable_signals=True)
         self._wait_managers()
         for i in range(self.opts.clients):

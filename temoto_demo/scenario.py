@@ -39,7 +39,7 @@ from std_msgs.msg import String
 
 import temoto_sensor_manager
 from temoto_action_engine.srv import StopGraph
-from temoto_core import master_lookup
+from temoto_core import master_lookup, rospy_internals
 from temoto_core.hosts import TwoHosts
 from temoto_core.master import RosMaster, connected
 from temoto_core.node import prime_log_parameter
@@ -357,6 +357,7 @@ class Demo:
                 os.environ[key] = env[key]
             else:                          # two hosts: ROS_IP, and no ROS_HOSTNAME (it would win)
                 os.environ.pop(key, None)
+        rospy_internals.install_shutdown_guard()     # another master's bump of a dead node on this port
         rospy.init_node('temoto_demo', disable_signals=True)
         prime_log_parameter()      # its logging must not wait for the master (node.py)
         self.rospy_up = True

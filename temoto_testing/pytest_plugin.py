@@ -80,6 +80,8 @@ def ros_master(tmp_path_factory, session_token):
 @pytest.fixture(scope='session')
 def rospy_client(ros_master):
     import rospy
+    from temoto_core import rospy_internals
+    rospy_internals.install_shutdown_guard()    # another test's master may bump a dead node whose port this is
     rospy.init_node('pytest_client', anonymous=True, disable_signals=True)
     yield rospy
     rospy.signal_shutdown('test session over')
