@@ -62,8 +62,10 @@ def server_and_client(rospy_client):
 
 
 def _send(server, client):
+    before = len(server.goals)
     client.send_goal(GripperCommandGoal(command=GripperCommand(position=0.01)))
-    return wait_for(lambda: server.goals[-1] if server.goals else None, HANG, 'the goal at the server')
+    return wait_for(lambda: server.goals[before] if len(server.goals) > before else None, HANG,
+                    'the goal at the server')
 
 
 def test_a_goal_has_not_ended_until_its_result_arrives(server_and_client):
