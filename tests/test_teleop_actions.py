@@ -69,12 +69,15 @@ def op(stack):
 
 
 def said(op, text):
-    """Say ``text`` as speech does (on human_chatter); the graph it started, by its grounding feedback."""
-    before = len(op.feedback)
+    """Say ``text`` as speech does (on human_chatter); the engine's grounding feedback, once the run of the
+    graph it started (if any) has begun: the graph's name may be an earlier run's too."""
+    before, runs = len(op.feedback), op.runs()
     op.chatter.publish(String(text))
     line = wait_for(lambda: next((f for f in op.feedback[before:] if f.startswith(('grounded', 'not started',
                                                                                   'could not'))), None),
                     20, 'the engine\'s answer to "%s"' % text)
+    if 'running as graph ' in line:
+        op.wait_run(graph_of(line), runs)
     return line
 
 
