@@ -17,7 +17,6 @@ of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched
 """
 from __future__ import annotations
 
-import time
 from typing import Optional
 
 import actionlib
@@ -57,24 +56,9 @@ class GoalHolders:
         """A new goal: its client has not been seen yet."""
         self._client_seen = False
 
-    def wait_for_owner(self, timeout: float) -> bool:
-        """Wait until the Robot Manager that started this node has reached it; whether it has. A node serves
-        goals only after this: a manager killed before its connection was ever seen would otherwise leave
-        the node taking goals with no manager (a CI run: a goal sent right after such a kill was accepted,
-        and stopped only once the manager's connection was seen and lost)."""
-        if self._owner is None:
-            return True
-        deadline = time.monotonic() + timeout
-        while not self._owner_connected():
-            if time.monotonic() >= deadline or rospy.is_shutdown():
-                return False
-            time.sleep(OWNER_LOOK_S)
-        self._owner_seen = True
-        return True
-
     def owner_away(self) -> Optional[str]:
-        """Why a new goal must be refused now: the Robot Manager that started this node has no connection to
-        it (it died, is being respawned and has not reached this node again, or never reached it), or None."""
+        """Why a new goal must be refused now: the Robot Manager that started this node was seen and has no
+        connection to it (it died, or is being respawned and has not reached this node again), or None."""
         if self._owner is None:
             return None
         if self._owner_connected():
@@ -83,8 +67,7 @@ class GoalHolders:
         if self._owner_seen:
             return 'the Robot Manager that started this %s is away (dead, or restarting): nothing moves until ' \
                    'it is back' % self._node
-        return 'the Robot Manager that started this %s has not reached it (dead, or not connected yet): ' \
-               'nothing moves until it does' % self._node
+        return None
 
     def _owner_connected(self) -> bool:
         """The manager's latched topic reaches this node now: read from the socket, not from rospy's count,

@@ -115,10 +115,6 @@ class ManipulatorNode:
         self.server = actionlib.ActionServer('%s/move_arm' % name, MoveArmAction, self._on_goal, self._on_cancel,
                                              auto_start=False)
         self.holders = GoalHolders('manipulator', self._owner, self.server)
-        # goals only once the Robot Manager that started it has reached it (goal_holders.py)
-        if not self.holders.wait_for_owner(params.number('startup_timeout', 30.0, above=0)):
-            rospy.logwarn('manipulator: the Robot Manager that started it has not reached it; serving goals '
-                          'anyway (each is refused until it does)')
         self.server.start()
         self._said = None
         rospy.loginfo('manipulator: %s of %s, goals on %s, servo targets on %s', name, robot.name,

@@ -109,8 +109,7 @@ class NavigatorNode:
                          tcp_nodelay=True)
         rospy.Subscriber('teleop/cmd_vel', TwistStamped, self._on_teleop, queue_size=5, tcp_nodelay=True)
         # the Robot Manager's latched topic: its connection is also how the navigator knows the manager lives
-        source_topic = params.text('obstacle_source_topic', '')
-        self._owner = rospy.Subscriber(source_topic or '~obstacle_source', String,
+        self._owner = rospy.Subscriber(params.text('obstacle_source_topic', '~obstacle_source'), String,
                                        lambda msg: self.use_source(msg.data), queue_size=5)
         initial = params.text('obstacle_topic', '')
         if initial:
@@ -123,12 +122,8 @@ class NavigatorNode:
         except TimeoutError:
             rospy.logwarn('navigator: no %s after %.0f s; serving goals anyway (each is refused until both come)',
                           'map' if self.nav.costmap is None else 'odometry', params.number('startup_timeout', 30.0))
-        # started by a Robot Manager (it names its topic): goals only once that manager has reached this node
-        self.holders = GoalHolders('navigator', self._owner if source_topic else None, self.server,
+        self.holders = GoalHolders('navigator', self._owner, self.server,
                                    fire_and_forget='move_base_simple-')
-        if not self.holders.wait_for_owner(params.number('startup_timeout', 30.0, above=0)):
-            rospy.logwarn('navigator: the Robot Manager that started it has not reached it; serving goals anyway '
-                          '(each is refused until it does)')
         self.server.start()
         threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
         threading.Thread(target=self._watch_teleop, name='teleop watch', daemon=True).start()

@@ -518,27 +518,3 @@ def test_a_teleop_stream_does_not_drive_blind(navigation, rospy_client, collect)
             'the stream went on; the base stayed at zero'
     finally:
         set_cable('sick', 'plugged')
-
-
-def test_a_navigator_whose_robot_manager_never_reached_it_refuses_goals_and_nothing_moves(procs, rospy_client,
-                                                                                         collect):
-    """Started by a Robot Manager (it names the manager's topic) that died before its connection was seen: the
-    navigator must not take goals as if it had no manager. A CI run had the goal accepted, and the base
-    stopped only once a manager's connection came and went."""
-    truth = collect('/vaultbot_sim/base_state', BaseState)
-    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
-    procs.node('vaultbot_sim', 'base_controller')
-    procs.node('vaultbot_sim', 'sick_driver')
-    procs.node('temoto_robot_manager', 'navigator',
-               params={'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot', 'obstacle_topic': 'sick/scan',
-                       'obstacle_source_topic': '/temoto/dead_manager/vaultbot/obstacle_source',
-                       'startup_timeout': 1.0})
-    client = TrackingActionClient('/move_base', MoveBaseAction)
-    assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator\'s move_base action'
-    wait_receiving([truth.sub], HANG, 'the sim\'s ground truth')
-    x, y, yaw = PLACES['table']
-    send(client, target(rospy_client, x, y, yaw))
-    state, text = finished(client)
-    assert state == GoalStatus.REJECTED and 'Robot Manager that started this navigator has not reached it' in text, \
-        text
-    assert all(s.commanded_linear == 0.0 and s.commanded_angular == 0.0 for s in truth.msgs)
