@@ -69,11 +69,12 @@ from typing import Callable, Dict, Optional, Set, Tuple
 
 import rospy
 import rospy.core
-import rospy.impl.paramserver
 import rospy.impl.masterslave
+import rospy.impl.paramserver
 import rospy.impl.registration
 import rospy.impl.tcpros_base as tcpros_base
 import rospy.impl.tcpros_service
+from rosgraph.network import ROSHandshakeException
 
 WRITTEN_FOR = '1.15.15'     # the rospy these internals were read in
 
@@ -197,6 +198,10 @@ def live_publishers(subscriber: rospy.Subscriber) -> Set[str]:
 # generous beside a handshake (a header is a few hundred bytes, sent right after the connect), short beside
 # the deadlines of the calls waiting behind it
 HANDSHAKE_S = 5.0
+# a TCPROS header's length, first 4 bytes little-endian: a topic's carries its message definition, a few KB at
+# most. An HTTP request read so ("POST" is 1.4 GB, "GET " 0.5 GB) is an XML-RPC call to a node that had this
+# port before: rospy would wait for the rest of that "header" until the handshake's bound
+MAX_HEADER_BYTES = 1 << 20
 
 _lock = threading.Lock()
 _handshaking = threading.local()
@@ -204,13 +209,36 @@ _original_callback = tcpros_base.TCPROSServer._tcp_server_callback
 _original_read = tcpros_base.read_ros_handshake_header
 
 
+def _refuse_misdirected(sock) -> None:
+    """Raise at once if the connection's first 4 bytes, read as a header's length, cannot be one.
+
+    Ports are reused: a node that dies leaves its XML-RPC URI at masters and in peers' caches, and the port
+    may go to another node's TCPROS server. An XML-RPC call to the dead node (a master's update, a
+    registrar's liveness ping) then lands here, and rospy read its "POST" as the length of a header it
+    waited to receive in full, for the handshake's whole bound, with every connection behind it waiting in
+    the one accept thread. A clean-clone suite had a Context Manager's services time out for 30 s so, one
+    "Inbound TCP/IP connection failed: timed out" every 5 s (two masters' nodes on one host).
+    """
+    first = sock.recv(4, socket.MSG_PEEK | socket.MSG_WAITALL)
+    if len(first) < 4:
+        return                                   # closed early: rospy's read says so
+    (size,) = struct.unpack('<I', first)
+    if size > MAX_HEADER_BYTES:
+        what = 'an HTTP request (%r...)' % first if first.isalpha() or first[:3].isalpha() else \
+            'a header of %d bytes' % size
+        raise ROSHandshakeException('%s, not a TCPROS handshake: closed at once (a call meant for a node that '
+                                    'had this port before?)' % what)
+
+
 def _read_header(sock, buff, buff_size: int) -> dict:
-    """rospy's header read; in the accept thread's handshake, within ``HANDSHAKE_S``."""
+    """rospy's header read; in the accept thread's handshake, within ``HANDSHAKE_S``, and refusing at once what
+    cannot be a header (``_refuse_misdirected``)."""
     if not getattr(_handshaking, 'active', False):
         return _original_read(sock, buff, buff_size)
     previous = sock.gettimeout()
     sock.settimeout(HANDSHAKE_S)
     try:
+        _refuse_misdirected(sock)
         return _original_read(sock, buff, buff_size)
     finally:
         sock.settimeout(previous)

@@ -43,3 +43,25 @@ def test_a_peer_silent_in_its_handshake_is_closed_and_the_connections_behind_it_
     assert 'unloads' in json.loads(kept(json.dumps({'op': 'counts'})).result)
     kept.close()
     assert node.process.proc.poll() is None
+
+
+def test_an_xmlrpc_call_that_lands_on_a_tcpros_port_is_closed_at_once(rospy_client, procs):
+    """A dead node's XML-RPC port, reused by this node's TCPROS server: a call meant for the dead node is
+    closed at once, not read as a 1.4 GB header until the handshake's bound with every connection waiting
+    behind it (a Context Manager's services timed out for 30 s so in a clean-clone suite)."""
+    RegistrarNode(procs, 'rr_port_reused')
+    service = '/rr_port_reused/control'
+    misdirected = socket.create_connection(_tcpros_address(service), timeout=HANG)
+    try:
+        misdirected.sendall(b'POST /RPC2 HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: text/xml\r\n'
+                            b'Content-Length: 120\r\n\r\n')   # the call's body never comes, as a slow caller's
+        # closed from the node's end well before the handshake's bound, which would otherwise run out first
+        misdirected.settimeout(rospy_internals.HANDSHAKE_S / 2)
+        try:
+            assert misdirected.recv(1) == b''
+        except ConnectionResetError:
+            pass                                   # closed with the request unread: the kernel resets it
+        assert 'unloads' in _counts(service)
+    finally:
+        misdirected.close()
+
