@@ -45,6 +45,7 @@ from temoto_core.hosts import TwoHosts
 from temoto_core.latched import NoPublisher, latched_message
 from temoto_core.master import RosMaster
 from temoto_core.master_lookup import lookup_node, node_pid
+from temoto_core import process_group
 from temoto_core.processes import ProcessGroupLauncher, dump_stacks, kill_leftovers, leftover_processes
 from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
@@ -591,7 +592,7 @@ class Chaos:
         follows reports a manager that is not back."""
         t0 = time.monotonic()
         deadline = t0 + self.opts.settle_s
-        while not _dead(pid):
+        while not process_group.ended(pid):
             if time.monotonic() > deadline:        # the dead one must not be the one that answers
                 return 'SIGKILL %s (%d); it did not die within %.0f s' % (name, pid, self.opts.settle_s)
             time.sleep(0.01)
@@ -857,14 +858,6 @@ class Chaos:
                 **({'motion': self.motion.figures(), 'motion_check_seconds': round(self.motion_check_seconds, 1)}
                    if self.opts.motion else {}),
                 'steps_per_s': done / took if took > 0 else 0.0}
-
-
-def _dead(pid: int) -> bool:
-    """Whether ``pid`` has died (gone, or a zombie not reaped yet)."""
-    try:
-        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
-    except psutil.NoSuchProcess:
-        return True
 
 
 def _with_descendants(pids: List[int]) -> List[int]:

@@ -114,6 +114,25 @@ def group_members(pgid: int, exclude: int = 0) -> List[int]:
     return members
 
 
+def ended(pid: int) -> bool:
+    """Whether process ``pid`` has ended with every one of its threads: gone, or a zombie with its leader alone.
+
+    The leader of a killed process can read as a zombie while its other threads are still exiting, and
+    those hold the process's files: its sockets are still open, and a peer still finds it connected. A
+    test that sent a goal once the leader read 'Z' had it accepted by a navigator that still saw the
+    killed Robot Manager's connection, closed some milliseconds later.
+    """
+    try:
+        with open('/proc/%d/stat' % pid, 'rb') as f:
+            state = f.read().rsplit(b')', 1)[1].split()[0]
+        threads = os.listdir('/proc/%d/task' % pid)
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    except IndexError:                       # a stat cut short: the process is being torn down
+        return False
+    return state in (b'Z', b'X') and threads in ([], [str(pid)])
+
+
 def start_ticks(pid: int) -> Optional[int]:
     """When ``pid`` started, in clock ticks since boot (``/proc/<pid>/stat`` field 22); None if there is no
     such live process (gone, or a zombie).

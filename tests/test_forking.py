@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 
+from temoto_core.process_group import ended
 from temoto_core.wait import wait_for
 
 HANG = 30.0
@@ -72,13 +73,6 @@ def test_a_child_ends_as_an_interpreter_would():
                                        'printed ZeroDivisionError', 'atexit ran', 'error 1']
 
 
-def dead(pid: int) -> bool:
-    """Gone, or a zombie that whoever adopted it has not reaped yet."""
-    try:
-        with open('/proc/%d/stat' % pid) as f:
-            return f.read().rsplit(')', 1)[1].split()[0] == 'Z'
-    except FileNotFoundError:
-        return True
 
 
 def test_a_child_dies_with_the_parent_that_forked_it():
@@ -97,9 +91,9 @@ def test_a_child_dies_with_the_parent_that_forked_it():
         assert os.path.exists('/proc/%d' % child)
         parent.kill()
         parent.wait(HANG)
-        wait_for(lambda: dead(child), HANG, 'the child to die with its parent')
+        wait_for(lambda: ended(child), HANG, 'the child to die with its parent')
     finally:
-        if child and not dead(child):
+        if child and not ended(child):
             os.kill(child, signal.SIGKILL)
         parent.kill()
         parent.wait(HANG)

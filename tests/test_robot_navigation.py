@@ -19,6 +19,7 @@ from std_msgs.msg import String
 
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import master_lookup
+from temoto_core.process_group import ended
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
@@ -187,7 +188,7 @@ def test_a_goal_sent_while_the_robot_manager_is_away_is_refused_and_nothing_move
         # once both are gone their sockets are closed; the navigator must refuse the very next goal. It
         # read rospy's connection count, which its receive thread updates when it gets a CPU: on a busy
         # machine the first goal was accepted and moved the base.
-        wait_for(lambda: not stack.robot_manager.alive() and dead(node), HANG, 'the manager\'s processes gone')
+        wait_for(lambda: not stack.robot_manager.alive() and ended(node), HANG, 'the manager\'s processes gone')
         before = len(truth.msgs)
         client.send_goal(goal_to(rospy_client, 'shelf'))
         wait_for(lambda: client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG, 'the answer')
@@ -213,14 +214,6 @@ def test_a_goal_sent_while_the_robot_manager_is_away_is_refused_and_nothing_move
         stack.robot_manager = start_robot_manager(stack)
 
 
-def dead(pid):
-    """Whether process ``pid`` has ended (gone, or a zombie nobody has reaped yet: its sockets are closed)."""
-    try:
-        with open('/proc/%d/stat' % pid) as f:
-            stat = f.read()
-    except FileNotFoundError:
-        return True
-    return stat[stat.rindex(')') + 2] in 'ZX'
 
 
 def temoto(*args, timeout=240):
