@@ -12,6 +12,12 @@ machine) gets its own deadline, not the scanner's:
   ``WINDOW`` intervals, not their median: a camera whose frames come every 60 to 120 ms
   stopped the robot every few seconds with the median (measured: 7 false stops in a 16 s
   drive on the D435), while one that goes silent still stops it within 3 of its slow periods.
+
+The period is learnt from every frame that *arrives* (``arrived``), the deadline runs from the last frame
+that was *used* (``heard``). A consumer that turns frames into obstacles more slowly than they come uses
+only some of them; learnt from those alone, the period was that of the consumer, not of the source, and a
+D435 that stalled under a loaded navigator stopped the base 2.2 s later, not 3 source periods (chaos, seed
+17, step 2301).
 """
 from __future__ import annotations
 
@@ -31,20 +37,31 @@ class Freshness:
     def __init__(self, periods: int = STALE_PERIODS, declared: Optional[float] = None) -> None:
         self.periods = periods
         self.declared = declared             # the period the source says it has, if it says
-        self.last: Optional[float] = None
+        self.last: Optional[float] = None       # when the last frame used arrived
         self.frames = 0
         self._intervals: deque = deque(maxlen=WINDOW)
+        self._arrival: Optional[float] = None    # when the last frame arrived, used or not
+        self._counting_arrivals = False
 
     def reset(self) -> None:
         """A new source: nothing heard from it yet."""
         self.last = None
         self.frames = 0
         self._intervals.clear()
+        self._arrival = None
+
+    def arrived(self, now: float) -> None:
+        """A frame arrived, to be used or not: the period is learnt from these (once any is told)."""
+        self._counting_arrivals = True
+        if self._arrival is not None and now > self._arrival:
+            self._intervals.append(now - self._arrival)
+        self._arrival = now
 
     def heard(self, now: float) -> None:
-        if self.last is not None and now > self.last:
+        """A frame that arrived at ``now`` was used: the source is fresh until its deadline from then."""
+        if not self._counting_arrivals and self.last is not None and now > self.last:
             self._intervals.append(now - self.last)
-        self.last = now
+        self.last = now if self.last is None else max(self.last, now)
         self.frames += 1
 
     @property

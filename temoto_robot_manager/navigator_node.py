@@ -99,6 +99,9 @@ class NavigatorNode:
         self.active_id = ''
         self._source_sub = None
         self.source_topic = ''
+        self._frames = threading.Condition()    # the latest frame of the source, for the frames thread
+        self._frame = None
+        threading.Thread(target=self._make_obstacles, name='obstacle frames', daemon=True).start()
         self._feedback_at = 0.0
         self.server = actionlib.ActionServer('move_base', MoveBaseAction, self._on_goal, self._on_cancel,
                                              auto_start=False)
@@ -177,9 +180,34 @@ class NavigatorNode:
             self.nav.set_pose((float(x), float(y), math.atan2(math.sin(yaw), math.cos(yaw))))
 
     def _on_obstacles(self, raw: rospy.AnyMsg, topic: str) -> None:
+        """A frame of the source: its arrival counted at once, its obstacles made on the frames thread. The
+        receive thread must stay free to see every frame come: made here, a slow frame hid the ones after it
+        (queue_size 1), and the period was learnt from the frames used, not the ones sent."""
         now = time.monotonic()
         if topic != self.source_topic:
             return                                  # a frame from the source just left
+        with self.wake:
+            self.nav.freshness.arrived(now)
+        with self._frames:
+            self._frame = (raw, topic, now)
+            self._frames.notify()
+
+    def _make_obstacles(self) -> None:
+        """The frames thread: the latest frame that arrived becomes the obstacles (older ones are dropped)."""
+        while not rospy.is_shutdown():
+            with self._frames:
+                while self._frame is None and not rospy.is_shutdown():
+                    self._frames.wait(0.5)
+                frame, self._frame = self._frame, None
+            if frame is not None:
+                try:
+                    self._use_frame(*frame)
+                except Exception as err:        # one bad frame must not end the thread that makes obstacles
+                    rospy.logerr_throttle(5.0, 'navigator: a frame of %s could not be used: %s', frame[1], err)
+
+    def _use_frame(self, raw: rospy.AnyMsg, topic: str, now: float) -> None:
+        if topic != self.source_topic:
+            return
         kind = connection_header(raw).get('type', '')
         msg = {'sensor_msgs/LaserScan': LaserScan, 'sensor_msgs/PointCloud2': PointCloud2}.get(kind)
         if msg is None:
@@ -195,6 +223,8 @@ class NavigatorNode:
             return
         points = base_points(frame, sensor, self.nav.footprint)
         with self.wake:
+            if topic != self.source_topic:
+                return                              # the source changed while this frame was made
             if isinstance(frame, LaserScan) and frame.scan_time > 0:
                 self.nav.freshness.declared = frame.scan_time
             self.nav.set_obstacles(points, now)

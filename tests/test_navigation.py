@@ -127,6 +127,21 @@ def test_freshness_learns_the_period_and_goes_stale_after_three_of_them():
     assert f.fresh(15.0 + 1.4) and not f.fresh(15.0 + 1.5)
 
 
+def test_a_slow_consumer_learns_the_sources_period_from_arrivals_not_from_the_frames_it_used():
+    """Chaos, seed 17, step 2301: a navigator that made obstacles from one D435 frame in four learnt a period four
+    times the camera's, and drove 2.2 s on after the camera stalled. The period comes from every arrival; the
+    deadline from the last frame used."""
+    f = Freshness()
+    for k in range(40):
+        t = 0.1 * k                               # the source: 10 Hz
+        f.arrived(t)
+        if k % 4 == 0:
+            f.heard(t)                            # the consumer: one frame in four
+    assert f.period == pytest.approx(0.1)
+    last_used = 3.6
+    assert f.fresh(last_used + 0.29) and not f.fresh(last_used + 0.31), 'stale 3 source periods after the last used'
+
+
 def test_a_scanner_that_starts_slowly_is_held_to_its_declared_period_once_it_runs_at_it():
     """A SICK restarted after a fault sends its first frames slowly while it warms up. Judged by the median of its
     whole window, it kept a 0.58 s period for a second, and a stall then stopped the robot after 1.7 s."""
