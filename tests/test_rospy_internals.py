@@ -75,5 +75,6 @@ def test_a_dead_subscriber_is_no_longer_live_before_any_write_tells_rospy(rospy_
     assert name.startswith('/rostopic_')
     os.kill(listener.pid, 9)
     wait_for(lambda: name not in rospy_internals.live_subscribers(pub), 5.0, 'the dead listener to be seen')
-    assert any(c.endpoint_id == name for c in pub.impl.connections), 'rospy, with nothing written, still has it'
+    # rospy usually still holds the dead connection here, until a write fails; not always: one clean-clone
+    # suite saw it drop the connection by itself first, so that is not asserted (it is rospy's, not ours)
     pub.unregister()
