@@ -44,6 +44,7 @@ STREAM_PERIOD_S = 0.02        # the servo stream's 50 Hz
 JOINTS_WAIT_S = 2.0           # where the arm is, from one joint_states message
 SWEEP_ARM = 'right_arm'        # the Hokuyo's: it sweeps until held
 HAND_PERIOD_S = 0.01          # the simulated hand tracker's 100 Hz (hands.yaml)
+HOLD_ANSWER_S = 1.0           # the manipulator says it holds within one step of its loop (a cut link: never)
 UR5_JOINTS = ('shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
               'wrist_3_joint')
 STATE_NAMES = {v: k for k, v in vars(GoalStatus).items() if k.isupper() and isinstance(v, int)}
@@ -62,6 +63,27 @@ class Journal:
         record.setdefault('t', time.time())
         with self._lock:
             os.write(self._fd, (json.dumps(record) + '\n').encode())
+
+
+class HoldAnswer:
+    """The manipulator's word that it holds an arm for a reason: ``holding: <reason>`` on its servo status."""
+
+    def __init__(self, topic: str) -> None:
+        self._said: set = set()
+        self._cond = threading.Condition()
+        self._sub = rospy.Subscriber(topic, String, self._on_status, queue_size=5)
+
+    def _on_status(self, msg: String) -> None:
+        with self._cond:
+            self._said.add(msg.data)
+            self._cond.notify_all()
+
+    def wait(self, reason: str, timeout: float) -> bool:
+        with self._cond:
+            return self._cond.wait_for(lambda: 'holding: ' + reason in self._said, timeout)
+
+    def close(self) -> None:
+        self._sub.unregister()
 
 
 class Motion:
@@ -169,13 +191,15 @@ class MotionClient:
     # -- servo ---------------------------------------------------------------------------------------------
     def servo_path(self, robot: int, info: dict, arm: str, offset: tuple, seconds: float) -> dict:
         """Stream servo targets for ``seconds``: the tool from where it is to ``offset`` (m, the arm's base
-        frame) and back, at 50 Hz; the stream then stops, and the arm holds (the controller's deadman)."""
+        frame) and back, at 50 Hz; the stream then stops, and tells the arm to hold."""
         frames = info['arm_frames'][arm]
         try:
             start = self._tool(info, arm)
         except (KinematicsError, rospy.ROSException) as err:
             return {'ok': False, 'error': 'where the %s is is not known: %s' % (arm, err)}
         target = self._publisher(self._topic(info, '%s/servo_target' % arm), PoseStamped)
+        hold = self._publisher(self._topic(info, '%s/servo_hold' % arm), String)
+        answer = HoldAnswer(self._topic(info, '%s/servo_status' % arm)) if arm == SWEEP_ARM else None
         motion = self._new(arm, 'servo', robot)
         self.journal.write(id=motion.id, ev='sent', part=arm, kind='servo', robot=robot,
                            what='path %s for %.1f s' % (offset, seconds))
@@ -194,7 +218,8 @@ class MotionClient:
                 motion.stop.wait(STREAM_PERIOD_S)
             with self.lock:
                 self._end(motion, 'stream_done')
-            self._give_back(info, arm)
+            hold.publish(String('%s ended' % motion.id))
+            self._give_back(info, arm, '%s ended' % motion.id, answer)
         threading.Thread(target=stream, name='servo-%s' % motion.id, daemon=True).start()
         return {'ok': True, 'id': motion.id}
 
@@ -211,6 +236,7 @@ class MotionClient:
         follower = HandFollower(dial, HAND_PERIOD_S)
         target = self._publisher(self._topic(info, '%s/servo_target' % arm), PoseStamped)
         hold = self._publisher(self._topic(info, '%s/servo_hold' % arm), String)
+        answer = HoldAnswer(self._topic(info, '%s/servo_status' % arm)) if arm == SWEEP_ARM else None
         motion = self._new(arm, 'servo', robot)
         self.journal.write(id=motion.id, ev='sent', part=arm, kind='servo', robot=robot,
                            what='hand %s at %gx for %.1f s' % (hand_topic, scale, seconds))
@@ -253,19 +279,27 @@ class MotionClient:
                 with follow:
                     send(follower.check(time.monotonic()))
             sub.unregister()
-            with follow:
-                send(follower.lost('the stream ended'))
             with self.lock:
                 self._end(motion, 'stream_done')
-            self._give_back(info, arm)
+            with follow:                  # a sample being followed is sent before the hold, not after it
+                hold.publish(String('%s ended' % motion.id))
+            self._give_back(info, arm, '%s ended' % motion.id, answer)
         threading.Thread(target=watch, name='hand-%s' % motion.id, daemon=True).start()
         return {'ok': True, 'id': motion.id}
 
-    def _give_back(self, info: dict, arm: str) -> None:
-        """The Hokuyo's arm, given back to its sweep once this client streams to it no more, as an operator
-        would: held, it stops the sweep for good, and with it the stitched cloud (an obstacle source)."""
-        if arm != SWEEP_ARM:
+    def _give_back(self, info: dict, arm: str, reason: str, answer: Optional[HoldAnswer]) -> None:
+        """After a stream's end and its hold (``reason``): the Hokuyo's arm given back to its sweep once the
+        manipulator says it holds, as an operator would (held, it stops the sweep for good, and with it the
+        stitched cloud, an obstacle source). Given back while the manipulator still followed the stream, the
+        arm was taken again by the stream's last steps or its hold (seed 17, steps 1263 and 1509)."""
+        if answer is None:
             return
+        try:
+            if not answer.wait(reason, HOLD_ANSWER_S):
+                rospy.logwarn('chaos client: the %s\'s manipulator did not say it holds within %.1f s', arm,
+                              HOLD_ANSWER_S)
+        finally:
+            answer.close()
         with self.lock:
             if any(m.part == arm for m in self.motions.values()):
                 return

@@ -30,7 +30,6 @@ PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
 BASE_REST_LINEAR = 0.01      # m/s
 BASE_REST_ANGULAR = 0.02     # rad/s
 ARM_REST = 0.01              # rad/s, the fastest joint
-ARM_BRAKING_S = 0.4          # an arm's braking from top speed (docs/robots.md: 8 rad/s² from π rad/s)
 GRIPPER_REST = 0.002         # m/s of the gap
 # s without a sample after which a span is closed at its last sample: the robot lost power, or the sim died
 SAMPLES_LOST_S = 0.5
@@ -97,8 +96,6 @@ class GroundTruth:
         self.events: Deque[dict] = collections.deque(maxlen=max_events)
         self.seq = 0
         self.samples = 0
-        self._arms: Dict[str, tuple] = {}                 # arm -> (held, speed) at its last sample
-        self._sweep_braking: Dict[str, tuple] = {}        # arm -> (since, its speed then): braking from the sweep
 
     # -- samples -----------------------------------------------------------------------------------------------
     def base(self, t: float, linear: float, angular: float) -> None:
@@ -107,21 +104,8 @@ class GroundTruth:
         self._judge_blind(t, moving)
 
     def arm(self, t: float, arm: str, held: bool, speed: float) -> None:
-        """An arm that nobody holds (the Hokuyo's, sweeping as the sim's own motion) is not the robot's. Nor
-        is the braking of a sweep that a command stopped: the sweep's speed falling to rest, within an arm's
-        braking time, after the arm was taken (seed 17, step 5689: the arm controller's clean stop took the
-        arm from its sweep, and it braked from 1.46 rad/s while held)."""
-        was = self._arms.get(arm)
-        if held and was is not None and not was[0] and was[1] > ARM_REST:
-            self._sweep_braking[arm] = (t, speed)             # taken from its sweep while it moved
-        braking = self._sweep_braking.get(arm)
-        if braking is not None:
-            if not held or speed <= ARM_REST or speed > braking[1] + ARM_REST or t - braking[0] > ARM_BRAKING_S:
-                del self._sweep_braking[arm]                  # at rest, given back, or driven: no longer the sweep's
-            else:
-                self._sweep_braking[arm] = (braking[0], speed)
-        self._arms[arm] = (held, speed)
-        self._sample(arm, t, held and speed > ARM_REST and arm not in self._sweep_braking, speed)
+        """An arm that nobody holds (the Hokuyo's, sweeping as the sim's own motion) is not the robot's."""
+        self._sample(arm, t, held and speed > ARM_REST, speed)
 
     def gripper(self, t: float, speed: float) -> None:
         self._sample(GRIPPER, t, abs(speed) > GRIPPER_REST, abs(speed))

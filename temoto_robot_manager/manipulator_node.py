@@ -8,9 +8,10 @@
   on (an abort says the controller's reason). A new goal preempts; a cancel holds the arm where it is;
 - ``<arm>/servo_target`` (``geometry_msgs/PoseStamped``, a stream): the tool follows it (``servo.py``),
   sent to the controller's servo input as each target arrives (its latency is one step's computation),
-  and at ``~servo_rate`` between targets. When the newest target is older than ``SERVO_TIMEOUT_S`` the
-  node sends one hold (zero velocities where the arm is) and falls silent; the controller's own
-  deadman (0.1 s) would hold the arm too, one timeout later. A
+  and at ``~servo_rate`` between targets. When the newest target is older than ``SERVO_TIMEOUT_S`` (or
+  the arm's joint states are) the node sends one hold (zero velocities, no positions: the motors brake
+  where the joints are) and falls silent; the controller's own deadman (0.1 s) would hold the arm too,
+  one timeout later. A
   trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
   ``<arm>/servo_status`` (``std_msgs/String``) when it changes;
 - ``<arm>/servo_hold`` (``std_msgs/String``, the reason): hold the arm now and drop the stream's target,
@@ -301,18 +302,23 @@ class ManipulatorNode:
             target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
         if told:
-            if self._streaming and q is not None:     # an arm the stream does not move is left alone
-                self._send(q, [0.0] * len(q))
+            if self._streaming:                       # an arm the stream does not move is left alone
+                self._hold()
             self._streaming = False
             self._say('holding: %s' % told)
             return
         away = self.holders.owner_away() if target is not None else None
         if target is None or q is None or away is not None:
-            if self._streaming and q is not None:
-                # the stream fell silent (or the manager went): hold now, not one more deadman later
+            if self._streaming:
+                # the stream fell silent, the arm's state did, or the manager went: hold now, not one more
+                # deadman later (a hold needs no state: the motors brake where the joints are)
                 self._streaming = False
-                self._send(q, [0.0] * len(q))
-                self._say('holding: %s' % (away or 'no target for %.1f s' % SERVO_TIMEOUT_S))
+                self._hold()
+                if target is None:
+                    why = 'no target for %.1f s' % SERVO_TIMEOUT_S
+                else:
+                    why = away or 'no joint states for %.1f s' % STATE_TIMEOUT_S
+                self._say('holding: %s' % why)
             return
         self._streaming = True
         check = now - self._checked_at >= COLLISION_PERIOD_S
@@ -328,6 +334,12 @@ class ManipulatorNode:
         msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
         msg.header.stamp = rospy.Time.now()
         self.pub_servo.publish(msg)
+
+    def _hold(self) -> None:
+        """Brake where the joints are: no positions, every velocity zero (the controller's hold). A hold at the
+        positions last seen would pull the arm back to them: seen up to ``STATE_TIMEOUT_S`` ago, of an arm
+        still moving, or already given back to the sim's sweep (seed 17, steps 1263 and 1509)."""
+        self._send([], [0.0] * len(self.arm.joints))
 
     def _watch_goal(self) -> None:
         """End the running goal at once when its holder or its controller is gone; the arm holds."""

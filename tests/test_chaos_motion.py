@@ -235,19 +235,3 @@ def test_a_goal_whose_acceptance_never_reached_its_client_still_holds_the_part()
                          {'id': '/c_0#1', 'ev': 'ended', 't': 1.8, 'cause': 'robot_failed', 'state': 'FAILED',
                           'reason': 'cut off'})
     assert ledger.check(10.0) == []
-
-
-def test_a_sweep_braking_once_the_arm_is_taken_is_not_motion_but_a_command_after_it_is():
-    """Seed 17, step 5689 (two hosts): the arm controller's clean stop took the Hokuyo's arm from its sweep, and
-    the wrist braked from the sweep's speed while held: the sweep ending, not motion someone commanded."""
-    truth = GroundTruth({})
-    truth.arm(0.0, RIGHT_ARM, False, 1.5)          # sweeping
-    for i, v in enumerate((1.4, 1.0, 0.6, 0.2, 0.0)):
-        truth.arm(0.02 * (i + 1), RIGHT_ARM, True, v)
-    assert spans(truth) == []
-    # taken again, and driven faster than the sweep left it: that is motion
-    truth.arm(1.0, RIGHT_ARM, False, 1.5)
-    truth.arm(1.02, RIGHT_ARM, True, 1.2)
-    truth.arm(1.04, RIGHT_ARM, True, 2.0)
-    truth.arm(1.06, RIGHT_ARM, True, 0.0)
-    assert [(s['start'], s['end']) for s in spans(truth)] == [(1.04, 1.06)]

@@ -282,6 +282,42 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
     assert state == GoalStatus.SUCCEEDED, text
 
 
+def test_a_streamer_s_hold_brakes_the_arm_where_it_is_and_never_pulls_it_back(arm, truth):
+    """A hold is a brake, not a position: sent as the joints' positions last seen, it pulled an arm back to
+    them, and an arm already given back to its sweep was pulled back at the sweep's speed (seed 17, steps
+    1263 and 1509). From the hold on, no joint turns against the way it was going."""
+    joints, states = truth
+    hold = rospy.Publisher('/left_arm/servo_hold', String, queue_size=1)
+    wait_for(lambda: hold.get_num_connections() > 0, HANG, 'the manipulator to subscribe to holds')
+    stop = threading.Event()
+    stream = stream_targets('left_arm', tool_in_base(settled(joints)), stop)
+    try:
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.speed > 0.02), None),
+                 HANG, 'the left arm moving after the stream')
+    finally:
+        stop.set()
+        stream.join(HANG)
+    told = rospy.Time.now().to_sec()
+    hold.publish(String('a hold, not a position'))
+    held = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm'
+                                  and m.header.stamp.to_sec() > told and m.commanded_speed == 0.0), None), HANG,
+                    'the left arm commanded to hold')
+    moment = held.header.stamp.to_sec()
+    settled(joints)
+    samples = [(m.header.stamp.to_sec(), dict(zip(m.name, m.velocity))) for m in list(joints.msgs)
+               if all(j in m.name for j in LEFT)]
+    before = [v for t, v in samples if t <= moment]
+    after = [(t, v) for t, v in samples if t > moment]
+    assert before and len(after) >= 10, (len(before), len(after))
+    going = {j: before[-1][j] for j in LEFT if abs(before[-1][j]) > 1e-3}
+    assert going, 'no joint was moving when the hold came: %s' % before[-1]
+    back = [(round(t - moment, 3), j, v[j]) for t, v in after for j, v0 in going.items() if v[j] * v0 < -1e-9]
+    assert back == [], 'joints turned back after the hold: %s' % back[:5]
+    hold.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
 def test_servo_targets_held_up_on_the_way_are_not_followed_late(arm, truth, collect):
     """Over a link that was cut, TCP keeps a stream's targets and delivers them, seconds late, when the link is
     back (the two-host teleop demo found it): they must not move the arm, since whoever sent them may have let

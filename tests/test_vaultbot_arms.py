@@ -155,6 +155,42 @@ def test_a_servo_stream_moves_the_arm_and_its_silence_makes_it_hold(arms, rospy_
     assert 'servo stream silent' in arms['left'].log()
 
 
+def test_a_hold_point_brakes_the_arm_where_it_is_and_a_malformed_one_is_refused(procs, rospy_client, collect):
+    """A servo point with no positions and every velocity zero is a hold (the manipulator's): the motors brake
+    where the joints are, and nothing turns back. Without positions, a velocity that is not zero is refused,
+    naming why, and the stream goes on. (The deadman is set to 1 s here, so that the hold is told from it.)"""
+    states = collect('/vaultbot_sim/arm_states', ArmState)
+    joints = collect('/joint_states', JointState)
+    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
+    left = procs.node('vaultbot_sim', 'arm_controller', name='left_arm_controller',
+                      params={'arm': 'left_arm', 'servo_timeout': 1.0})
+    wait_receiving([states.sub, joints.sub], HANG, 'the sim\'s states')
+    wait_for(lambda: arm_state(states, 'left_arm') and joints.last(), HANG, 'the first states')
+    start = positions(joints, LEFT)
+    servo = Servo(rospy_client, start)
+    wait_for(lambda: servo.pub.get_num_connections() > 0, HANG, 'the controller on servo_command')
+    servo.thread.start()
+    try:
+        wait_for(lambda: positions(joints, LEFT)[0] > start[0] + 0.2, HANG, 'the arm to follow the stream')
+        servo.pub.publish(JointTrajectory(joint_names=LEFT, points=[JointTrajectoryPoint(
+            positions=[], velocities=[0.5] + [0.0] * 5)]))
+        wait_for(lambda: 'a point without positions is a hold' in left.log(), HANG, 'the refusal')
+        went_on = positions(joints, LEFT)[0]
+        wait_for(lambda: positions(joints, LEFT)[0] > went_on + 0.05, HANG, 'the stream to go on')
+    finally:
+        servo.stop()
+    told = time.time()
+    servo.pub.publish(JointTrajectory(joint_names=LEFT, points=[JointTrajectoryPoint(
+        positions=[], velocities=[0.0] * 6)]))
+    rest = wait_for(lambda: next((m for m in states_since(states, 'left_arm', told) if m.speed == 0.0), None), HANG,
+                    'the arm at rest')
+    wait_for(lambda: joints.last().header.stamp > rest.header.stamp, HANG, 'joint states of the rest')
+    with joints.lock:
+        pan = [dict(zip(m.name, m.velocity))[LEFT[0]] for m in joints.msgs if m.header.stamp.to_sec() >= told]
+    assert pan and min(pan) >= 0.0, 'the shoulder turned back after the hold: %s' % min(pan)
+    assert 'servo stream silent' not in left.log(), 'held by the deadman, not by the hold'
+
+
 def moving_trajectory(arms):
     """A slow 4 s trajectory, started; returns once the arm moves."""
     start = positions(arms['joints'], LEFT)

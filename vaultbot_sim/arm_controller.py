@@ -10,8 +10,11 @@ As ros_control's joint_trajectory_controller does for a real UR5:
   running; a cancel holds the arm where it is;
 - ``<arm>/servo_command`` (``trajectory_msgs/JointTrajectory``, one point: target positions and the
   velocities to pass them with, as MoveIt Servo publishes): forwarded and extrapolated at the command
-  rate while it flows; silent for ``~servo_timeout`` (0.1 s, MoveIt Servo's), the arm holds. Refused while
-  a trajectory runs: one arm obeys one master at a time (docs/robots.md);
+  rate while it flows; silent for ``~servo_timeout`` (0.1 s, MoveIt Servo's), the arm holds. A point with
+  no positions and every velocity zero is a hold: the motors brake where the joints are. (A hold sent as
+  positions would pull the arm back to where its sender last saw it: an arm given back to its sweep was
+  pulled back at the sweep's speed, seed 17, steps 1263 and 1509.) Refused while a trajectory runs: one
+  arm obeys one master at a time (docs/robots.md);
 - between motions it sends nothing: the motors hold where the last setpoint left them;
 - its cable is the sim's ``left_arm`` or ``right_arm`` device: crash exits 1, stall silences it.
 """
@@ -94,6 +97,16 @@ class ArmController:
             names = list(msg.joint_names)
             if sorted(names) != sorted(self.joints):
                 raise ValueError('joint_names must name each of %s once' % ', '.join(self.joints))
+            if not point.positions:
+                if len(point.velocities) != len(names) or any(v != 0.0 for v in point.velocities):
+                    raise ValueError('a point without positions is a hold: it needs one velocity per joint, '
+                                     'each zero (%d given)' % len(point.velocities))
+                with self.lock:
+                    if self.running_goal:
+                        raise ValueError('a trajectory runs on this arm; cancel it first')
+                    self.servo = None
+                self.hold()
+                return
             vel = list(point.velocities) or [0.0] * len(names)
             if len(point.positions) != len(names) or len(vel) != len(names):
                 raise ValueError('%d positions and %d velocities for %d joints' % (len(point.positions), len(vel),
