@@ -92,13 +92,15 @@ def motion_tables(motion) -> None:
     print('| contacts; blind drives (the base moving with no fresh obstacle source) | %d; %d | 0; 0 |' % (
         counts.get('contacts', 0), counts.get('blind drives', 0)))
     print()
-    print('| stop case / part | faults while it moved: measured | worst fault → at rest | bound | '
-          'at rest already | a new goal or another holder moved it on |')
-    print('| --- | --- | --- | --- | --- | --- |')
+    print('| stop case / part | faults while it moved: measured | worst fault → at rest | bound (the widest) | '
+          'worst share of its own bound | at rest already | a new goal or another holder moved it on |')
+    print('| --- | --- | --- | --- | --- | --- | --- |')
     for key, row in sorted(motion.get('stop_cases', {}).items()):
-        print('| %s | %d | %s | %.3f s | %d | %d |' % (
-            key.replace('_', ' '), row['measured'], '%.3f s' % row['worst_s'] if row['measured'] else '-',
-            row['bound_s'], row['was_at_rest'], row['restarted'] + row['held']))
+        measured = row['measured']
+        print('| %s | %d | %s | %.3f s | %s | %d | %d |' % (
+            key.replace('_', ' '), measured, '%.3f s' % row['worst_s'] if measured else '-', row['bound_s'],
+            '%.0f %%' % (100 * row.get('worst_of_bound', 0.0)) if measured else '-', row['was_at_rest'],
+            row['restarted'] + row['held']))
 
 
 def percentile(values: list, q: float) -> float:

@@ -38,7 +38,9 @@ DETECTION_S = {
     'manager_killed': 0.3,       # the Robot Manager dies during a drive: the navigator's latched topic closes
     'controller_killed': 0.05,   # a controller dies or stalls: the motors' watchdog (40 ms) and a period
     'controller_stalled': 0.05,
-    'obstacle_unplugged': 0.14,  # the active obstacle source goes stale: 3 of the SICK's periods + 20 ms
+    # the active obstacle source goes stale: 3 of its periods + 20 ms (the SICK's here; the runner gives each
+    # case its source's own, as the watch learns it: the stitched Hokuyo cloud and the D435's are slower)
+    'obstacle_unplugged': 0.14,
     'hand_unplugged': 0.04,      # the hand source goes stale while an arm follows it: 2 periods + 20 ms
     'link_cut': 0.2,             # the servo stream is cut: the stream's 0.1 s timeout, the controller's deadman
     # a drive's client is cut off: the kernel drops the navigator's unacknowledged status after 0.4 s
@@ -99,6 +101,11 @@ class StopCase:
     affected: Tuple[str, ...] = ()
     measured: Optional[float] = None     # s from the fault to the part at rest
     outcome: str = 'open'                # open | at rest | was at rest | restarted | held | VIOLATION
+    detection: Optional[float] = None    # this fault's detection bound, when not its case's (DETECTION_S)
+
+    @property
+    def bound(self) -> float:
+        return stop_bound(self.case, self.part) if self.detection is None else self.detection + BRAKING_S[self.part]
 
 
 class MotionLedger:
@@ -107,6 +114,7 @@ class MotionLedger:
         self.spans: List[dict] = []                  # closed spans not judged yet
         self.judged: Deque[dict] = collections.deque(maxlen=MAX_JUDGED)   # for the stop cases still open
         self.moving: Dict[str, dict] = {}            # part -> its span under way (the watch's last answer)
+        self.stale_after: Dict[str, Optional[float]] = {}   # obstacle source -> its stale bound (the same)
         self.rest_since: Dict[str, float] = {}       # part -> its last sample, when at rest
         self.cases: List[StopCase] = []
         self.seq = 0                                 # the last ground-truth event read
@@ -155,8 +163,9 @@ class MotionLedger:
         for part in sorted(parts):
             self.fault('client_killed', t, part, step, mine)
 
-    def fault(self, case: str, t: float, part: str, step: int, affected: Tuple[str, ...] = ()) -> None:
-        self.cases.append(StopCase(case, t, part, step, tuple(affected)))
+    def fault(self, case: str, t: float, part: str, step: int, affected: Tuple[str, ...] = (),
+              detection: Optional[float] = None) -> None:
+        self.cases.append(StopCase(case, t, part, step, tuple(affected), detection=detection))
 
     def truth(self, answer: dict) -> None:
         """The watch's answer to ``since(self.seq)``."""
@@ -175,6 +184,7 @@ class MotionLedger:
                 self.finding.append('motion: the base moved blind from t %.3f to %.3f: no obstacle source fresh '
                                     '(each source: s since it was heard, its period: %s)' % (e['start'], e['end'], e['since_heard']))
         self.seq = answer['seq']
+        self.stale_after = answer.get('stale_after', {})
         self.moving = answer['moving']
         self.rest_since = {p: t for p, t in answer['last'].items() if p not in self.moving}
 
@@ -231,7 +241,7 @@ class MotionLedger:
         for case in self.cases:
             if case.outcome != 'open':
                 continue
-            bound = stop_bound(case.case, case.part)
+            bound = case.bound
             moving_at = self._span_at(case.part, case.t)
             if moving_at is None:
                 if now - case.t > JUDGE_AFTER_S:
@@ -277,11 +287,13 @@ class MotionLedger:
         worst: Dict[str, dict] = {}
         for case in self.cases:
             row = worst.setdefault('%s/%s' % (case.case, case.part), {
-                'bound_s': round(stop_bound(case.case, case.part), 3), 'measured': 0, 'worst_s': 0.0,
-                'was_at_rest': 0, 'restarted': 0, 'held': 0, 'open': 0})
+                'bound_s': 0.0, 'measured': 0, 'worst_s': 0.0, 'worst_of_bound': 0.0, 'was_at_rest': 0,
+                'restarted': 0, 'held': 0, 'open': 0})
+            row['bound_s'] = round(max(row['bound_s'], case.bound), 3)      # the widest, when a case's varies
             if case.measured is not None and case.outcome in ('at rest', 'VIOLATION'):
                 row['measured'] += 1
                 row['worst_s'] = round(max(row['worst_s'], case.measured), 3)
+                row['worst_of_bound'] = round(max(row['worst_of_bound'], case.measured / case.bound), 3)
             elif case.outcome == 'was at rest':
                 row['was_at_rest'] += 1
             elif case.outcome in ('restarted', 'held'):

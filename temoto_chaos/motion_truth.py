@@ -47,9 +47,14 @@ LEARNT_TOLERANCE_S = 0.05
 MAX_EVENTS = 20000
 
 
+def stale_after(period: float) -> float:
+    """s after a source's last message beyond which the navigator must hold it stale (docs/robots.md)."""
+    return STALE_PERIODS * period + STALE_MARGIN_S
+
+
 def blind_after(period: float) -> float:
     """s after a source's last message beyond which a base still moving drove blind."""
-    return STALE_PERIODS * period + STALE_MARGIN_S + BASE_BRAKING_S
+    return stale_after(period) + BASE_BRAKING_S
 
 
 class SourceClock:
@@ -74,10 +79,17 @@ class SourceClock:
             return ordered[int(PERCENTILE * (len(ordered) - 1))]
         return max(self.intervals) if self.intervals else None
 
-    def fresh(self, t: float) -> bool:
+    def stale_bound(self) -> Optional[float]:
+        """``stale_after`` of the period the contract holds the source to, with a learnt period's tolerance of
+        two observers; None until a period is known."""
         period = self.period()
-        tolerance = 0.0 if self.declared is not None else LEARNT_TOLERANCE_S
-        return self.last is not None and period is not None and t - self.last <= blind_after(period) + tolerance
+        if period is None:
+            return None
+        return stale_after(period) + (0.0 if self.declared is not None else LEARNT_TOLERANCE_S)
+
+    def fresh(self, t: float) -> bool:
+        stale = self.stale_bound()
+        return self.last is not None and stale is not None and t - self.last <= stale + BASE_BRAKING_S
 
 
 @dataclasses.dataclass
@@ -127,11 +139,13 @@ class GroundTruth:
 
     # -- what a reader asks --------------------------------------------------------------------------------------
     def since(self, seq: int) -> dict:
-        """The events numbered above ``seq``, the spans under way, and each part's last sample."""
+        """The events numbered above ``seq``, the spans under way, each part's last sample, and how long after its
+        last message each obstacle source is stale (the bound of the "obstacle unplugged" stop case)."""
         return {'seq': self.seq, 'events': [e for e in self.events if e['seq'] > seq],
                 'oldest': self.events[0]['seq'] if self.events else self.seq + 1,
                 'moving': {p: {'start': s.start, 'last': s.last, 'peak': s.peak} for p, s in self.moving.items()},
-                'last': dict(self.last), 'samples': self.samples}
+                'last': dict(self.last), 'samples': self.samples,
+                'stale_after': {s: c.stale_bound() for s, c in self.sources.items()}}
 
     # -- rules -------------------------------------------------------------------------------------------------
     def fresh(self, t: float) -> bool:

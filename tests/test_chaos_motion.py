@@ -235,3 +235,28 @@ def test_a_goal_whose_acceptance_never_reached_its_client_still_holds_the_part()
                          {'id': '/c_0#1', 'ev': 'ended', 't': 1.8, 'cause': 'robot_failed', 'state': 'FAILED',
                           'reason': 'cut off'})
     assert ledger.check(10.0) == []
+
+
+def test_an_unplugged_obstacle_source_is_held_to_its_own_period_not_the_sicks():
+    """Seed 17, step 2445 (two hosts): the stitched Hokuyo cloud, the active source, was stalled; the base
+    stopped 0.841 s later, within the cloud's own contract (3 of its periods), but the case held it to the
+    SICK's 0.64 s. The watch says each source's stale bound; a fault given it is held to it."""
+    cloud = 'laser_stitcher/cloud'
+    truth = GroundTruth({SICK: 0.04, cloud: None})
+    for i in range(25):                               # the cloud at 10 Hz
+        truth.obstacle(0.1 * i, cloud)
+    stale = truth.since(0)['stale_after']
+    assert stale[SICK] == pytest.approx(0.14), 'a declared period: 3 of its 40 ms and 20 ms'
+    assert stale[cloud] == pytest.approx(3 * 0.1 + 0.02 + LEARNT_TOLERANCE_S)
+
+    stop = 2.4 + stale[cloud] + 0.45                  # past the SICK's bound, within the cloud's
+    assert stop - 2.4 > stop_bound('obstacle_unplugged', BASE)
+    drive(truth, 1.0, stop, scans=False)
+    for detection, violated in ((stale[cloud], False), (None, True)):
+        ledger = ledger_with(truth, *goal('/c_0#1', 0.9))
+        ledger.fault('obstacle_unplugged', 2.4, BASE, step=9, detection=detection)
+        out = ledger.check(20.0)
+        assert any('still moving' in v and 'obstacle unplugged' in v for v in out) == violated, (detection, out)
+    row = ledger.figures()['stop_cases']['obstacle_unplugged/base']
+    assert row['bound_s'] == pytest.approx(stop_bound('obstacle_unplugged', BASE), abs=1e-3)
+    assert row['worst_of_bound'] > 1.0
