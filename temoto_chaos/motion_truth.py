@@ -12,8 +12,9 @@ ROS so that every rule is tested alone:
   plus the base's braking time, which a stop that came in time still needs. The bound is the navigator's
   contract (docs/robots.md), judged here on its own from the messages' arrivals: three of the source's
   periods and 20 ms, the period being the one a scan declares (or the median of its last 5 intervals, if
-  slower), or, for a cloud, which declares none, the 90th percentile of its last 20 intervals (a camera
-  rendered on a busy machine is slow, and is allowed its own pace).
+  slower), or, for a cloud, which declares none, the 90th percentile of its last 20 intervals, the third
+  longest (a camera rendered on a busy machine is slow, and is allowed its own pace): the contract's own
+  definition, ``freshness.learnt_period``, applied to the arrivals the watch hears.
 
 The events are numbered, so a reader asks for what came after the last one it saw; a bounded deque keeps
 the newest (a reader that asks every check never misses one).
@@ -23,6 +24,8 @@ from __future__ import annotations
 import collections
 import dataclasses
 from typing import Deque, Dict, List, Optional
+
+from temoto_robot_manager.freshness import WINDOW, learnt_period
 
 BASE, LEFT_ARM, RIGHT_ARM, GRIPPER = 'base', 'left_arm', 'right_arm', 'gripper'
 PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
@@ -39,7 +42,7 @@ BASE_BRAKING_S = 0.5
 # declares (a LaserScan's scan_time), or None (a PointCloud2 declares none)
 OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': None, 'd435/depth_registered/points': None}
 STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
-RECENT, WINDOW, PERCENTILE = 5, 20, 0.9
+RECENT = 5
 # a period learnt from arrivals (a cloud's) is learnt by two observers, the navigator and the watch, each
 # receiving a megabyte-sized message when its own threads get a CPU: their estimates differ by tens of ms on
 # a loaded machine (seed 17, step 2086: one base sample 14 ms past the watch's bound)
@@ -74,10 +77,7 @@ class SourceClock:
         if self.declared is not None:
             recent = sorted(list(self.intervals)[-RECENT:])
             return max(self.declared, recent[len(recent) // 2]) if len(recent) >= 3 else self.declared
-        if len(self.intervals) >= 3:
-            ordered = sorted(self.intervals)
-            return ordered[int(PERCENTILE * (len(ordered) - 1))]
-        return max(self.intervals) if self.intervals else None
+        return learnt_period(self.intervals)
 
     def stale_bound(self) -> Optional[float]:
         """``stale_after`` of the period the contract holds the source to, with a learnt period's tolerance of

@@ -168,6 +168,24 @@ def test_a_source_that_jitters_is_judged_by_its_slow_frames_not_its_median():
     assert not f.fresh(t + 0.37), 'silent for three of its slow periods: stale'
 
 
+def test_a_source_heard_for_a_few_frames_is_never_trusted_longer_than_a_full_window_would_allow():
+    """Seed 17, step 2188 (chaos, two hosts): a navigator just restarted took the D435 as its source and had
+    9 intervals of it, two of them a stall's; the percentile of so few was the stall's second longest (0.51 s)
+    where the full window of 20 gave 0.30 s, and the base drove on a stale camera for 1.5 s. The third longest
+    of what is known is never longer than the third longest of the full window."""
+    few = [0.30] * 7 + [0.51, 1.75]
+    f = Freshness()
+    t = 0.0
+    for interval in few:
+        t += interval
+        f.arrived(t)
+        f.heard(t)
+    assert f.period == pytest.approx(0.30)
+    full = sorted(few + [0.30] * 11)                   # the 20 the source sent: any 11 more, its usual period
+    assert f.period <= full[int(0.9 * 19)] + 1e-9
+    assert not f.fresh(t + 3 * 0.30 + 0.01), 'stale after 3 of the period the full window allows'
+
+
 def drive(nav, pose, now, limit=4000):
     """The navigator closing the loop on a kinematic base; (final pose, ending, ticks). Every pose on the way
     keeps the robot's whole outline off the map's obstacles."""
