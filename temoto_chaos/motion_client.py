@@ -31,6 +31,7 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from temoto_core.action_client import ACK_RESEND_S, redeliver
 from temoto_core.msg import HandSample
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.dial import Dial
@@ -44,6 +45,7 @@ STREAM_PERIOD_S = 0.02        # the servo stream's 50 Hz
 JOINTS_WAIT_S = 2.0           # where the arm is, from one joint_states message
 SWEEP_ARM = 'right_arm'        # the Hokuyo's: it sweeps until held
 HAND_PERIOD_S = 0.01          # the simulated hand tracker's 100 Hz (hands.yaml)
+DELIVERY_S = 30.0             # a goal unacknowledged is sent again for this long (a cut link delays the answer)
 HOLD_ANSWER_S = 1.0           # the manipulator says it holds within one step of its loop (a cut link: never)
 UR5_JOINTS = ('shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
               'wrist_3_joint')
@@ -149,11 +151,20 @@ class MotionClient:
         with self.lock:
             self.journal.write(id=motion.id, ev='sent', part=part, kind=kind, what=what, robot=robot)
             motion.handle = client.send_goal(goal, transition_cb=lambda gh, m=motion: self._transition(m, gh))
+        threading.Thread(target=self._deliver, args=(motion,), name='deliver-%s' % motion.id, daemon=True).start()
         motion.answered.wait(ANSWER_WAIT_S)
         with self.lock:
             state = STATE_NAMES.get(motion.handle.get_goal_status(), '?')
             text = motion.handle.get_goal_status_text()
         return {'ok': True, 'id': motion.id, 'accepted': motion.accepted.is_set(), 'state': state, 'text': text[:200]}
+
+    @staticmethod
+    def _deliver(motion: Motion) -> None:
+        """The goal sent again while its server has not acknowledged it (``action_client.redeliver``): sent as its
+        server restarted, it went to the dead incarnation (seed 17, step 7407: never answered)."""
+        for _ in range(int(DELIVERY_S / ACK_RESEND_S)):
+            if motion.answered.wait(ACK_RESEND_S) or motion.ended or not redeliver(motion.handle):
+                return
 
     def _transition(self, motion: Motion, gh) -> None:
         with self.lock:

@@ -20,6 +20,7 @@ from vaultbot_sim.gripper_controller import Refused, check_goal
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
 from vaultbot_sim.msg import GripperState
 from vaultbot_sim.urdf_gen import FINGER, GRIPPER_BODY, TEST_POLE_RADIUS, TEST_POLE_XY
+from temoto_core import process_group
 from temoto_core.action_client import TrackingActionClient
 
 HANG = 30.0
@@ -203,3 +204,20 @@ def test_a_goals_client_killed_mid_stroke_stops_the_fingers(gripper, procs):
     assert at_rest.header.stamp.to_sec() - killed < 0.4, 'the fingers moved on %.2f s after their client died' % (
         at_rest.header.stamp.to_sec() - killed)
     assert at_rest.gap < STROKE - 0.005, 'they went on to the end of the stroke'
+
+
+def test_a_goal_sent_while_its_controller_restarts_reaches_the_new_one(gripper, procs):
+    """Chaos, seed 17, step 7407: a goal sent just after the gripper's controller was restarted was never
+    acknowledged, and its client heard nothing. The new incarnation shares the old one's name, which is all
+    actionlib knows a server by; the goal, not latched, went to the dead one. Sent again while it is not
+    acknowledged, it reaches the new one, which answers it (here: refuses it, naming the field)."""
+    client = gripper['client']
+    old = gripper['controller']
+    os.kill(old.pid, signal.SIGKILL)
+    wait_for(lambda: process_group.ended(old.pid), HANG, 'the controller to end')
+    client.send_goal(GripperCommandGoal(command=GripperCommand(position=0.02, max_effort=-1.0)))
+    procs.node('vaultbot_sim', 'gripper_controller')
+    assert client.wait_for_result(rospy.Duration(HANG)), 'the goal was never answered'
+    assert client.get_state() == GoalStatus.ABORTED, client.get_goal_status_text()
+    assert 'command.max_effort -1.0' in client.get_goal_status_text()
+    assert client.resent >= 1
