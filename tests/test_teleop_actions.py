@@ -253,6 +253,8 @@ def test_the_arm_follows_the_hand_holds_when_it_is_unplugged_and_fails_over_to_t
         wait_for(lambda: marker.last() is not None and marker.last().markers, 20, 'the virtual hand in the scene')
         pose = marker.last().markers[0].pose
         wait_for(lambda: feedback.get_num_connections() > 0, 20, 'the virtual hand listening')
+        # the virtual hand started with the failover: its samples reach this test's subscriber a moment later
+        wait_for(lambda: virtual.last() is not None, 20, 'the virtual hand\'s samples')
         pose.position.y += 0.05
         wait_for(lambda: click(feedback, rospy_client, InteractiveMarkerFeedback.POSE_UPDATE, pose)
                  or abs(virtual.last().palm.position.y - pose.position.y) < 1e-6, 20, 'the open hand dragged')
