@@ -92,6 +92,25 @@ def _answer_or_error(fn, **kwargs):
         return err
 
 
+def test_a_load_answered_after_its_registrar_shut_down_is_released_at_its_owner(pair):
+    """An action's registrar shuts down when the action ends, and a load that a side thread of the plugin
+    started (follow_hand's failover to another hand source) may still be on its way: its answer came to a
+    registrar that had already released everything, so nothing released it until the worker's process went."""
+    a, c = pair
+    answers = []
+    call = threading.Thread(target=lambda: answers.append(_answer_or_error(
+        a.command, op='call', rr='rr_dc', name='late', params=[['delay', '1.5']])), daemon=True)
+    call.start()
+    wait_for(lambda: [q for q in c.registry()['server_queries'] if q['state'] == 'loading'], HANG,
+             "A's load under way at C")
+    a.command(op='shutdown')
+    call.join(HANG)
+    assert answers and answers[0].get('code') == ErrorCode.SHUTDOWN, answers
+    assert 'shut down while' in answers[0]['error'], answers
+    wait_for(lambda: c.counts()['unloads'] == {'late': 1}, HANG, 'the late resource released at C')
+    wait_for(lambda: registry_empty(c), HANG, 'an empty registry at C')
+
+
 def test_a_bad_deadline_is_refused_and_changes_nothing(pair):
     a, c = pair
     out = a.command(op='call', rr='rr_dc', name='cam', deadline=-1)

@@ -117,20 +117,36 @@ class ClientSide:
         except TemotoError as err:
             error = err
         with core.lock:
+            late = error is None and core.closed
+            if late:
+                # the registrar shut down while this load was on its way: its shutdown released what it held
+                # then, so nothing here would ever release this one (a plugin's failover that outlived its
+                # action, docs/failures.md): it is given back at once, and the caller hears why
+                query.response, query.external_id = response, response.trr.resource_id
+                error = core.error(ErrorCode.SHUTDOWN, 'registrar %s shut down while %s was loading; the resource '
+                                   'it answered with is released' % (core.name, service))
             if error is not None:
                 query.move(FAILED)
                 query.error = error
                 if self.by_key.get((query.target, query.key)) is query:
                     del self.by_key[(query.target, query.key)]
                 core.notify_change()
-                raise error
-            query.response = response
-            query.external_id = response.trr.resource_id
-            query.move(ACTIVE)
-            self.by_external[(query.target, query.external_id)] = query
-            out = self._attach(query, local_id, status_cb, parent)
-            parked = self._pipeline.take_parked(query.target, query.external_id)
-            core.notify_change()
+            else:
+                query.response = response
+                query.external_id = response.trr.resource_id
+                query.move(ACTIVE)
+                self.by_external[(query.target, query.external_id)] = query
+                out = self._attach(query, local_id, status_cb, parent)
+                parked = self._pipeline.take_parked(query.target, query.external_id)
+                core.notify_change()
+        if late:
+            try:
+                self._send_unload(query)
+            except TemotoError as err:
+                rospy.logwarn('%s: %s', core.prefix, err)
+            self.close_proxies()        # the shutdown closed the pool once; the unload's connection goes too
+        if error is not None:
+            raise error
         if self.owners is not None:
             self.owners.notice(response.trr.owner_node, response.trr.owner_uri, response.trr.owner_incarnation)
         for msg in parked:
