@@ -273,6 +273,26 @@ def test_the_arm_follows_the_hand_holds_when_it_is_unplugged_and_fails_over_to_t
         listener.unregister()
 
 
+def test_stop_ends_follow_hand_at_once_while_its_hand_source_fails_over(op, rospy_client, collect):
+    """The failover to another hand source lasts as long as the Sensor Manager's tries: a stalled tracker is
+    tried again first (its rank stays above the virtual hand's) and given its whole first-data allowance. A CI
+    run's "stop" came during such a try: the action could not hear it, the engine ended its worker at 15 s,
+    and the graph said FAILED. The stop now ends it at once, and what the failover brings later is released."""
+    arms = collect('/vaultbot_sim/arm_states', ArmState)
+    graph = graph_of(said(op, 'robot please follow my hand'))
+    assert op.wait_event('following', graph, HANG, 'the arm following the hand')[0]['hand'] == 'sim_hand_tracker'
+    set_cable('hand_tracker', 'unplugged', 'stall')
+    assert op.wait_event('hand_failed', graph, HANG, 'the tracker failed')[0]['hand'] == 'sim_hand_tracker'
+    said(op, 'stop')
+    assert ended(op, graph, 'follow_hand_0') == 'FINISHED', op.of('state', graph)
+    assert not any(e['state'] == 'FAILED' for e in op.of('state', graph))
+    # it ended inside the failover: no hand source was taken after the stop
+    assert [e['hand'] for e in op.of('following', graph)] == ['sim_hand_tracker'], op.of('following', graph)
+    assert all(a.commanded_speed == 0.0 for a in arms.msgs[-10:] if a.arm == 'left_arm')
+    # what the failover started for the ended action is stopped (the fixture also asks every registry empty)
+    managers_idle(RRS, timeout=HANG)
+
+
 def test_in_navigation_mode_the_hand_turns_the_base_and_a_lost_hand_stops_it(op, rospy_client, collect):
     truth = collect('/vaultbot_sim/base_state', BaseState)
     status = collect('/teleop/status', String)

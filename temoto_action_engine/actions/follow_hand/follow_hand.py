@@ -10,7 +10,8 @@ hand source's subscriber thread, so a sample becomes a servo target with no queu
   holds the arm at once on ``<arm>/servo_hold``, from a loop that waits for exactly the follower's
   deadline; the clutch then needs an open hand and a new grab;
 - a failed source is released and the best hand source that works is started in its place (the Sensor
-  Manager's ranking); when none works, the action ends FAILED, the arm held;
+  Manager's ranking); when none works, the action ends FAILED, the arm held. The failover runs beside the
+  loop (a candidate may take its whole first-data allowance), so a stop meanwhile ends the action at once;
 - the robot's manipulation failing (a controller crashed) ends it FAILED, the arm held.
 
 In navigation mode (``mode`` base: "drive with my hand", "follow my hand with the base") it holds the
@@ -55,6 +56,7 @@ SAMPLE_PERIOD_S = 0.01          # a Leap Motion's 100 Hz (hands.yaml declares th
 TOOL_WAIT_S = 0.2               # the tool's pose from TF at a grab
 BASE_WORDS = ('base', 'drive', 'driving', 'navigation')   # the ``mode`` that drives the base, not an arm
 SCENE_PERIOD_S = 0.1            # the hand and its target redrawn (10 Hz: a display, not the servo loop)
+FAILOVER_POLL_S = 0.05          # how soon a stop is seen while another hand source is being started
 
 
 def _palm(msg: HandSample) -> np.ndarray:
@@ -180,28 +182,55 @@ class FollowHand(RobotAction):
 
     # -- the hand source ----------------------------------------------------------------------------------------
     def _start_hand(self) -> None:
+        self._use_hand(self._new_hand())
+
+    def _new_hand(self):
         try:
-            self.hand = self.station_sensor_manager.start_sensor(HAND_TYPE, [HAND_TOPIC_KEY], on_status=self.post)
+            return self.station_sensor_manager.start_sensor(HAND_TYPE, [HAND_TOPIC_KEY], on_status=self.post)
         except TemotoError as err:
             raise ActionError('no hand source works: %s' % err) from None
-        if self._hand_sub is not None:
-            self._hand_sub.unregister()
-        self._hand_sub = rospy.Subscriber(self.hand.topic(HAND_TOPIC_KEY), HandSample, self._on_sample,
-                                          queue_size=5, tcp_nodelay=True)
+
+    def _use_hand(self, hand) -> None:
+        sub = rospy.Subscriber(hand.topic(HAND_TOPIC_KEY), HandSample, self._on_sample, queue_size=5,
+                               tcp_nodelay=True)
+        with self.lock:
+            self.hand, self._hand_sub = hand, sub
 
     def _hand_failed(self, event) -> None:
         failed = self.hand
         self._hold('the hand source %s failed: %s' % (failed.sensor_name, event.message))
+        with self.lock:
+            sub, self._hand_sub = self._hand_sub, None
+        if sub is not None:
+            sub.unregister()     # a failed source may still publish (stalled, then back): it engages nothing
         self.event('hand_failed', hand=failed.sensor_name, message=event.message, origin=event.origin)
-        try:
-            self.station_sensor_manager.stop_sensor(failed.resource_id)
-        except TemotoError as err:         # its owner may be gone with it; what it held is released in cascade
-            self.log_warn('releasing the failed hand source: %s' % err)
-        try:
-            self._start_hand()
-        except ActionError as err:
-            self.fail('lost the hand (%s), and no other hand source works: %s' % (event.origin, err))
+        # the failover takes as long as the Sensor Manager's tries (seconds, when a candidate is unplugged too): it
+        # runs beside this loop, so the operator's stop ends the action at once. What it brings after the action
+        # ended is released: by the registrar's shutdown, or refused by a registrar already shut down.
+        found = {}
+        done = threading.Event()
+
+        def fail_over():
+            try:
+                try:
+                    self.station_sensor_manager.stop_sensor(failed.resource_id)
+                except TemotoError as err:   # its owner may be gone with it; what it held is released in cascade
+                    self.log_warn('releasing the failed hand source: %s' % err)
+                found['hand'] = self._new_hand()
+            except ActionError as err:
+                found['error'] = err
+            finally:
+                done.set()
+        threading.Thread(target=fail_over, daemon=True, name='hand-failover').start()
+        while not done.wait(FAILOVER_POLL_S):
+            if not self.action_ok():
+                return
+        if not self.action_ok():
             return
+        if 'error' in found:
+            self.fail('lost the hand (%s), and no other hand source works: %s' % (event.origin, found['error']))
+            return
+        self._use_hand(found['hand'])
         self.event('following', part=self.part, arm=self.arm, scale=self.dial.scale, hand=self.hand.sensor_name)
         self.feedback('the hand source failed (%s); now %s: open your hand, then grab again'
                       % (event.origin, self.hand.sensor_name))
