@@ -6,8 +6,10 @@ are mostly close to its mean, and the limit can follow them: ``mean + SPREAD_FAC
 the last ``WINDOW`` gaps, the threshold of a phi-accrual detector (Hayashibara et al., 2004) with a
 normal model, phi of about 9 for a factor of 6. Two guards keep it honest when the model is wrong:
 
-- the limit is never below ``FLOOR_PERIODS`` nominal periods (a lost message is not a stall) nor
-  below ``MAX_GAP_MARGIN`` times the longest gap of the last ``HISTORY_BUCKETS`` x ``BUCKET`` gaps,
+- the limit is never below ``FLOOR_PERIODS`` nominal periods (a lost message is not a stall), nor below
+  ``FLOOR_S`` (a loaded machine's scheduling gap is not a stall either: a 100 Hz hand source's learnt limit
+  of 29 ms once called a 48 ms gap a stall and sent its action into a failover), nor below
+  ``MAX_GAP_MARGIN`` times the longest gap of the last ``HISTORY_BUCKETS`` x ``BUCKET`` gaps,
   about a minute (a machine that was slow a minute ago may be slow again: gap tails are much heavier
   than a normal model says; with two CPU hogs, a 25 Hz scan whose gaps had a mean of 40 ms, a spread of
   13 ms and a longest gap of 129 ms in the last minute then showed a gap of 194 ms);
@@ -28,6 +30,8 @@ WARMUP = 100            # gaps before the measured rhythm is trusted (3 s at 30 
 SPREAD_FACTOR = 6.0     # limit = mean + SPREAD_FACTOR x spread
 MIN_SPREAD = 0.1        # x mean: a perfectly regular stream still gets a margin
 FLOOR_PERIODS = 2.5     # nominal (or measured) periods: the shortest limit
+FLOOR_S = 0.08          # seconds: the shortest limit whatever the rate (above a loaded 2-core machine's 48 ms
+                        # scheduling gaps; only sources faster than 31 Hz reach it)
 MAX_GAP_MARGIN = 2.0    # x the longest recent gap: the limit stays above what the stream did lately (1.5 let
                         # two false stalls through in 10 min with two CPU hogs: bench_stall.py)
 BUCKET = 100            # gaps per bucket of the longest-gap history
@@ -112,7 +116,7 @@ class ArrivalModel:
         else:
             return cap
         adaptive = mean + SPREAD_FACTOR * max(spread, MIN_SPREAD * mean)
-        floor = max(FLOOR_PERIODS * (nominal_period or mean), MAX_GAP_MARGIN * longest)
+        floor = max(FLOOR_S, FLOOR_PERIODS * (nominal_period or mean), MAX_GAP_MARGIN * longest)
         return min(cap, max(floor, adaptive))
 
     def describe(self) -> str:

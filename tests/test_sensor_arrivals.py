@@ -32,6 +32,15 @@ def test_a_steady_30_hz_stream_is_watched_within_three_periods_and_never_below_t
     assert fed([0.04] * 100).limit(1.0, 0.04) == pytest.approx(arrivals.FLOOR_PERIODS * 0.04)
 
 
+def test_a_fast_regular_stream_is_not_called_stalled_by_a_scheduling_gap():
+    """A 100 Hz hand source, regular for its first second: its limit learnt 2.5 periods (25 ms), and a 48 ms
+    gap on a loaded machine was called a stall (a CI run's virtual hand). The floor in seconds is above it."""
+    model = fed([0.01] * arrivals.WARMUP)
+    assert model.limit(0.2, 0.01) >= 0.048 * 1.5
+    assert model.limit(0.2, 0.01) == pytest.approx(arrivals.FLOOR_S)
+    assert fed([0.01] * arrivals.WARMUP).limit(0.05, 0.01) == 0.05, 'the catalogue\'s own limit still caps it'
+
+
 def test_a_jittery_stream_gets_a_longer_limit_and_the_cap_bounds_it():
     rng = random.Random(4)
     steady = fed([1 / 30.0 + rng.gauss(0, 0.002) for _ in range(300)]).limit(0.5, 1 / 30.0)
