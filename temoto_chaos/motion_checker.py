@@ -46,6 +46,9 @@ DETECTION_S = {
     # a drive's client is cut off: the kernel drops the navigator's unacknowledged status after 0.4 s
     # (goal_holders.py), at its retransmission timer's next firing (up to 0.4 s more), then the next tick
     ('link_cut', BASE): 1.0,
+    # the gripper's controller finds a cut-off client the same way: a cancel sent during the cut never
+    # reaches it (seed 17, step 2032: the fingers finished their 0.62 s stroke 0.56 s after the cancel)
+    ('link_cut', GRIPPER): 1.0,
 }
 # a goal's end: the longest a goal of each kind may run before it ends by itself (a drive across the lab at
 # the navigator's speed, with replanning; a gripper's stroke and its 1 s; a stream's own length is its end)

@@ -6,7 +6,7 @@ import math
 import pytest
 
 from temoto_chaos.motion_checker import ALLOWANCE_S, JUDGE_AFTER_S, MotionLedger, stop_bound
-from temoto_chaos.motion_truth import (BASE, LEARNT_TOLERANCE_S, LEFT_ARM, RIGHT_ARM, SAMPLES_LOST_S, GroundTruth,
+from temoto_chaos.motion_truth import (BASE, GRIPPER, LEARNT_TOLERANCE_S, LEFT_ARM, RIGHT_ARM, SAMPLES_LOST_S, GroundTruth,
                                       blind_after)
 
 SICK = 'sick/scan'
@@ -105,6 +105,25 @@ def test_motion_past_the_holds_end_and_its_allowance_is_a_violation_naming_the_h
     [v] = ledger.check(10.0)
     assert 'the base moved' in v and 'no live holder for 0.5' in v and '/c_0#1' in v
     assert ledger.check(11.0) == []            # said once
+
+
+def test_a_gripper_goal_cancelled_during_a_link_cut_may_finish_its_stroke_within_the_cut_bound():
+    """A cancel sent while the link is down never reaches the gripper's controller, which finds its client cut
+    off as the navigator does (nothing acknowledged for 0.4 s): the stroke may go on up to that bound."""
+    def closing(until):
+        truth = GroundTruth({SICK: 0.04})
+        t = 1.0
+        while t < until:
+            truth.gripper(t, 0.14)
+            t += 0.02
+        truth.gripper(until, 0.0)
+        return ledger_with(truth, *goal('/c_0#6', 0.98, part=GRIPPER, kind='grip'),
+                           {'id': '/c_0#6', 'ev': 'ended', 't': 1.04, 'cause': 'cancelled', 'state': 'CANCELLED',
+                            'reason': 'cancelled by its client'})
+    assert closing(1.62).check(10.0) == []               # the 0.62 s stroke, 0.58 s after the cancel
+    assert ALLOWANCE_S[GRIPPER] >= stop_bound('link_cut', GRIPPER) > 0.58
+    [v] = closing(1.04 + stop_bound('link_cut', GRIPPER) + 0.3).check(10.0)
+    assert 'the gripper moved' in v and '/c_0#6' in v
 
 
 def test_a_span_is_judged_only_once_the_journals_have_had_time_to_say_its_holds_end():
