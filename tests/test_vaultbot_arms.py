@@ -256,6 +256,17 @@ def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy
     wait_for(lambda: abs(positions(joints, [SWEEP_JOINT])[0] - wrist) > 0.1, HANG, 'the sweep to go on')
     wait_for(lambda: arm_state(states, 'right_arm') and not arm_state(states, 'right_arm').held, HANG,
              'the arm given back')
+    # a hold that reaches the motors after the give-back (its controller starved; seed 17, step 2157) takes
+    # nothing: the arm is nobody's, and the sweep goes on
+    motors = rospy_client.Publisher('/right_arm/joint_command', JointState, queue_size=5)
+    wait_for(lambda: motors.get_num_connections() > 0, HANG, 'the motors listening')
+    since = rospy_client.get_time()
+    motors.publish(JointState(name=right, velocity=[0.0] * len(right)))
+    wrist = positions(joints, [SWEEP_JOINT])[0]
+    # the sweep turns the wrist 0.1 rad in 64 ms, or a little longer at an end of its stroke
+    wait_for(lambda: joints.last().header.stamp.to_sec() > since + 0.5
+             and abs(positions(joints, [SWEEP_JOINT])[0] - wrist) > 0.1, 10, 'the sweep to go on after a late hold')
+    assert not any(m.held for m in states_since(states, 'right_arm', since)), 'a late hold took the arm'
 
 
 def test_the_trajectory_check_alone():

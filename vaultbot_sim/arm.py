@@ -61,9 +61,15 @@ class ArmPlant:
         self.setpoint = {j: (self.ranges[j].clamp(q), max(-SPEED, min(SPEED, v))) for j, (q, v) in setpoint.items()}
         self.command_at, self.tripped_at, self.held = now, None, True
 
-    def stop(self, now: float) -> None:
-        """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no watchdog trip either."""
-        self.setpoint, self.command_at, self.tripped_at, self.held = None, now, None, True
+    def stop(self, now: float) -> bool:
+        """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no watchdog trip either. An arm
+        nobody holds (given back to the simulation's hold pose or sweep) has nothing to hold: the stop is moot
+        and takes nothing, as a command to a controller switched off does not reach the motors (a controller's
+        hold that came after the give-back once took the wrist from its sweep, seed 17, step 2157). False then."""
+        if not self.held:
+            return False
+        self.setpoint, self.command_at, self.tripped_at = None, now, None
+        return True
 
     def release(self) -> None:
         """Nobody holds the arm any more: the simulation's hold pose (and sweep) drive it again from here."""

@@ -64,10 +64,12 @@ class Body:
             self.lock.notify()
             return moving and all(v == 0.0 for _, v in plant.setpoint.values())
 
-    def stop_arm(self, arm: str, now: float) -> None:
+    def stop_arm(self, arm: str, now: float) -> bool:
+        """An arm's stop; False when nobody holds the arm (the stop is moot: ``Arm.stop``)."""
         with self.lock:
-            self.arms[arm].stop(now)
+            taken = self.arms[arm].stop(now)
             self.lock.notify()
+            return taken
 
     def command_gripper(self, gap: float, speed: float, now: float) -> None:
         with self.lock:

@@ -228,10 +228,11 @@ class SimNode:
 
     def _on_arm_command(self, msg: JointState, arm: str) -> None:
         """A setpoint per joint (positions and velocities), or a stop: velocities only, all zero (brake to a
-        hold where the joints are; a hold sent as positions would pull the arm back to where it was seen)."""
+        hold where the joints are; a hold sent as positions would pull the arm back to where it was seen). A stop
+        takes no arm that nobody holds: only a setpoint takes the Hokuyo's from its sweep."""
         if not msg.position and msg.velocity and all(v == 0.0 for v in msg.velocity):
-            self.body.stop_arm(arm, time.monotonic())
-            self._publish_arm(arm, rospy.Time.now())
+            if self.body.stop_arm(arm, time.monotonic()):
+                self._publish_arm(arm, rospy.Time.now())
             return
         try:
             if len(msg.name) != len(msg.position) or len(msg.name) != len(msg.velocity):
