@@ -25,7 +25,7 @@ import collections
 import dataclasses
 from typing import Deque, Dict, List, Optional
 
-from temoto_robot_manager.freshness import WINDOW, learnt_period
+from temoto_robot_manager.freshness import WINDOW, learnt_period, shorter_interval
 
 BASE, LEFT_ARM, RIGHT_ARM, GRIPPER = 'base', 'left_arm', 'right_arm', 'gripper'
 PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
@@ -66,12 +66,15 @@ class SourceClock:
     def __init__(self, declared: Optional[float]) -> None:
         self.declared = declared
         self.last: Optional[float] = None
+        self.stamp: Optional[float] = None      # the last message's header stamp, if it had one
         self.intervals: Deque[float] = collections.deque(maxlen=WINDOW)
 
-    def heard(self, t: float) -> None:
+    def heard(self, t: float, stamp: Optional[float] = None) -> None:
+        """A message at ``t``; its intervals as the navigator learns them (``freshness.Freshness.arrived``)."""
         if self.last is not None and t > self.last:
-            self.intervals.append(t - self.last)
-        self.last = t
+            between = stamp - self.stamp if stamp is not None and self.stamp is not None else None
+            self.intervals.append(shorter_interval(t - self.last, between))
+        self.last, self.stamp = t, stamp
 
     def period(self) -> Optional[float]:
         if self.declared is not None:
@@ -126,8 +129,8 @@ class GroundTruth:
         self._emit({'type': 'contact', 't': t, 'robot_link': robot_link, 'object_link': object_link,
                     'speed': speed})
 
-    def obstacle(self, t: float, source: str) -> None:
-        self.sources[source].heard(t)
+    def obstacle(self, t: float, source: str, stamp: Optional[float] = None) -> None:
+        self.sources[source].heard(t, stamp)
 
     def tick(self, now: float) -> None:
         """Close the spans of parts whose samples stopped (``SAMPLES_LOST_S``) at their last sample."""

@@ -13,6 +13,7 @@ import rospy
 
 from temoto_core import control_socket, params
 from temoto_core.node import init_node, spin
+from temoto_robot_manager.freshness import header_stamp
 from vaultbot_sim.msg import ArmState, BaseState, Contact, GripperState
 
 from .motion_truth import GroundTruth
@@ -37,7 +38,7 @@ class MotionWatch:
         # the obstacle sources: only when a message came matters, never what it holds
         for source in self.truth.sources:
             self._subs.append(rospy.Subscriber('%s/%s' % (ns, source), rospy.AnyMsg,
-                                               lambda _m, s=source: self._on_obstacle(s), queue_size=1))
+                                               lambda m, s=source: self._on_obstacle(s, m), queue_size=1))
         self._timer = rospy.Timer(rospy.Duration(TICK_S), self._tick)
 
     def _on_base(self, m: BaseState) -> None:
@@ -56,10 +57,10 @@ class MotionWatch:
         with self.lock:
             self.truth.contact(m.header.stamp.to_sec(), m.robot_link, m.object_link, m.speed)
 
-    def _on_obstacle(self, source: str) -> None:
+    def _on_obstacle(self, source: str, raw: rospy.AnyMsg) -> None:
         now = rospy.get_time()
         with self.lock:
-            self.truth.obstacle(now, source)
+            self.truth.obstacle(now, source, header_stamp(getattr(raw, '_buff', None)))
 
     def _tick(self, _event) -> None:
         now = rospy.get_time()

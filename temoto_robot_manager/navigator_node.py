@@ -57,7 +57,7 @@ from temoto_core.rospy_internals import connection_header
 from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
-from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.freshness import Freshness, header_stamp
 from temoto_robot_manager.global_planner import NoPath
 from temoto_robot_manager.goal_holders import GoalHolders
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
@@ -187,7 +187,7 @@ class NavigatorNode:
         if topic != self.source_topic:
             return                                  # a frame from the source just left
         with self.wake:
-            self.nav.freshness.arrived(now)
+            self.nav.freshness.arrived(now, header_stamp(getattr(raw, '_buff', None)))
         with self._frames:
             self._frame = (raw, topic, now)
             self._frames.notify()

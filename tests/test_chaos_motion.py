@@ -256,6 +256,19 @@ def test_a_goal_whose_acceptance_never_reached_its_client_still_holds_the_part()
     assert ledger.check(10.0) == []
 
 
+def test_the_watch_learns_a_clouds_pace_as_the_navigator_does_from_its_stamps():
+    """The navigator and the watch each receive a cloud when their own threads get a CPU; learnt from arrivals
+    alone their periods differed by 80 ms (seed 17, step 2299). Both take the shorter of the arrivals' and the
+    stamps' intervals (``freshness.shorter_interval``), so both learn the camera's own pace."""
+    cloud = 'd435/depth_registered/points'
+    truth = GroundTruth({SICK: 0.04, cloud: None})
+    t = 0.0
+    for k in range(21):
+        t += 0.34
+        truth.obstacle(t + (0.16 if k % 4 == 1 else 0.0), cloud, stamp=100.0 + t)
+    assert truth.sources[cloud].period() == pytest.approx(0.34)
+
+
 def test_an_unplugged_obstacle_source_is_held_to_its_own_period_not_the_sicks():
     """Seed 17, step 2445 (two hosts): the stitched Hokuyo cloud, the active source, was stalled; the base
     stopped 0.841 s later, within the cloud's own contract (3 of its periods), but the case held it to the

@@ -1,6 +1,7 @@
 """The navigator: its rules alone (costmap, planner, follower, collision monitor, freshness, goal checks), then the
 node as a process between the sim's base and the SICK, judged by the sim's ground truth
 (``/vaultbot_sim/base_state``, ``~contacts``), never by the navigator's word."""
+import io
 import math
 import os
 import signal
@@ -8,17 +9,18 @@ import time
 
 import numpy as np
 import pytest
+import rospy
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
-from sensor_msgs.msg import LaserScan
+from sensor_msgs.msg import LaserScan, PointCloud2
 from std_msgs.msg import String
 
 from temoto_robot_manager import global_planner
 from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
 from temoto_robot_manager.description import load_file
-from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.freshness import Freshness, header_stamp
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_robot_manager.scene_markers import base_scene, stop_pose
@@ -140,6 +142,39 @@ def test_a_slow_consumer_learns_the_sources_period_from_arrivals_not_from_the_fr
     assert f.period == pytest.approx(0.1)
     last_used = 3.6
     assert f.fresh(last_used + 0.29) and not f.fresh(last_used + 0.31), 'stale 3 source periods after the last used'
+
+
+def test_a_starved_consumer_learns_the_sources_pace_from_its_stamps_and_a_bad_stamp_from_its_arrivals():
+    """Chaos, seed 17, step 2299: a navigator on a loaded robot host received some D435 frames late, and the
+    interval before each was longer than the camera's: it learnt 0.42 s where the camera sent every 0.34 s, and
+    trusted the stalled camera 0.24 s longer than the contract. The frames' stamps say the camera's pace; a
+    driver's wrong stamps are bounded by the arrivals."""
+    late = Freshness()
+    t = 0.0
+    for k in range(20):
+        t += 0.34
+        late.arrived(t + (0.16 if k % 4 == 1 else 0.0), stamp=100.0 + t)   # every fourth frame 160 ms late
+    assert late.period == pytest.approx(0.34)
+    arrivals_only = Freshness()
+    t = 0.0
+    for k in range(20):
+        t += 0.34
+        arrivals_only.arrived(t + (0.16 if k % 4 == 1 else 0.0))
+    assert arrivals_only.period == pytest.approx(0.50), 'without stamps, the late frames set the pace'
+    wrong = Freshness()
+    for k in range(20):
+        wrong.arrived(0.1 * k, stamp=100.0 + 10.0 * k)      # stamps 10 s apart, frames every 100 ms
+    assert wrong.period == pytest.approx(0.1)
+
+
+def test_a_header_stamp_is_read_from_the_serialised_frame_alone():
+    cloud = PointCloud2()
+    cloud.header.stamp = rospy.Time(1795892647, 850000000)
+    cloud.header.frame_id = 'd435_depth_optical_frame'
+    buff = io.BytesIO()
+    cloud.serialize(buff)
+    assert header_stamp(buff.getvalue()) == pytest.approx(1795892647.85)
+    assert header_stamp(b'') is None and header_stamp(bytes(12)) is None, 'no stamp: arrivals alone'
 
 
 def test_a_scanner_that_starts_slowly_is_held_to_its_declared_period_once_it_runs_at_it():
