@@ -184,9 +184,11 @@ class FollowHand(RobotAction):
     def _start_hand(self) -> None:
         self._use_hand(self._new_hand())
 
-    def _new_hand(self):
+    def _new_hand(self, sensors=None):
+        """The best hand source that works, from ``sensors`` (the station's Sensor Manager interface by default)."""
         try:
-            return self.station_sensor_manager.start_sensor(HAND_TYPE, [HAND_TOPIC_KEY], on_status=self.post)
+            return (sensors or self.station_sensor_manager).start_sensor(HAND_TYPE, [HAND_TOPIC_KEY],
+                                                                         on_status=self.post)
         except TemotoError as err:
             raise ActionError('no hand source works: %s' % err) from None
 
@@ -209,14 +211,17 @@ class FollowHand(RobotAction):
         # ended is released: by the registrar's shutdown, or refused by a registrar already shut down.
         found = {}
         done = threading.Event()
+        # taken here, once: after the action ends its interfaces are released, and asking for one again from the
+        # failover's thread would make a new registrar that nothing shuts down
+        sensors = self.station_sensor_manager
 
         def fail_over():
             try:
                 try:
-                    self.station_sensor_manager.stop_sensor(failed.resource_id)
+                    sensors.stop_sensor(failed.resource_id)
                 except TemotoError as err:   # its owner may be gone with it; what it held is released in cascade
                     self.log_warn('releasing the failed hand source: %s' % err)
-                found['hand'] = self._new_hand()
+                found['hand'] = self._new_hand(sensors)
             except ActionError as err:
                 found['error'] = err
             finally:
