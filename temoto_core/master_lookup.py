@@ -8,6 +8,8 @@ its XML-RPC URI reports a pid that belongs to the child we started.
 from __future__ import annotations
 
 import http.client
+import socket
+import urllib.parse
 import xmlrpc.client
 from typing import Iterable
 
@@ -34,6 +36,20 @@ def node_pid(node_uri: str, timeout: float = 1.0) -> int | None:
     except (OSError, xmlrpc.client.Error, http.client.HTTPException):
         return None                       # stale registration: nobody answers there
     return int(pid) if code == 1 else None
+
+
+def node_refuses(node_uri: str, timeout: float = 1.0) -> bool:
+    """Whether nobody listens at a node's XML-RPC port any more: its kernel refuses the connection, as it does
+    at once for a process that died. A port that does not answer in time (a cut link, a stopped node) is not
+    taken for a death."""
+    try:
+        url = urllib.parse.urlsplit(node_uri)
+        with socket.create_connection((url.hostname, url.port), timeout):
+            return False
+    except ConnectionRefusedError:
+        return True
+    except (OSError, ValueError):
+        return False
 
 
 def parent_pid(pid: int) -> int | None:

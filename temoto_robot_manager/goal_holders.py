@@ -4,8 +4,13 @@ The kernel closes a process's connections the moment it dies, so a connection's 
 of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched:
 
 - the goal's action client: its subscription to the status the server publishes, read for an end of file
-  on every look (``rospy_internals.live_subscribers``). A goal sent with no client (``rostopic pub``) or by
-  a tool that sends and forgets (RViz's ``move_base_simple``) has nobody to watch and is never orphaned.
+  on every look (``rospy_internals.live_subscribers``). A client not among the status's subscribers
+  ``CLIENT_CONNECT_S`` after its goal came (it died before its connection was made: chaos, seed 17, step
+  3471, a client SIGKILLed 5 ms after sending a drive, which went on for 3 s; or it never subscribes,
+  ``rostopic pub``) is asked at its node's address, every ``PROBE_PERIOD_S``, on a thread of its own: a
+  kernel that refuses the connection says the process died. A goal whose sender is not a node the master
+  knows, or a tool that sends and forgets (RViz's ``move_base_simple``), has nobody to watch and is never
+  orphaned.
   A client cut off (the operator's link down) closes nothing, and TCP would retransmit for minutes: a
   client whose kernel has acknowledged none of the status (sent at 5 Hz) for ``CLIENT_UNREACHABLE_S``
   while it was retransmitted counts as gone (``rospy_internals.unreachable``). Its client let go by then
@@ -17,17 +22,28 @@ of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched
 """
 from __future__ import annotations
 
+import http.client
+import threading
+import time
+import xmlrpc.client
 from typing import Optional
 
 import actionlib
+import rosgraph
 import rospy
 
+from temoto_core.master_lookup import lookup_node, node_refuses
 from temoto_core.rospy_internals import live_publishers, live_subscribers
 
 OWNER_LOOK_S = 0.05            # how often the manager's connection is looked for until it is first seen
 # s a goal's client may acknowledge nothing, while the status is retransmitted, before it counts as gone: under
 # the client side's own 0.7 s (a registrar's owner liveness); a reachable client's kernel acknowledges in ms
 CLIENT_UNREACHABLE_S = 0.4
+# s a goal's client has to appear among the status's subscribers before its node is asked whether it lives (an
+# actionlib client subscribes before it sends: its connection comes within ms, or tens of them when loaded)
+CLIENT_CONNECT_S = 0.2
+PROBE_PERIOD_S = 0.25          # s between two asks of a client that is still not among them
+PROBE_TIMEOUT_S = 1.0          # the master's answer and the node's port; no answer is not a death
 
 
 class GoalHolders:
@@ -43,6 +59,12 @@ class GoalHolders:
         self._fire_and_forget = fire_and_forget
         self._owner_seen = False
         self._client_seen = False
+        self._goal_at = 0.0
+        self._goals = 0                        # the goal a probe's answer belongs to
+        self._probe_lock = threading.Lock()
+        self._probing = False
+        self._probed_at = 0.0
+        self._died = ''                        # the unseen client the last probe of this goal found dead
         # looked for until seen, not only when a goal comes: a manager that dies before the first goal must
         # still count as seen, or that goal would be taken as one with no manager, and never orphaned
         self._looking = rospy.Timer(rospy.Duration(OWNER_LOOK_S), self._look_for_owner) if owner else None
@@ -55,6 +77,9 @@ class GoalHolders:
     def new_goal(self) -> None:
         """A new goal: its client has not been seen yet."""
         self._client_seen = False
+        with self._probe_lock:
+            self._goals += 1
+            self._goal_at, self._probed_at, self._died = time.monotonic(), 0.0, ''
 
     def owner_away(self) -> Optional[str]:
         """Why a new goal must be refused now: the Robot Manager that started this node was seen and has no
@@ -89,4 +114,33 @@ class GoalHolders:
             self._client_seen = True
         elif self._client_seen:
             return 'its client %s is gone' % client
+        else:
+            return self._unseen(client)
         return None
+
+    def _unseen(self, client: str) -> Optional[str]:
+        """A client never seen among the status's subscribers: dead if its node's kernel refuses a connection
+        (asked on a thread: this runs in the node's control loop)."""
+        now = time.monotonic()
+        with self._probe_lock:
+            if self._died:
+                return 'its client %s is gone (it died before its connection to the status was made)' % client
+            if now - self._goal_at >= CLIENT_CONNECT_S and not self._probing \
+                    and now - self._probed_at >= PROBE_PERIOD_S:
+                self._probing, self._probed_at = True, now
+                threading.Thread(target=self._probe, args=(client, self._goals), daemon=True,
+                                 name='goal-client-probe').start()
+        return None
+
+    def _probe(self, client: str, goal: int) -> None:
+        dead = False
+        try:
+            uri = lookup_node(rosgraph.get_master_uri(), client, PROBE_TIMEOUT_S)
+            dead = uri is not None and node_refuses(uri, PROBE_TIMEOUT_S)
+        except (OSError, xmlrpc.client.Error, http.client.HTTPException) as err:   # the master out of reach: the
+            # next look asks again
+            rospy.logdebug('%s: could not ask after the client %s: %s', self._node, client, err)
+        with self._probe_lock:
+            self._probing = False
+            if dead and goal == self._goals:
+                self._died = client

@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
 """A move_base client that sends one goal and waits: the holder a test or a benchmark kills mid-drive.
-Usage: python -m temoto_testing.goal_client X Y YAW (world frame)."""
+Usage: python -m temoto_testing.goal_client X Y YAW [--raw] (world frame). ``--raw``: the goal is published on
+the action's goal topic, with this node's name in its id, and the status is never subscribed to: a client
+that died before its status connection was made, as the navigator sees it."""
 import math
 import sys
 import time
 
 import rospy
 from actionlib_msgs.msg import GoalStatusArray
-from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
+from move_base_msgs.msg import MoveBaseAction, MoveBaseActionGoal, MoveBaseGoal
 from temoto_core.action_client import TrackingActionClient
 
 
@@ -21,12 +23,21 @@ def _say(line: str) -> None:
 def main() -> None:
     x, y, yaw = (float(v) for v in sys.argv[1:4])
     rospy.init_node('goal_client', anonymous=True)
-    client = TrackingActionClient('/move_base', MoveBaseAction)
-    client.wait_for_server(rospy.Duration(60))
     goal = MoveBaseGoal()
     goal.target_pose.header.frame_id = 'world'
     goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = x, y
     goal.target_pose.pose.orientation.z, goal.target_pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    if '--raw' in sys.argv[4:]:
+        pub = rospy.Publisher('/move_base/goal', MoveBaseActionGoal, queue_size=1, latch=True)
+        msg = MoveBaseActionGoal(goal=goal)
+        msg.header.stamp = msg.goal_id.stamp = rospy.Time.now()
+        msg.goal_id.id = '%s-1-%.3f' % (rospy.get_name(), msg.goal_id.stamp.to_sec())
+        pub.publish(msg)
+        _say('goal sent raw: %s' % msg.goal_id.id)
+        rospy.spin()
+        return
+    client = TrackingActionClient('/move_base', MoveBaseAction)
+    client.wait_for_server(rospy.Duration(60))
     # the status as it reaches this node, a line a second: a test sees the connection carry on after a cut link
     heard = {'said': 0.0}
 

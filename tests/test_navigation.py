@@ -536,6 +536,28 @@ def test_the_base_stops_when_the_goal_s_client_dies_mid_drive(navigation, procs,
     assert rest.contacts == 0
 
 
+def test_the_base_stops_when_a_goal_s_sender_dies_before_it_watched_the_status(navigation, procs, collect):
+    """Chaos, seed 17, step 3471: a client SIGKILLed 5 ms after sending a drive had not yet connected to the
+    status, so the navigator never saw it go, and the base drove on for 3 s. A sender never seen among the
+    status's subscribers is asked at its node's port: alive, it holds its goal; dead, the goal ends."""
+    truth = navigation['truth']
+    statuses = collect('/move_base/status', GoalStatusArray)
+    x, y, yaw = PLACES['drums']
+    sender = procs.command(GOAL_CLIENT + [str(x), str(y), str(yaw), '--raw'], 'goal_sender')
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    since = truth.last().header.stamp.to_sec()
+    # a live sender that does not watch the status still holds its goal
+    wait_for(lambda: truth.last().header.stamp.to_sec() > since + 1.0, HANG, 'a second of the drive')
+    assert truth.last().commanded_linear > 0.0 or truth.last().commanded_angular != 0.0, 'the goal was dropped'
+    os.kill(sender.pid, signal.SIGKILL)
+    killed = time.time()
+    zero = commanded_zero_after(truth.msgs, killed, HANG)
+    assert zero.header.stamp.to_sec() - killed < 5.0
+    ended = aborted_goal(statuses.msgs, HANG)
+    assert 'client /goal_client' in ended.text and 'died before its connection' in ended.text, ended.text
+    wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
+
+
 def stream(pub, rospy, linear, angular, until, rate=50.0, limit=2000, age=0.0):
     """Teleop commands at ``rate`` Hz until ``until()`` holds (at most ``limit`` of them), stamped ``age`` s ago."""
     sleeper = rospy.Rate(rate)
