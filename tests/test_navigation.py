@@ -519,21 +519,27 @@ def test_the_base_stops_when_the_obstacle_source_goes_stale_and_drives_on_when_o
     assert truth.last().contacts == 0
 
 
+def killed_mid_drive(holder, truth, statuses):
+    """SIGKILL the goal's holder: the base is commanded zero (within a hang's bound), comes to rest without a
+    contact, and the goal's end is returned (ABORTED, its text naming why)."""
+    os.kill(holder.pid, signal.SIGKILL)
+    killed = time.time()
+    zero = commanded_zero_after(truth.msgs, killed, HANG)
+    assert zero.header.stamp.to_sec() - killed < 5.0
+    ended = aborted_goal(statuses.msgs, HANG)
+    wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
+    assert truth.last().contacts == 0
+    return ended
+
+
 def test_the_base_stops_when_the_goal_s_client_dies_mid_drive(navigation, procs, collect):
     truth = navigation['truth']
     statuses = collect('/move_base/status', GoalStatusArray)
     x, y, yaw = PLACES['drums']
     client = procs.command(GOAL_CLIENT + [str(x), str(y), str(yaw)], 'goal_client')
     wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
-    os.kill(client.pid, signal.SIGKILL)
-    killed = time.time()
-    zero = commanded_zero_after(truth.msgs, killed, HANG)
-    assert zero.header.stamp.to_sec() - killed < 5.0
-    ended = aborted_goal(statuses.msgs, HANG)
+    ended = killed_mid_drive(client, truth, statuses)
     assert 'client /goal_client' in ended.text and 'is gone' in ended.text, ended.text
-    wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
-    rest = truth.last()
-    assert rest.contacts == 0
 
 
 def test_the_base_stops_when_a_goal_s_sender_dies_before_it_watched_the_status(navigation, procs, collect):
@@ -549,13 +555,8 @@ def test_the_base_stops_when_a_goal_s_sender_dies_before_it_watched_the_status(n
     # a live sender that does not watch the status still holds its goal
     wait_for(lambda: truth.last().header.stamp.to_sec() > since + 1.0, HANG, 'a second of the drive')
     assert truth.last().commanded_linear > 0.0 or truth.last().commanded_angular != 0.0, 'the goal was dropped'
-    os.kill(sender.pid, signal.SIGKILL)
-    killed = time.time()
-    zero = commanded_zero_after(truth.msgs, killed, HANG)
-    assert zero.header.stamp.to_sec() - killed < 5.0
-    ended = aborted_goal(statuses.msgs, HANG)
+    ended = killed_mid_drive(sender, truth, statuses)
     assert 'client /goal_client' in ended.text and 'died before its connection' in ended.text, ended.text
-    wait_for(lambda: truth.last().linear == 0.0, HANG, 'the base at rest')
 
 
 def stream(pub, rospy, linear, angular, until, rate=50.0, limit=2000, age=0.0):
