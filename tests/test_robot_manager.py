@@ -108,14 +108,14 @@ def test_the_gripper_loads_with_its_controller_and_the_cli_opens_and_closes_it(s
     closed = temoto('gripper', 'close')
     assert closed.returncode == 0 and 'gripper to 0.0 mm' in closed.stdout and 'done: reached' in closed.stdout, \
         closed.stdout + closed.stderr
-    assert truth.last().gap == pytest.approx(0.0, abs=0.002)
+    wait_for(lambda: truth.last().gap == pytest.approx(0.0, abs=0.002), HANG, 'the gripper closed')
     wait_for(lambda: not gripper_controller_running(), HANG, 'the controller released with the command\'s hold')
     refused = temoto('gripper', '0.5')
     assert refused.returncode == 1 and 'failed: command.position 0.5000 m is beyond the stroke' in refused.stdout, \
         refused.stdout + refused.stderr
     opened = temoto('gripper', 'open', '--effort', '40')
     assert opened.returncode == 0 and 'done: reached 85.0 mm' in opened.stdout, opened.stdout + opened.stderr
-    assert truth.last().gap == pytest.approx(0.085, abs=0.002)
+    wait_for(lambda: truth.last().gap == pytest.approx(0.085, abs=0.002), HANG, 'the gripper open')
     wait_for(lambda: not gripper_controller_running(), HANG, 'the controller released again')
     assert robot_info()['robots'][0]['loaded'] == []
 

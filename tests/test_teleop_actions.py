@@ -194,7 +194,7 @@ def test_the_gripper_closes_and_opens_when_told(op, collect):
     gripper = collect('/vaultbot_sim/gripper_state', GripperState)
     graph = graph_of(said(op, 'robot please close the gripper'))
     assert ended(op, graph, 'gripper_0') == 'FINISHED', op.of('state', graph)
-    assert gripper.last().gap < 0.002
+    wait_for(lambda: gripper.last() is not None and gripper.last().gap < 0.002, HANG, 'the gripper closed')
     graph = graph_of(said(op, 'robot please open the gripper'))
     assert ended(op, graph, 'gripper_0') == 'FINISHED', op.of('state', graph)
     assert gripper.last().gap > 0.08
@@ -342,11 +342,13 @@ def test_the_dial_turns_by_words_and_by_the_cli_and_refuses_what_it_cannot_be(op
     wait_for(lambda: scale.last() is not None and scale.last().data == pytest.approx(0.1), 10, 'the dial at 0.1')
     turned = graph_of(said(op, 'coarser'))                 # the dial moves nothing by itself: no wake phrase
     assert ended(op, turned, 'dial_0') == 'FINISHED'
-    assert scale.last().data == pytest.approx(0.2)
+    # the action heard 0.2 on its own subscriber; this test's subscriber is another connection and may hear it later
+    wait_for(lambda: scale.last().data == pytest.approx(0.2), HANG, 'the dial at 0.2')
     out = dial_cli('0.05')
     assert out.returncode == 0 and 'scale 0.05x' in out.stdout, out.stdout + out.stderr
     out = dial_cli('finer', '2')
     assert out.returncode == 0 and 'scale 0.01x' in out.stdout, out.stdout + out.stderr
+    wait_for(lambda: scale.last().data == pytest.approx(0.01), HANG, 'the dial at 0.01')
     out = dial_cli('20')
     assert out.returncode == 2 and 'outside 0.01 to 10' in out.stderr, out.stderr
     assert scale.last().data == pytest.approx(0.01)          # refused: unchanged
