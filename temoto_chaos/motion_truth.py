@@ -14,7 +14,7 @@ ROS so that every rule is tested alone:
   periods and 20 ms, the period being the one a scan declares (or the median of its last 5 intervals, if
   slower), or, for a cloud, which declares none, the 90th percentile of its last 20 intervals, the third
   longest (a camera rendered on a busy machine is slow, and is allowed its own pace): the contract's own
-  definition, ``freshness.learnt_period``, applied to the arrivals the watch hears.
+  definition, ``freshness.Pace``, applied to the messages the watch hears.
 
 The events are numbered, so a reader asks for what came after the last one it saw; a bounded deque keeps
 the newest (a reader that asks every check never misses one).
@@ -25,7 +25,7 @@ import collections
 import dataclasses
 from typing import Deque, Dict, List, Optional
 
-from temoto_robot_manager.freshness import WINDOW, learnt_period, shorter_interval
+from temoto_robot_manager.freshness import Pace
 
 BASE, LEFT_ARM, RIGHT_ARM, GRIPPER = 'base', 'left_arm', 'right_arm', 'gripper'
 PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
@@ -42,7 +42,6 @@ BASE_BRAKING_S = 0.5
 # declares (a LaserScan's scan_time), or None (a PointCloud2 declares none)
 OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': None, 'd435/depth_registered/points': None}
 STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
-RECENT = 5
 # a period learnt from arrivals (a cloud's) is learnt by two observers, the navigator and the watch, each
 # receiving a megabyte-sized message when its own threads get a CPU: their estimates differ by tens of ms on
 # a loaded machine (seed 17, step 2086: one base sample 14 ms past the watch's bound)
@@ -61,26 +60,21 @@ def blind_after(period: float) -> float:
 
 
 class SourceClock:
-    """When a source's messages came, and the period the contract holds it to."""
+    """When a source's messages came, and the period the contract holds it to (``freshness.Pace``: the
+    navigator's own rule, applied to what the watch hears)."""
 
     def __init__(self, declared: Optional[float]) -> None:
         self.declared = declared
         self.last: Optional[float] = None
-        self.stamp: Optional[float] = None      # the last message's header stamp, if it had one
-        self.intervals: Deque[float] = collections.deque(maxlen=WINDOW)
+        self.pace = Pace(declared)
 
     def heard(self, t: float, stamp: Optional[float] = None) -> None:
-        """A message at ``t``; its intervals as the navigator learns them (``freshness.Freshness.arrived``)."""
-        if self.last is not None and t > self.last:
-            between = stamp - self.stamp if stamp is not None and self.stamp is not None else None
-            self.intervals.append(shorter_interval(t - self.last, between))
-        self.last, self.stamp = t, stamp
+        """A message at ``t``, with its header stamp if it had one."""
+        self.pace.arrived(t, stamp)
+        self.last = t
 
     def period(self) -> Optional[float]:
-        if self.declared is not None:
-            recent = sorted(list(self.intervals)[-RECENT:])
-            return max(self.declared, recent[len(recent) // 2]) if len(recent) >= 3 else self.declared
-        return learnt_period(self.intervals)
+        return self.pace.period()
 
     def stale_bound(self) -> Optional[float]:
         """``stale_after`` of the period the contract holds the source to, with a learnt period's tolerance of

@@ -73,42 +73,30 @@ def learnt_period(intervals) -> Optional[float]:
     return ordered[max(0, len(ordered) - RANK_FROM_LONGEST)]
 
 
-class Freshness:
-    def __init__(self, periods: int = STALE_PERIODS, declared: Optional[float] = None) -> None:
-        self.periods = periods
-        self.declared = declared             # the period the source says it has, if it says
-        self.last: Optional[float] = None       # when the last frame used arrived
-        self.frames = 0
-        self._intervals: deque = deque(maxlen=WINDOW)
-        self._arrival: Optional[float] = None    # when the last frame arrived, used or not
-        self._stamp: Optional[float] = None      # its header stamp, if it had one
-        self._counting_arrivals = False
+class Pace:
+    """A source's last ``WINDOW`` intervals between frames, and the period they give.
 
-    def reset(self) -> None:
-        """A new source: nothing heard from it yet."""
-        self.last = None
-        self.frames = 0
-        self._intervals.clear()
-        self._arrival = None
-        self._stamp = None
+    One class for the navigator's ``Freshness`` and the chaos watch, so that two observers of one stream
+    learn its pace the same way (each interval by ``shorter_interval``) and differ only in when they heard it.
+    """
+
+    def __init__(self, declared: Optional[float] = None) -> None:
+        self.declared = declared                 # the period the source says it has, if it says
+        self.intervals: deque = deque(maxlen=WINDOW)
+        self._arrival: Optional[float] = None    # when the last frame arrived
+        self._stamp: Optional[float] = None      # its header stamp, if it had one
+
+    def clear(self) -> None:
+        self.intervals.clear()
+        self._arrival = self._stamp = None
 
     def arrived(self, now: float, stamp: Optional[float] = None) -> None:
-        """A frame arrived, to be used or not: the period is learnt from these (once any is told). ``stamp``:
-        its header stamp, if it has one."""
-        self._counting_arrivals = True
+        """A frame arrived at ``now``; ``stamp``: its header stamp, if it has one."""
         if self._arrival is not None and now > self._arrival:
             between = stamp - self._stamp if stamp is not None and self._stamp is not None else None
-            self._intervals.append(shorter_interval(now - self._arrival, between))
+            self.intervals.append(shorter_interval(now - self._arrival, between))
         self._arrival, self._stamp = now, stamp
 
-    def heard(self, now: float) -> None:
-        """A frame that arrived at ``now`` was used: the source is fresh until its deadline from then."""
-        if not self._counting_arrivals and self.last is not None and now > self.last:
-            self._intervals.append(now - self.last)
-        self.last = now if self.last is None else max(self.last, now)
-        self.frames += 1
-
-    @property
     def period(self) -> Optional[float]:
         if self.declared is not None:
             # a source that says its period (a LaserScan's scan_time) is held to it, unless it is slower
@@ -116,11 +104,43 @@ class Freshness:
             # judged by its *recent* intervals: a scanner restarted after a fault sends its first frames slowly
             # while it warms up, and a median over the whole window then kept a 0.58 s period for a second:
             # a stall then stopped the robot after 1.7 s, not 0.12 s (bench_navigation --only teleop)
-            recent = list(self._intervals)[-RECENT:]
+            recent = list(self.intervals)[-RECENT:]
             if len(recent) >= 3:
                 return max(self.declared, statistics.median(recent))
             return self.declared
-        return learnt_period(self._intervals)
+        return learnt_period(self.intervals)
+
+
+class Freshness:
+    def __init__(self, periods: int = STALE_PERIODS, declared: Optional[float] = None) -> None:
+        self.periods = periods
+        self.pace = Pace(declared)
+        self.last: Optional[float] = None       # when the last frame used arrived
+        self.frames = 0
+        self._counting_arrivals = False
+
+    def reset(self) -> None:
+        """A new source: nothing heard from it yet."""
+        self.last = None
+        self.frames = 0
+        self.pace.clear()
+
+    def arrived(self, now: float, stamp: Optional[float] = None) -> None:
+        """A frame arrived, to be used or not: the period is learnt from these (once any is told). ``stamp``:
+        its header stamp, if it has one."""
+        self._counting_arrivals = True
+        self.pace.arrived(now, stamp)
+
+    def heard(self, now: float) -> None:
+        """A frame that arrived at ``now`` was used: the source is fresh until its deadline from then."""
+        if not self._counting_arrivals and self.last is not None and now > self.last:
+            self.pace.intervals.append(now - self.last)
+        self.last = now if self.last is None else max(self.last, now)
+        self.frames += 1
+
+    @property
+    def period(self) -> Optional[float]:
+        return self.pace.period()
 
     def deadline(self) -> Optional[float]:
         """When the source goes stale if no frame comes; None: it has not proven fresh yet."""

@@ -226,7 +226,7 @@ class NavigatorNode:
             if topic != self.source_topic:
                 return                              # the source changed while this frame was made
             if isinstance(frame, LaserScan) and frame.scan_time > 0:
-                self.nav.freshness.declared = frame.scan_time
+                self.nav.freshness.pace.declared = frame.scan_time
             self.nav.set_obstacles(points, now)
             self.wake.notify_all()
 
