@@ -46,7 +46,7 @@ JOINTS_WAIT_S = 2.0           # where the arm is, from one joint_states message
 SWEEP_ARM = 'right_arm'        # the Hokuyo's: it sweeps until held
 HAND_PERIOD_S = 0.01          # the simulated hand tracker's 100 Hz (hands.yaml)
 DELIVERY_S = 30.0             # a goal unacknowledged is sent again for this long (a cut link delays the answer)
-HOLD_ANSWER_S = 1.0           # the manipulator says it holds within one step of its loop (a cut link: never)
+HOLD_ANSWER_S = 1.0           # the manipulator says it holds once the arm rests, tens of ms (a cut link: never)
 UR5_JOINTS = ('shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
               'wrist_3_joint')
 STATE_NAMES = {v: k for k, v in vars(GoalStatus).items() if k.isupper() and isinstance(v, int)}

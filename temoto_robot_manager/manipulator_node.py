@@ -13,7 +13,10 @@
   where the joints are) and falls silent; the controller's own deadman (0.1 s) would hold the arm too,
   one timeout later. A
   trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
-  ``<arm>/servo_status`` (``std_msgs/String``) when it changes;
+  ``<arm>/servo_status`` (``std_msgs/String``) when it changes. A hold is said twice: ``stopping: <why>``
+  as it is sent, and ``holding: <why>`` once a joint state taken after it shows the arm at rest (every joint
+  under ``REST_RAD_S``): a starved controller passes a hold on late, and a streamer that hands the arm on
+  when it hears "holding" must not hand on an arm still braking (chaos, seed 17, step 2157);
 - ``<arm>/servo_hold`` (``std_msgs/String``, the reason): hold the arm now and drop the stream's target,
   for a streamer that knows its own input is gone (a hand tracker's sample that did not come) sooner
   than the stream's timeout could tell.
@@ -57,6 +60,7 @@ from temoto_robot_manager.servo import Servo
 
 SERVO_TIMEOUT_S = 0.1        # a target this old is not followed (MoveIt Servo's incoming_command_timeout)
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
+REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)
 COLLISION_PERIOD_S = 0.04    # between two self-collision checks of the servo (25 Hz; MoveIt Servo checks at 50 Hz)
 
 
@@ -89,6 +93,10 @@ class ManipulatorNode:
         self._controller_seen = False                  # connected to the controller's status once
         self.q: Optional[List[float]] = None
         self.q_at = 0.0
+        self._still_at = 0.0                     # the latest joint state that showed the arm at rest
+        # the loop's own: a hold it sent and has not yet seen take effect (its reason), and when
+        self._stopping = ''
+        self._stop_sent_at = 0.0
         self.target: Optional[np.ndarray] = None
         self.target_at = 0.0
         self.active = None                       # the goal handle being run
@@ -125,8 +133,18 @@ class ManipulatorNode:
     def _on_joint_states(self, msg: JointState) -> None:
         pos = dict(zip(msg.name, msg.position))
         if all(j in pos for j in self.arm.joints):
+            q, at = [pos[j] for j in self.arm.joints], time.monotonic()
+            vel = dict(zip(msg.name, msg.velocity))
             with self.lock:
-                self.q, self.q_at = [pos[j] for j in self.arm.joints], time.monotonic()
+                if all(j in vel for j in self.arm.joints):
+                    still = all(abs(vel[j]) < REST_RAD_S for j in self.arm.joints)
+                else:                             # a driver that sends no velocities: the positions' change
+                    dt = at - self.q_at
+                    still = self.q is not None and dt > 0 and \
+                        max(abs(a - b) for a, b in zip(q, self.q)) < REST_RAD_S * dt
+                self.q, self.q_at = q, at
+                if still:
+                    self._still_at = at
 
     def _in_base(self, pose: PoseStamped) -> np.ndarray:
         """The pose as a matrix in the arm's base frame; raises GoalRefused naming the frame."""
@@ -298,14 +316,21 @@ class ManipulatorNode:
         with self.lock:
             told, self._hold_now = self._hold_now, ''     # a goal running owns the arm: a hold is moot
             if self.active is not None:
+                self._stopping = ''
                 return
             target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
+            stopped = self._stopping and self._still_at > self._stop_sent_at
         if told:
-            if self._streaming:                       # an arm the stream does not move is left alone
-                self._hold()
+            if self._streaming:
+                self._hold(told)
+            elif self._stopping and not stopped:      # a hold on its way: said, once it took, for this reason
+                self._stopping = told
+                self._say('stopping: %s' % told)
+            else:                                     # an arm the stream does not move is left alone
+                self._stopping = ''
+                self._say('holding: %s' % told)
             self._streaming = False
-            self._say('holding: %s' % told)
             return
         away = self.holders.owner_away() if target is not None else None
         if target is None or q is None or away is not None:
@@ -313,14 +338,17 @@ class ManipulatorNode:
                 # the stream fell silent, the arm's state did, or the manager went: hold now, not one more
                 # deadman later (a hold needs no state: the motors brake where the joints are)
                 self._streaming = False
-                self._hold()
                 if target is None:
                     why = 'no target for %.1f s' % SERVO_TIMEOUT_S
                 else:
                     why = away or 'no joint states for %.1f s' % STATE_TIMEOUT_S
-                self._say('holding: %s' % why)
+                self._hold(why)
+            elif stopped:
+                self._say('holding: %s' % self._stopping)
+                self._stopping = ''
             return
         self._streaming = True
+        self._stopping = ''
         check = now - self._checked_at >= COLLISION_PERIOD_S
         if check:
             self._checked_at = now
@@ -335,11 +363,14 @@ class ManipulatorNode:
         msg.header.stamp = rospy.Time.now()
         self.pub_servo.publish(msg)
 
-    def _hold(self) -> None:
+    def _hold(self, why: str) -> None:
         """Brake where the joints are: no positions, every velocity zero (the controller's hold). A hold at the
         positions last seen would pull the arm back to them: seen up to ``STATE_TIMEOUT_S`` ago, of an arm
-        still moving, or already given back to the sim's sweep (seed 17, steps 1263 and 1509)."""
+        still moving, or already given back to the sim's sweep (seed 17, steps 1263 and 1509). "holding" is
+        said by the loop once the arm is seen at rest after it."""
         self._send([], [0.0] * len(self.arm.joints))
+        self._stopping, self._stop_sent_at = why, time.monotonic()
+        self._say('stopping: %s' % why)
 
     def _watch_goal(self) -> None:
         """End the running goal at once when its holder or its controller is gone; the arm holds."""

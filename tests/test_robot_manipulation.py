@@ -21,6 +21,7 @@ from std_msgs.msg import String
 from temoto_robot_manager.arm_kinematics import pose_error
 from temoto_robot_manager.msg import MoveArmAction, MoveArmActionResult, MoveArmGoal, MoveArmResult
 from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_robot_manager.manipulator_node import REST_RAD_S
 from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.motion import ARM_CLIENT
 from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_manager, start_robot_stack
@@ -258,7 +259,9 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
 
 def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect):
     """A streamer that knows its input is gone (a hand tracker's late sample) holds the arm through
-    <arm>/servo_hold rather than falling silent for the stream's timeout; the status names its reason."""
+    <arm>/servo_hold rather than falling silent for the stream's timeout; the status names its reason:
+    "stopping" as the hold is sent, "holding" only once the arm is at rest (a streamer hands the arm on when
+    it hears it: chaos, seed 17, step 2157)."""
     joints, states = truth
     status = collect('/left_arm/servo_status', String)
     hold = rospy.Publisher('/left_arm/servo_hold', String, queue_size=1)
@@ -275,8 +278,18 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
     hold.publish(String('no hand sample for 25 ms'))
     wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm' and m.header.stamp.to_sec() > told
                            and m.commanded_speed == 0.0), None), HANG, 'the left arm commanded to hold')
-    wait_for(lambda: any(m.data == 'holding: no hand sample for 25 ms' for m in status.msgs), HANG,
-             'the status to name the streamer\'s reason, not the stream\'s timeout')
+    said = wait_for(lambda: next((k for k, m in enumerate(status.msgs)
+                                  if m.data == 'holding: no hand sample for 25 ms'), None), HANG,
+                    'the status to name the streamer\'s reason, not the stream\'s timeout')
+    words = [m.data for m in status.msgs[:said]]
+    assert 'stopping: no hand sample for 25 ms' in words, words
+    # the sim's samples stamped after "holding" was heard were all taken after the manipulator said it
+    heard = rospy.Time.now().to_sec() - (time.monotonic() - status.times[said])
+    wait_for(lambda: any(m.arm == 'left_arm' and m.header.stamp.to_sec() > heard + 0.1 for m in states.msgs[-30:]),
+             HANG, 'the sim\'s states after "holding"')
+    moving = [m.speed for m in list(states.msgs) if m.arm == 'left_arm' and m.header.stamp.to_sec() >= heard
+              and m.speed >= REST_RAD_S]
+    assert not moving, 'the arm still moved after the manipulator said it held: %s rad/s' % moving
     hold.unregister()
     state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
     assert state == GoalStatus.SUCCEEDED, text
