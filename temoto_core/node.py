@@ -174,6 +174,13 @@ def ok() -> bool:
     return not rospy.is_shutdown()
 
 
+def stop_requested() -> bool:
+    """True once a stop signal arrived, rospy still up until the main thread's next ``ok()``. A main loop with
+    last words (a controller that gives its arm back) leaves on this, says them, then calls ``ok()``; the
+    relay thread shuts rospy down itself after ``MAIN_THREAD_GRACE`` if the words take longer."""
+    return _stop_signal.is_set()
+
+
 def spin() -> None:
     """Block the main thread until rospy shuts down; on a stop signal, shut it down here first.
 

@@ -18,6 +18,7 @@ import rosgraph
 import rospy
 import tf2_ros
 from geometry_msgs.msg import PointStamped, PoseStamped
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32, String
 from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerInit, Marker
 
@@ -32,6 +33,7 @@ from temoto_testing.signals import stop as stop_process
 from temoto_testing.sensor_manager import (HAND_CATALOGUE, NS, er_processes, managers_idle, set_cable,
                                            start_robot_stack)
 from vaultbot_sim.msg import ArmState, BaseState, GripperState
+from vaultbot_sim.spec import SWEEP_JOINT
 
 HANG = 90.0
 POINTER_STALL_S = 3.0     # longer than the 2 s bound that failed a busy CI run
@@ -271,6 +273,28 @@ def test_the_arm_follows_the_hand_holds_when_it_is_unplugged_and_fails_over_to_t
         assert not any(e['state'] == 'FAILED' for e in op.of('state', graph))
     finally:
         listener.unregister()
+
+
+def test_the_hokuyo_arm_sweeps_again_once_follow_hand_has_let_it_go(op, collect):
+    """follow_hand on the Hokuyo's arm stops its sweep, and with it the stitched cloud: the arm is held. Once the
+    action ends and nothing holds the robot's manipulation, its controllers are switched off and give the arms
+    back, and the sweep goes on (before, it stayed off for good)."""
+    arms = collect('/vaultbot_sim/arm_states', ArmState)
+    joints = collect('/joint_states', JointState)
+
+    def right():
+        return next((a for a in reversed(arms.msgs[-10:]) if a.arm == 'right_arm'), None)
+
+    def wrist():
+        return dict(zip(joints.last().name, joints.last().position))[SWEEP_JOINT]
+    graph = graph_of(said(op, 'robot please follow my hand with the right arm'))
+    op.wait_event('following', graph, HANG, 'the right arm following the hand')
+    wait_for(lambda: right() is not None and right().held, 30, 'the right arm taken from its sweep')
+    said(op, 'stop')
+    assert ended(op, graph, 'follow_hand_0') == 'FINISHED', op.of('state', graph)
+    wait_for(lambda: not right().held, HANG, 'the right arm given back')
+    given_back = wrist()
+    wait_for(lambda: abs(wrist() - given_back) > 0.1, HANG, 'the sweep going on')
 
 
 def test_stop_ends_follow_hand_at_once_while_its_hand_source_fails_over(op, rospy_client, collect):

@@ -17,7 +17,7 @@ from temoto_testing import wait_for, wait_receiving
 from temoto_testing.sensor_manager import set_cable
 from vaultbot_sim.msg import ArmState
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT
-from vaultbot_sim.srv import SetSweep
+from vaultbot_sim.srv import ReleaseArm, SetSweep
 from vaultbot_sim.arm import JointRange
 from vaultbot_sim.trajectory import Trajectory
 from temoto_core.action_client import TrackingActionClient
@@ -233,20 +233,31 @@ def test_a_crashed_controller_exits_1_and_the_arm_holds(arms):
         set_cable('left_arm', 'plugged')
 
 
-def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy_client, collect):
+def hokuyo_arm_held(procs, rospy_client, collect):
+    """The sim sweeping the Hokuyo's wrist, its controller up, and the arm then held by a goal that turns its
+    shoulder 0.3 rad from the sim's own pose."""
     states = collect('/vaultbot_sim/arm_states', ArmState)
     joints = collect('/joint_states', JointState)
     procs.node('vaultbot_sim', 'vaultbot_sim', params=dict(SIM_PARAMS, sweep=True))
-    procs.node('vaultbot_sim', 'arm_controller', name='right_arm_controller', params={'arm': 'right_arm'})
+    controller = procs.node('vaultbot_sim', 'arm_controller', name='right_arm_controller',
+                            params={'arm': 'right_arm'})
     client = TrackingActionClient('/right_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     right = ['right_%s_joint' % j for j in ARM_JOINTS]
     wait_for(lambda: joints.last() and abs(positions(joints, [SWEEP_JOINT])[0] - HOLD_POSE[SWEEP_JOINT]) > 0.2,
              HANG, 'the sweep to turn the wrist')
-    here = positions(joints, right)
-    client.send_goal(trajectory_goal(right, [(1.0, here)]))
+    goal = positions(joints, right)
+    goal[0] += 0.3
+    client.send_goal(trajectory_goal(right, [(1.0, goal)]))
     assert client.wait_for_result(rospy_client.Duration(HANG))
     assert client.get_result().error_code == 0, client.get_result().error_string
+    assert arm_state(states, 'right_arm').held
+    return controller, states, joints
+
+
+def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy_client, collect):
+    _, states, joints = hokuyo_arm_held(procs, rospy_client, collect)
+    right = ['right_%s_joint' % j for j in ARM_JOINTS]
     wrist, since = positions(joints, [SWEEP_JOINT])[0], time.time()
     wait_for(lambda: joints.last().header.stamp.to_sec() > since + 0.5, HANG, 'half a second')
     # the sweep would turn the wrist 0.8 rad in that time; the motors may still settle within the goal's 0.01 rad
@@ -267,6 +278,45 @@ def test_the_hokuyo_arm_sweeps_until_held_and_again_once_given_back(procs, rospy
     wait_for(lambda: joints.last().header.stamp.to_sec() > since + 0.5
              and abs(positions(joints, [SWEEP_JOINT])[0] - wrist) > 0.1, 10, 'the sweep to go on after a late hold')
     assert not any(m.held for m in states_since(states, 'right_arm', since)), 'a late hold took the arm'
+
+
+def test_a_controller_switched_off_gives_the_hokuyo_arm_back_to_its_sweep(procs, rospy_client, collect):
+    """Unloaded (SIGINT), the controller holds the arm and gives it back to the sim, as controller_manager gives
+    the hardware back when a controller stops: the sweep that the hold stopped goes on, from where the wrist
+    is, and nothing else of the arm moves."""
+    controller, states, joints = hokuyo_arm_held(procs, rospy_client, collect)
+    right = ['right_%s_joint' % j for j in ARM_JOINTS]
+    before = dict(zip(right, positions(joints, right)))
+    controller.stop()
+    assert controller.returncode == 0, controller.log()
+    assert 'switched off: right_arm given back: the sweep goes on' in controller.log(), controller.log()
+    wait_for(lambda: not arm_state(states, 'right_arm').held, HANG, 'the arm given back')
+    wait_for(lambda: abs(positions(joints, [SWEEP_JOINT])[0] - before[SWEEP_JOINT]) > 0.1, HANG,
+             'the sweep to go on')
+    after = dict(zip(right, positions(joints, right)))
+    # within the goal's 0.01 rad tolerance, which the motors may still settle in after it succeeded
+    moved = {j: after[j] - before[j] for j in right if j != SWEEP_JOINT and abs(after[j] - before[j]) > 0.01}
+    assert not moved, 'the arm was taken back to the sim\'s pose, not left where it was: %s' % moved
+
+
+def test_a_killed_controller_gives_nothing_back_and_the_arm_stays_held(procs, rospy_client, collect):
+    """A crash is not a switch-off: the arm stays braked where it is (a UR's protective stop), and the sweep
+    stays off."""
+    controller, states, joints = hokuyo_arm_held(procs, rospy_client, collect)
+    wrist = positions(joints, [SWEEP_JOINT])[0]
+    os.kill(controller.pid, signal.SIGKILL)
+    wait_for(lambda: not controller.alive(), HANG, 'the controller gone')
+    since = rospy_client.get_time()
+    wait_for(lambda: joints.last().header.stamp.to_sec() > since + 0.5, HANG, 'half a second')
+    assert arm_state(states, 'right_arm').held
+    assert positions(joints, [SWEEP_JOINT])[0] == pytest.approx(wrist, abs=0.01), 'the sweep went on'
+
+
+def test_the_sim_refuses_to_give_back_an_arm_it_does_not_have(procs, rospy_client):
+    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
+    rospy_client.wait_for_service('/vaultbot_sim/release_arm', HANG)
+    answer = rospy_client.ServiceProxy('/vaultbot_sim/release_arm', ReleaseArm)('third_arm', rospy_client.Time(0))
+    assert not answer.success and "no arm 'third_arm': give one of left_arm, right_arm" in answer.message
 
 
 def test_the_trajectory_check_alone():

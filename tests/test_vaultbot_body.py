@@ -109,6 +109,20 @@ def test_a_setpoint_must_name_every_joint_of_the_arm_with_finite_values():
     assert plant.setpoint is None and not plant.held, 'a refused command changed nothing'
 
 
+def test_a_setpoint_sent_before_the_arm_was_given_back_takes_nothing():
+    """A controller switched off gives its arm back by a service; a setpoint it stamped before that, still on
+    its topic, must not take the arm again (the sweep would stop for good)."""
+    plant = ArmPlant(JOINTS, {'j1': 0.0, 'j2': 0.0}, RANGES)
+    assert plant.command({'j1': (0.5, 0.1), 'j2': (0.0, 0.0)}, 1.0, sent=100.0) and plant.held
+    plant.release(sent=100.5)
+    assert not plant.command({'j1': (0.6, 0.1), 'j2': (0.0, 0.0)}, 1.1, sent=100.4)
+    assert not plant.held and plant.setpoint is None, 'a stale setpoint took the arm'
+    assert plant.command({'j1': (0.6, 0.1), 'j2': (0.0, 0.0)}, 1.2, sent=100.6) and plant.held
+    plant.release()                        # a give-back with no moment keeps the last one
+    assert plant.released_at == 100.5
+    assert plant.command({'j1': (0.6, 0.1), 'j2': (0.0, 0.0)}, 1.3) and plant.held, 'unstamped: taken'
+
+
 def test_ticks_wake_early_for_a_deadline_and_keep_their_rhythm():
     ticks = Ticks(0.5)                     # long enough that no machine is late by a whole tick here
     t0 = ticks.next

@@ -45,10 +45,13 @@ class ArmPlant:
         self.command_at: Optional[float] = None
         self.tripped_at: Optional[float] = None
         self.held = False          # commanded at least once: someone holds this arm (the sweep yields)
+        self.released_at = 0.0     # when it was last given back, on the senders' clock (their stamps')
         self._last: Optional[float] = None
 
-    def command(self, setpoint: Mapping[str, Tuple[float, float]], now: float) -> None:
-        """A setpoint for every joint of this arm; raises ValueError naming what is wrong, and changes nothing."""
+    def command(self, setpoint: Mapping[str, Tuple[float, float]], now: float, sent: float = 0.0) -> bool:
+        """A setpoint for every joint of this arm; raises ValueError naming what is wrong, and changes nothing.
+        ``sent``: its stamp (0: none). One sent before the arm was given back takes nothing (False): it was on
+        its way from a controller switched off since, whose last words, the give-back, came by another way."""
         missing = [j for j in self.joints if j not in setpoint]
         if missing:
             raise ValueError('no setpoint for %s' % ', '.join(missing))
@@ -58,8 +61,11 @@ class ArmPlant:
         for j, (q, v) in setpoint.items():
             if not (math.isfinite(q) and math.isfinite(v)):
                 raise ValueError('%s: position %r and velocity %r must be finite' % (j, q, v))
+        if sent and sent < self.released_at:
+            return False
         self.setpoint = {j: (self.ranges[j].clamp(q), max(-SPEED, min(SPEED, v))) for j, (q, v) in setpoint.items()}
         self.command_at, self.tripped_at, self.held = now, None, True
+        return True
 
     def stop(self, now: float) -> bool:
         """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no watchdog trip either. An arm
@@ -71,10 +77,12 @@ class ArmPlant:
         self.setpoint, self.command_at, self.tripped_at = None, now, None
         return True
 
-    def release(self) -> None:
-        """Nobody holds the arm any more: the simulation's hold pose (and sweep) drive it again from here."""
+    def release(self, sent: float = 0.0) -> None:
+        """Nobody holds the arm any more: the simulation's hold pose (and sweep) drive it again from here.
+        ``sent``: the give-back's moment on the senders' clock; setpoints stamped before it take nothing."""
         self.held, self.setpoint = False, None
         self.velocity = {j: 0.0 for j in self.joints}
+        self.released_at = max(self.released_at, sent)
 
     def watchdog(self, now: float) -> bool:
         """Drop a stale setpoint (the joints brake to a hold); True when it does so now."""

@@ -16,6 +16,10 @@ As ros_control's joint_trajectory_controller does for a real UR5:
   pulled back at the sweep's speed, seed 17, steps 1263 and 1509.) Refused while a trajectory runs: one
   arm obeys one master at a time (docs/robots.md);
 - between motions it sends nothing: the motors hold where the last setpoint left them;
+- switched off (SIGINT or SIGTERM: the ER Manager's unload) it holds the arm and gives it back to the sim
+  (``~release_arm``), as controller_manager gives the hardware back when a controller stops: the Hokuyo's
+  arm sweeps again if holding it had stopped the sweep. Killed or crashed, it gives nothing back, and the arm
+  stays braked where it is;
 - its cable is the sim's ``left_arm`` or ``right_arm`` device: crash exits 1, stall silences it.
 """
 from __future__ import annotations
@@ -33,10 +37,11 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from temoto_core import params
-from temoto_core.node import init_node, ok
+from temoto_core.node import init_node, ok, stop_requested
 from vaultbot_sim.arm import COMMAND_RATE_HZ, SPEED, JointRange
 from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.spec import ARM_JOINTS
+from vaultbot_sim.srv import ReleaseArm
 from vaultbot_sim.ticks import Ticks
 from vaultbot_sim.trajectory import (GOAL_TOLERANCE_VIOLATED, OLD_HEADER_TIMESTAMP,
                                      PATH_TOLERANCE_VIOLATED, Refused, Trajectory)
@@ -48,6 +53,7 @@ GOAL_TOLERANCE = 0.01        # rad, unless the goal says otherwise
 PATH_TOLERANCE = 0.25        # rad between where a joint should be and where it is
 GOAL_TIME_TOLERANCE = 0.5    # s after the trajectory's end to be within the goal tolerance
 OLD_STAMP_S = 0.5            # a goal stamped further in the past than this is stale
+RELEASE_WAIT_S = 1.0         # the give-back's bound: within the node's grace before rospy is shut down anyway
 
 
 class ArmController:
@@ -63,6 +69,7 @@ class ArmController:
         self.position: Dict[str, float] = {}
         self.servo: Optional[Tuple[float, Dict[str, Tuple[float, float]]]] = None    # (when, setpoint)
         self.running_goal = False
+        self.switched_off = False          # set once, under self.lock: nothing is sent from then on
         self._positions = threading.Event()
         self.pub = rospy.Publisher('%s/joint_command' % self.arm, JointState, queue_size=10, tcp_nodelay=True)
         self.cable = CableFollower(self.arm, '%s: arm controller' % self.arm, self.sim_ns)
@@ -130,20 +137,49 @@ class ArmController:
 
     # --- outputs ---------------------------------------------------------------------------------------
     def send(self, setpoint: Dict[str, Tuple[float, float]]) -> None:
-        if not self.running:
-            return                        # stalled: silent
-        msg = JointState(name=list(setpoint), position=[q for q, _ in setpoint.values()],
-                         velocity=[v for _, v in setpoint.values()])
-        msg.header.stamp = rospy.Time.now()
-        self.pub.publish(msg)
+        self._command(JointState(name=list(setpoint), position=[q for q, _ in setpoint.values()],
+                                 velocity=[v for _, v in setpoint.values()]))
 
     def hold(self) -> None:
         """Stop where the arm is now: the motors brake to a hold (velocities only, all zero)."""
+        self._command(JointState(name=list(self.joints), velocity=[0.0] * len(self.joints)))
+
+    def _command(self, msg: JointState) -> None:
         if not self.running:
-            return
-        msg = JointState(name=list(self.joints), velocity=[0.0] * len(self.joints))
-        msg.header.stamp = rospy.Time.now()
-        self.pub.publish(msg)
+            return                        # stalled: silent
+        with self.lock:                   # stamped and queued before a switch-off, or not at all
+            if self.switched_off:
+                return
+            msg.header.stamp = rospy.Time.now()
+            self.pub.publish(msg)
+
+    def switch_off(self) -> None:
+        """The last words of a clean stop: hold the arm, send nothing more, and give the arm back to the sim.
+        A setpoint still on its way is stamped before the give-back, and the sim drops it (``ArmPlant.release``).
+        Bounded by ``RELEASE_WAIT_S``: a sim that does not answer leaves the arm held, as a crash would."""
+        self.hold()
+        with self.lock:
+            self.switched_off = True
+            last = rospy.Time.now()
+        if not self.running:
+            return                        # stalled or unplugged: its words never reach the sim
+        answer = []
+
+        def call() -> None:
+            try:
+                answer.append(rospy.ServiceProxy('%s/release_arm' % self.sim_ns, ReleaseArm)(self.arm, last))
+            except (rospy.ServiceException, rospy.ROSException, OSError) as err:
+                answer.append(err)
+        caller = threading.Thread(target=call, name='release', daemon=True)
+        caller.start()
+        caller.join(RELEASE_WAIT_S)
+        if not answer:
+            rospy.logwarn('%s: the sim did not answer the give-back within %.1f s: the arm stays held', self.arm,
+                          RELEASE_WAIT_S)
+        elif isinstance(answer[0], Exception) or not answer[0].success:
+            rospy.logwarn('%s: the arm not given back: %s', self.arm, getattr(answer[0], 'message', answer[0]))
+        else:
+            rospy.loginfo('%s: switched off: %s', self.arm, answer[0].message)
 
     # --- the trajectory action ---------------------------------------------------------------------------
     def _execute(self, goal) -> None:
@@ -231,7 +267,7 @@ class ArmController:
         ticks = Ticks(1.0 / self.rate)
         rospy.loginfo('%s: trajectories on %s/follow_joint_trajectory, servoing on %s/servo_command (deadman %.2f s)',
                       self.arm, self.arm, self.arm, self.servo_timeout)
-        while ok():
+        while not stop_requested() and ok():
             now = time.monotonic()
             with self.lock:
                 servo = self.servo
@@ -249,6 +285,9 @@ class ArmController:
                 # the deadman wakes the loop on time, not at its next tick
                 deadline = None if self.servo is None else self.servo[0] + self.servo_timeout + 0.0002
             ticks.wait(deadline)
+        if stop_requested():
+            self.switch_off()
+        ok()                              # rospy is shut down here, on the main thread (temoto_core.node)
 
 
 def main() -> None:

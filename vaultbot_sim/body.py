@@ -55,12 +55,15 @@ class Body:
             self.lock.notify()
             return moving and self.base.commanded == (0.0, 0.0)
 
-    def command_arm(self, arm: str, setpoint: Mapping[str, Tuple[float, float]], now: float) -> bool:
-        """An arm's setpoint; True when it makes the commanded joint speed zero now (a hold's moment)."""
+    def command_arm(self, arm: str, setpoint: Mapping[str, Tuple[float, float]], now: float,
+                    sent: float = 0.0) -> bool:
+        """An arm's setpoint (``sent``: its stamp); True when it makes the commanded joint speed zero now (a hold's
+        moment)."""
         with self.lock:
             plant = self.arms[arm]
             moving = plant.setpoint is not None and any(v != 0.0 for _, v in plant.setpoint.values())
-            plant.command(setpoint, now)
+            if not plant.command(setpoint, now, sent):
+                return False
             self.lock.notify()
             return moving and all(v == 0.0 for _, v in plant.setpoint.values())
 

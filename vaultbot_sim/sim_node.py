@@ -48,7 +48,8 @@ from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.scene import Scene
 from vaultbot_sim.spec import ARM_JOINTS, GRIPPER_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
 from vaultbot_sim.world_map import world_map
-from vaultbot_sim.srv import SetDeviceState, SetDeviceStateResponse, SetSweep, SetSweepResponse
+from vaultbot_sim.srv import (ReleaseArm, ReleaseArmResponse, SetDeviceState, SetDeviceStateResponse, SetSweep,
+                              SetSweepResponse)
 
 
 def frame_prefix(value: object) -> str:
@@ -108,6 +109,7 @@ class SimNode:
                         period=params.number('hand_period', 8.0, above=0),
                         enabled=params.flag('hand_motion', True))
         self.state = SimState(sweep, hand)
+        self._sweep_yielded = False             # holding the Hokuyo's arm stopped the sweep: its give-back resumes it
         motor_timeout = params.number('motor_timeout', MOTOR_TIMEOUT_S, above=0, maximum=1.0)
         base = BasePlant(motor_timeout=motor_timeout,
                          pose=planar_pose(rospy.get_param('~base_pose', [0.0, 0.0, 0.0]), 'base_pose'))
@@ -146,6 +148,7 @@ class SimNode:
         self._publish_devices()
         rospy.Service('~set_device_state', SetDeviceState, self._on_set_device)
         rospy.Service('~set_sweep', SetSweep, self._on_set_sweep)
+        rospy.Service('~release_arm', ReleaseArm, self._on_release_arm)
         rospy.Subscriber('wheel_command', JointState, self._on_wheel_command, queue_size=10, tcp_nodelay=True)
         for arm in self.body.arms:
             rospy.Subscriber('%s/joint_command' % arm, JointState, self._on_arm_command, arm, queue_size=10,
@@ -205,16 +208,45 @@ class SimNode:
                 self.state.sweep.set(bool(req.enabled), float(req.speed))
             except ValueError as e:
                 return SetSweepResponse(success=False, message=str(e))
-            right = self.body.arms['right_arm']
-            if req.enabled and right.held:
+            self._sweep_yielded = False           # the operator's word: a give-back resumes only what yielded
+            if req.enabled and self.body.arms['right_arm'].held:
                 # whoever held the Hokuyo's arm gave it back: the sweep goes on from where the wrist is
-                with self.body.lock:
-                    self.state.sweep.position = right.position[SWEEP_JOINT]
-                    self.state.hold.update({j: right.position[j] for j in right.joints if j != SWEEP_JOINT})
-                    right.release()
+                self._give_back('right_arm', rospy.get_time())
             text = f'sweep {"on" if req.enabled else "off"} at {self.state.sweep.speed:.3f} rad/s'
             rospy.loginfo('vaultbot_sim: %s', text)
             return SetSweepResponse(success=True, message=text)
+
+    def _on_release_arm(self, req) -> ReleaseArmResponse:
+        """The arm's controller was switched off (a clean stop: ``arm_controller.py``'s last words), as
+        controller_manager gives the hardware back when a controller stops: nobody holds the arm, the sim's
+        own pose keeps it where it is, and the Hokuyo's sweep goes on if holding the arm had stopped it. A
+        controller that crashes or is killed says nothing, and its arm stays braked, as a UR's does."""
+        arm = req.arm
+        if arm not in self.body.arms:
+            return ReleaseArmResponse(success=False, message='no arm %r: give one of %s'
+                                      % (arm, ', '.join(sorted(self.body.arms))))
+        with self.lock:
+            if not self.body.arms[arm].held:
+                return ReleaseArmResponse(success=True, message='%s: nobody held it' % arm)
+            self._give_back(arm, max(req.sent.to_sec(), rospy.get_time()))
+            if arm == 'right_arm' and self._sweep_yielded:
+                self.state.sweep.set(True)
+                self._sweep_yielded = False
+                text = '%s given back: the sweep goes on' % arm
+            else:
+                text = '%s given back: it stays where it is' % arm
+        rospy.loginfo('vaultbot_sim: %s', text)
+        return ReleaseArmResponse(success=True, message=text)
+
+    def _give_back(self, arm: str, sent: float) -> None:
+        """Nobody holds ``arm`` from here (self.lock held): the sim's own pose takes it where it is (the sweep,
+        the Hokuyo's wrist), and a setpoint stamped before ``sent`` takes nothing (``ArmPlant.release``)."""
+        plant = self.body.arms[arm]
+        with self.body.lock:
+            if SWEEP_JOINT in plant.joints:
+                self.state.sweep.position = plant.position[SWEEP_JOINT]
+            self.state.hold.update({j: plant.position[j] for j in plant.joints if j != SWEEP_JOINT})
+            plant.release(sent)
 
     # --- the motors -----------------------------------------------------------------------------------
     def _on_wheel_command(self, msg: JointState) -> None:
@@ -239,7 +271,7 @@ class SimNode:
                 raise ValueError('%d names, %d positions and %d velocities' % (len(msg.name), len(msg.position),
                                                                                len(msg.velocity)))
             if self.body.command_arm(arm, {n: (q, v) for n, q, v in zip(msg.name, msg.position, msg.velocity)},
-                                     time.monotonic()):
+                                     time.monotonic(), msg.header.stamp.to_sec()):
                 self._publish_arm(arm, rospy.Time.now())      # the hold's moment, not the next step's
         except ValueError as e:
             rospy.logerr_throttle(1.0, 'vaultbot_sim: %s command refused: %s' % (arm, e))
@@ -311,6 +343,7 @@ class SimNode:
             right = self.body.arms['right_arm']
             if right.held and self.state.sweep.enabled:
                 self.state.sweep.set(False)           # someone holds the Hokuyo's arm: the sweep yields
+                self._sweep_yielded = True
                 rospy.loginfo('vaultbot_sim: the right arm is held: the sweep stops')
         step = self.body.step(time.monotonic(), hold)
         for contact, speed in step.contacts:
