@@ -21,7 +21,9 @@ What is taken, and why:
   subscriber's name): which subscribers are alive now, not after rospy's next failed write
   (the navigator watches a goal's client so);
 - ``rospy.impl.masterslave.ROSHandler.shutdown``: a master's shutdown meant for another node is refused
-  (below, the shutdown guard).
+  (below, the shutdown guard);
+- ``rospy.impl.tcpros_pubsub.QueuedConnection``'s queue: a node's last words (a goal's end, said as it is
+  stopped) have left for the socket before rospy's shutdown closes it (``wait_sent``).
 
 The bounded handshake. A node's TCPROS server no longer waits for ever on one peer's handshake.
 
@@ -65,6 +67,7 @@ import re
 import socket
 import struct
 import threading
+import time
 from typing import Callable, Dict, Optional, Set, Tuple
 
 import rospy
@@ -73,6 +76,7 @@ import rospy.impl.masterslave
 import rospy.impl.paramserver
 import rospy.impl.registration
 import rospy.impl.tcpros_base as tcpros_base
+import rospy.impl.tcpros_pubsub
 import rospy.impl.tcpros_service
 from rosgraph.network import ROSHandshakeException
 
@@ -83,7 +87,7 @@ USED = [(rospy.core, 'is_shutdown_requested'), (rospy.core, 'is_initialized'), (
         (rospy.impl.paramserver, 'get_param_server_cache'), (rospy.impl.registration, 'get_topic_manager'),
         (rospy.impl.registration, 'get_service_manager'), (rospy.impl.tcpros_service, 'TCPROSTransport'),
         (tcpros_base, 'TCPROSServer'), (tcpros_base, 'read_ros_handshake_header'),
-        (rospy.impl.masterslave, 'ROSHandler')]
+        (rospy.impl.masterslave, 'ROSHandler'), (rospy.impl.tcpros_pubsub, 'QueuedConnection')]
 
 
 def missing(used=USED) -> list:
@@ -163,6 +167,21 @@ def live_subscribers(publisher: rospy.Publisher, unreachable_s: Optional[float] 
     conns = list(publisher.impl.connections)
     return {conn.endpoint_id for conn in conns
             if _open(conn) and (unreachable_s is None or not unreachable(conn, unreachable_s))}
+
+
+def wait_sent(publishers, timeout: float) -> bool:
+    """Wait until what was published on ``publishers`` has left rospy's queues for the sockets; True when it
+    has within ``timeout``. A publisher with a ``queue_size`` hands each message to a writer thread per
+    subscriber (``QueuedConnection``); rospy's shutdown closes the connections without waiting for it, and a
+    goal's end said by a node as it stops was lost (its client waited 90 s: CI at dda811a). The writer thread
+    has still to finish the socket write of the last batch it took: a bounded poll cannot see that, and a
+    write under way when the socket closes is lost (microseconds, unless the thread is starved then)."""
+    deadline = time.monotonic() + timeout
+    while any(getattr(conn, '_queue', None) for pub in publishers for conn in list(pub.impl.connections)):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.002)
+    return True
 
 
 # struct tcp_info (linux/tcp.h): 8 bytes of state, then u32s: rto, ato, snd_mss, rcv_mss, unacked, sacked, lost,

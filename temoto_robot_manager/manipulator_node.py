@@ -48,7 +48,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
-from temoto_core.node import init_node, ok
+from temoto_core.node import init_node, ok, stop_requested
+from temoto_core.rospy_internals import wait_sent
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
 from temoto_robot_manager.description import described_robot
@@ -61,6 +62,7 @@ from temoto_robot_manager.servo import Servo
 SERVO_TIMEOUT_S = 0.1        # a target this old is not followed (MoveIt Servo's incoming_command_timeout)
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
 REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)
+LAST_WORDS_S = 1.0           # a stopped node's goal end, sent before rospy shuts down (node.py's grace: 2 s)
 COLLISION_PERIOD_S = 0.04    # between two self-collision checks of the servo (25 Hz; MoveIt Servo checks at 50 Hz)
 
 
@@ -296,7 +298,7 @@ class ManipulatorNode:
     def spin(self) -> None:
         period = 1.0 / self.servo_rate
         next_at = time.monotonic()
-        while ok():
+        while not stop_requested() and ok():
             with self.wake:
                 wake_at = next_at
                 if self._streaming:               # the stream's silence is acted on at its moment, not a tick later
@@ -310,6 +312,26 @@ class ManipulatorNode:
                 next_at = max(next_at + period, now)
                 self._watch_goal()
             self._servo(now)
+        if stop_requested():
+            self._stopped()
+        ok()                                      # rospy is shut down here, on the main thread (temoto_core.node)
+
+    def _stopped(self) -> None:
+        """A stop signal (the ER Manager unloading this node, most often because the manager that started it
+        died): a goal under way ends ABORTED naming why, and the arm holds, before rospy shuts down; unsaid, the
+        goal's client would hear nothing (as a navigator's did: CI at dda811a)."""
+        with self.lock:
+            handle, goal_id, self.active = self.active, self.active_id, None
+        if self._streaming:
+            self._hold('the manipulator was stopped')
+        if handle is None:
+            return
+        self.controller.cancel_goal()
+        why = self.holders.gone(goal_id) or 'the manipulator was stopped'
+        rospy.logwarn('manipulator: goal %s: %s: the arm holds', goal_id, why)
+        handle.set_aborted(self._result(MoveArmResult.PREEMPTED, why), '%s: the arm holds' % why)
+        if not wait_sent([self.server.status_pub, self.server.result_pub], LAST_WORDS_S):
+            rospy.logwarn('manipulator: the goal\'s end not sent within %.1f s of the stop', LAST_WORDS_S)
 
     def _servo(self, now: float) -> None:
         """One servo step towards the latest target, if it is fresh, the arm's state is, and no goal runs."""

@@ -52,8 +52,8 @@ from visualization_msgs.msg import MarkerArray
 
 from temoto_core import params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
-from temoto_core.node import init_node, ok
-from temoto_core.rospy_internals import connection_header
+from temoto_core.node import init_node, ok, stop_requested
+from temoto_core.rospy_internals import connection_header, wait_sent
 from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
@@ -66,6 +66,7 @@ from temoto_robot_manager.scene_markers import base_scene
 from temoto_robot_manager.teleop_drive import Refused, TeleopDrive
 
 FEEDBACK_PERIOD_S = 0.2
+LAST_WORDS_S = 1.0             # a stopped navigator's goal end, sent before rospy shuts down (node.py's grace: 2 s)
 SCENE_PERIOD_S = 0.2           # the footprint and stop zone redrawn (5 Hz: a display, not a control loop)
 
 
@@ -413,7 +414,7 @@ class NavigatorNode:
     def spin(self) -> None:
         period = 1.0 / self.rate
         next_at = time.monotonic()
-        while ok():
+        while not stop_requested() and ok():
             now = time.monotonic()
             gone = None
             with self.lock:
@@ -453,6 +454,27 @@ class NavigatorNode:
                 next_at = time.monotonic()
             else:
                 time.sleep(delay)
+        if stop_requested():
+            self._stopped()
+        ok()                                      # rospy is shut down here, on the main thread (temoto_core.node)
+
+    def _stopped(self) -> None:
+        """A stop signal (the ER Manager unloading this navigator, most often because the manager that started it
+        died): the base stops, and a goal under way ends ABORTED naming why, before rospy shuts down. Unsaid,
+        the goal's client heard nothing: a navigator stopped before its loop had seen its manager's death left
+        the goal unended (CI at dda811a)."""
+        with self.lock:
+            handle, goal_id, self.active = self.active, self.active_id, None
+            if handle is not None:
+                self.nav.cancel()
+            self._command(0.0, 0.0)
+        if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
+            return
+        why = self.holders.gone(goal_id) or 'the navigator was stopped'
+        rospy.logwarn('navigator: goal %s: %s: the robot stops', goal_id, why)
+        handle.set_aborted(MoveBaseResult(), '%s: the robot stopped' % why)
+        if not wait_sent([self.server.status_pub, self.server.result_pub], LAST_WORDS_S):
+            rospy.logwarn('navigator: the goal\'s end not sent within %.1f s of the stop', LAST_WORDS_S)
 
     def _feedback(self, handle, pose, remaining: float) -> None:
         fb = MoveBaseFeedback()

@@ -480,3 +480,30 @@ def manager_back(stack):
     wait_for(lambda: not any('manipulator' in str(p['command']) for p in er_processes()), HANG,
              'the manipulators released with their dead manager')
     stack.robot_manager = start_robot_manager(stack)
+
+
+def test_a_manipulator_stopped_mid_goal_ends_the_goal_naming_it_and_the_arm_holds(stack, truth):
+    """A stop signal (the ER Manager's unload: most often its manager died, and the signal may come before the
+    manipulator's loop has seen the death) ends the goal ABORTED naming it, and the arm holds, before the node
+    shuts down. Before, the node shut down at once and the goal's client heard nothing."""
+    joints, states = truth
+    with made_interfaces(RobotManagerInterface) as make:
+        make().load_robot(['manipulation'], on_status=lambda event: None)
+        right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
+        assert right.wait_for_server(rospy.Duration(HANG))
+        names = ['right_%s_joint' % j for j in ARM_JOINTS]
+        here = dict(zip(joints.last().name, joints.last().position))
+        far = [here[j] for j in names]
+        far[0] += 1.2 if far[0] < 0.0 else -1.2
+        right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
+                 'the right arm moving')
+        pid = next(p['pid'] for p in er_processes() if 'right_arm_manipulator' in str(p['command']))
+        os.kill(pid, signal.SIGINT)
+        stopped = rospy.Time.now().to_sec()
+        assert right.wait_for_result(rospy.Duration(HANG)), 'the goal never ended'
+        assert right.get_state() == GoalStatus.ABORTED, right.get_goal_status_text()
+        assert right.get_goal_status_text() == 'the manipulator was stopped: the arm holds'
+        wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'right_arm'
+                               and m.header.stamp.to_sec() > stopped and m.commanded_speed == 0.0), None),
+                 HANG, 'the right arm commanded to hold')

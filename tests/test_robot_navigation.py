@@ -117,6 +117,30 @@ def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi
     assert truth.last().contacts == 0
 
 
+def test_a_navigator_stopped_mid_drive_ends_its_goal_naming_it(stack, rmi, rospy_client, collect):
+    """A stop signal (the ER Manager's unload: its manager died, and the signal came before the navigator's loop
+    saw the death, as in a CI run) ends the goal ABORTED naming it, before the node shuts down; the base stops.
+    Before, the node shut down at once and the client heard nothing."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    rm = rmi()
+    robot = rm.load_robot(['navigation'], on_status=lambda event: None)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, 'drums'))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    pid = next(p['pid'] for p in er_processes() if 'navigator' in str(p['command']))
+    stopped = time.time()
+    os.kill(pid, signal.SIGINT)
+    assert client.wait_for_result(rospy_client.Duration(HANG)), 'the goal never ended'
+    assert client.get_state() == GoalStatus.ABORTED, client.get_goal_status_text()
+    assert client.get_goal_status_text() == 'the navigator was stopped: the robot stopped'
+    zero = commanded_zero_after(truth.msgs, stopped, HANG)
+    assert zero.header.stamp.to_sec() - stopped < 5.0
+    rm.release(robot.resource_id)
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator released')
+
+
 def manager_pid():
     uri = master_lookup.lookup_node(os.environ['ROS_MASTER_URI'], '/temoto_robot_manager')
     return master_lookup.node_pid(uri) if uri else None
