@@ -104,3 +104,12 @@ class Operator:
         """The first feedback sentence that contains every one of ``parts``."""
         with self.lock:
             return next((f for f in self.feedback if all(p in f for p in parts)), None)
+
+    def wait_heard(self, timeout: float, *parts: str) -> str:
+        """``heard(*parts)``, once it is. Feedback and events are two topics, each on its own connection: the
+        sentence an action says as it fails may arrive after the event that it ended (a CI run)."""
+        try:
+            return wait_for(lambda: self.heard(*parts), timeout, 'feedback with %s' % ', '.join(map(repr, parts)))
+        except TimeoutError as err:
+            with self.lock:
+                raise AssertionError('%s; the last feedback: %s' % (err, self.feedback[-5:])) from None

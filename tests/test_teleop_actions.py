@@ -141,7 +141,7 @@ def test_a_goal_pointed_in_rviz_is_kept_until_robot_please_go_drives_there(op, r
              'the used goal gone from the scene')
     graph = graph_of(said(op, 'robot please go'))
     assert ended(op, graph, 'navigate_0') == 'FAILED'
-    assert op.heard('navigate failed', 'no goal is pointed'), op.feedback[-5:]
+    op.wait_heard(HANG, 'navigate failed', 'no goal is pointed')
     # a named place, and a point without heading: the robot faces it
     graph = graph_of(said(op, 'robot please go home'))
     assert ended(op, graph, 'navigate_0') == 'FINISHED', op.of('state', graph)
@@ -382,4 +382,4 @@ def test_the_dial_turns_by_words_and_by_the_cli_and_refuses_what_it_cannot_be(op
     assert out.returncode == 1 and 'no hand is followed now' in out.stderr, out.stderr
     failed = graph_of(said(op, 'finer'))
     assert ended(op, failed, 'dial_0') == 'FAILED'
-    assert op.heard('dial failed', 'no hand is followed now'), op.feedback[-5:]
+    op.wait_heard(HANG, 'dial failed', 'no hand is followed now')
