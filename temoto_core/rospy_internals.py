@@ -214,6 +214,13 @@ def live_publishers(subscriber: rospy.Subscriber) -> Set[str]:
     return {conn.endpoint_id for conn in list(subscriber.impl.connections) if _open(conn)}
 
 
+def live_publisher_nodes(subscriber: rospy.Subscriber) -> Set[str]:
+    """As :func:`live_publishers`, by the publishing nodes' names (their connection header's ``callerid``), for
+    a reason an operator can read."""
+    return {(getattr(conn, 'header', None) or {}).get('callerid', conn.endpoint_id)
+            for conn in list(subscriber.impl.connections) if _open(conn)}
+
+
 # generous beside a handshake (a header is a few hundred bytes, sent right after the connect), short beside
 # the deadlines of the calls waiting behind it
 HANDSHAKE_S = 5.0

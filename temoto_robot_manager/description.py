@@ -15,6 +15,10 @@ One file holds a list under ``robots``::
             running: true                    # optional: it runs with the robot already; checked, not started
           cmd_vel_topic: cmd_vel
           odom_topic: odom
+          odom_rate: 50                      # Hz the driver publishes odometry at: 3 periods without, and the base
+                                             # is commanded zero (optional, default 50)
+          odom_patience: 0.5                 # s without odometry, or its publisher's connection gone: the goal is
+                                             # aborted, and nothing drives until a new goal (optional, default 0.5)
           odom_frame: odom
           base_frame: base_link
           footprint: [-0.50, 0.64, -0.69, 0.67]   # x_min, x_max, y_min, y_max (m) in base_frame, arms included
@@ -61,8 +65,8 @@ from temoto_core.reliability import DEFAULT_PRIOR
 FEATURES = ('navigation', 'manipulation', 'gripper')
 _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
-_NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_frame', 'base_frame', 'footprint',
-                    'protrusions',
+_NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_rate', 'odom_patience', 'odom_frame',
+                    'base_frame', 'footprint', 'protrusions',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
@@ -118,6 +122,8 @@ class Navigation:
     # what sticks out of the footprint's rectangle (a gripper ahead of the bumper), each [x_min, x_max, y_min,
     # y_max] (m): part of the outline that is kept clear, without widening it all round
     protrusions: Tuple[Tuple[float, float, float, float], ...] = ()
+    odom_rate: float = 50.0               # Hz: the odometry is stale after 3 of its periods (``guards.OdometryFresh``)
+    odom_patience: float = 0.5            # s of stale odometry before a goal is aborted
 
 
 @dataclass(frozen=True)
@@ -203,6 +209,17 @@ class _Reader:
             raise self.error(where, '%s %r is not a legal ROS name' % (self.label(where), value))
         return value.strip()
 
+    def number(self, parent: dict, key: str, at: Sequence, default: float, above: float, maximum: float) -> float:
+        """``parent[key]``, a finite number in (``above``, ``maximum``], or ``default`` when it is not given."""
+        if key not in parent:
+            return default
+        value, where = parent[key], list(at) + [key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or not above < value <= maximum:
+            raise self.error(where, '%s must be a number above %g and at most %g, got %r'
+                             % (self.label(where), above, maximum, value))
+        return float(value)
+
     def numbers(self, value: Any, at: Sequence, count: int, what: str) -> Tuple[float, ...]:
         if not isinstance(value, list) or len(value) != count or \
                 not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
@@ -266,7 +283,9 @@ class _Reader:
             self.text(raw, 'cmd_vel_topic', at, default='cmd_vel', name=True),
             self.text(raw, 'odom_topic', at, default='odom', name=True),
             self.text(raw, 'odom_frame', at, default='odom'), self.text(raw, 'base_frame', at, default='base_link'),
-            footprint, tuple(ranked), places, tuple(protrusions))
+            footprint, tuple(ranked), places, tuple(protrusions),
+            self.number(raw, 'odom_rate', at, 50.0, above=0.0, maximum=1000.0),
+            self.number(raw, 'odom_patience', at, 0.5, above=0.0, maximum=10.0))
 
     def arm(self, name: str, value: Any, at: Sequence) -> Arm:
         raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))

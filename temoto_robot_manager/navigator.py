@@ -10,9 +10,11 @@ this class decides. A goal is:
 - **driven** (``path_follower.py``), every command passed through the collision monitor
   (``collision_monitor.py``);
 - **paused** while the obstacle source is stale (``freshness.py``): the command is zero until a fresh
-  frame comes, from the same source or from the one the Robot Manager fails over to;
+  frame comes, from the same source or from the one the Robot Manager fails over to; and while the odometry
+  is stale (``guards.OdometryFresh``), until it comes again;
 - **ended**: arrived, cancelled, or aborted with the reason (no path, blocked, no fresh obstacles for
-  ``SOURCE_PATIENCE_S``).
+  ``SOURCE_PATIENCE_S``, no odometry for the description's ``odom_patience``, or a guard's final reason:
+  :meth:`Navigator.abort`).
 
 Every state is one of :class:`State`; :meth:`tick` moves between them and returns the command.
 """
@@ -29,6 +31,7 @@ from temoto_robot_manager import global_planner
 from temoto_robot_manager.collision_monitor import CollisionMonitor, Verdict, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.guards import OdometryFresh, StopReason
 from temoto_robot_manager.path_follower import PathFollower, Phase, wrap
 
 REPLAN_PERIOD_S = 1.0
@@ -51,6 +54,7 @@ class State(enum.Enum):
     IDLE = 'idle'
     DRIVING = 'driving'
     WAITING = 'waiting for a fresh obstacle source'
+    NO_ODOMETRY = 'waiting for odometry'
     BLOCKED = 'stopped by an obstacle'
 
 
@@ -90,9 +94,11 @@ def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
 
 class Navigator:
     def __init__(self, footprint: Footprint, freshness: Freshness,
-                 follower: Optional[PathFollower] = None, monitor: Optional[CollisionMonitor] = None) -> None:
+                 follower: Optional[PathFollower] = None, monitor: Optional[CollisionMonitor] = None,
+                 odometry: Optional[OdometryFresh] = None) -> None:
         self.footprint = footprint
         self.freshness = freshness
+        self.odometry = odometry                   # None: the pose is trusted as it is (the rules' own tests)
         self.follower = follower or PathFollower()
         self.monitor = monitor or CollisionMonitor(footprint)
         self.costmap: Optional[Costmap] = None
@@ -113,8 +119,22 @@ class Navigator:
     def set_map(self, costmap: Costmap) -> None:
         self.costmap = costmap
 
-    def set_pose(self, pose: Pose) -> None:
+    def set_pose(self, pose: Pose, now: Optional[float] = None) -> None:
+        """The base's pose from odometry that arrived at ``now`` (monotonic; None: not timed)."""
         self.pose = pose
+        if now is not None and self.odometry is not None:
+            self.odometry.heard(now)
+
+    def odometry_stop(self, now: float) -> Optional[StopReason]:
+        """Why the odometry forbids driving now, or None."""
+        return self.odometry.check(now) if self.odometry is not None else None
+
+    def stop_deadline(self) -> Optional[float]:
+        """The earliest moment the obstacle source or the odometry goes stale, if nothing comes; None when
+        neither can (nothing proven fresh yet)."""
+        deadlines = [d for d in (self.freshness.deadline(),
+                                 self.odometry.deadline() if self.odometry is not None else None) if d is not None]
+        return min(deadlines) if deadlines else None
 
     def set_obstacles(self, points_base: np.ndarray, now: float) -> None:
         """A frame of the obstacle source (N x 2, base frame, at ``self.pose``): marked and fresh."""
@@ -234,6 +254,9 @@ class Navigator:
         """Drive to a checked ``goal`` (replacing any other); raises NoPath when none is found now."""
         if self.pose is None:
             raise BadGoal('target_pose', 'the robot\'s pose is not known yet (no odometry)')
+        stop = self.odometry_stop(now)
+        if stop is not None:
+            raise BadGoal('target_pose', 'the robot\'s pose is not fresh: %s' % stop.text)
         self.path, self.target = self.route(self.pose, goal)
         self.goal = goal
         self.follower.reset()
@@ -247,6 +270,11 @@ class Navigator:
 
     def cancel(self) -> None:
         self._finish()
+
+    def abort(self, reason: StopReason) -> Tick:
+        """End the goal ABORTED for a guard's final ``reason`` (its controller is gone): zero, and nothing resumes
+        without a new goal."""
+        return self._end(Outcome.ABORTED, '%s: the robot stopped' % reason.text)
 
     def _finish(self) -> None:
         self.goal, self.path, self.target = None, None, None
@@ -271,12 +299,18 @@ class Navigator:
 
     # -- the loop ------------------------------------------------------------------------------------------
     def must_stop(self, now: float) -> bool:
-        """Whether a goal is held and its obstacle source is stale: the command must be zero now."""
-        return self.goal is not None and not self.freshness.fresh(now)
+        """Whether a goal is held and its obstacle source or its odometry is stale: the command must be zero now."""
+        return self.goal is not None and (not self.freshness.fresh(now) or self.odometry_stop(now) is not None)
 
     def tick(self, now: float) -> Tick:
         if self.goal is None:
             return Tick(0.0, 0.0, State.IDLE, 0.0)
+        stop = self.odometry_stop(now)
+        if stop is not None:
+            if stop.final:
+                return self.abort(stop)
+            self._enter(State.NO_ODOMETRY, now)
+            return Tick(0.0, 0.0, State.NO_ODOMETRY, self.remaining())
         if not self.freshness.fresh(now):
             if self.state is not State.WAITING:
                 self._enter(State.WAITING, now)
@@ -284,7 +318,7 @@ class Navigator:
                 return self._end(Outcome.ABORTED, 'no fresh obstacle source for %.0f s: the robot will not drive '
                                  'blind' % SOURCE_PATIENCE_S)
             return Tick(0.0, 0.0, State.WAITING, self.remaining())
-        if self.state is State.WAITING:
+        if self.state in (State.WAITING, State.NO_ODOMETRY):
             self._enter(State.DRIVING, now)
             self._planned = -math.inf                  # the world may have changed while waiting: plan again
         if now - self._planned >= REPLAN_PERIOD_S:

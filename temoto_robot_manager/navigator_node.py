@@ -23,7 +23,10 @@ or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic``
 ``~obstacle_source``). Out: ``cmd_vel``.
 
 A goal whose holder is gone ends at once, the robot stopped (``goal_holders.py``): a
-robot must not drive for nobody. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
+robot must not drive for nobody. The odometry is guarded too (``guards.py``): stale for 3 periods of the
+description's ``odom_rate``, the base is commanded zero; stale for ``odom_patience``, or its publisher (the base
+controller) dead, the goal ends ABORTED naming it, and a teleop stream is stopped, so a controller that is
+respawned finds nothing to drive on. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
 the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
 the next tick. Both hold one lock around deciding and publishing, so a stale zero is never followed
 by a command decided before it.
@@ -53,13 +56,14 @@ from visualization_msgs.msg import MarkerArray
 from temoto_core import params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
-from temoto_core.rospy_internals import connection_header, wait_sent
+from temoto_core.rospy_internals import connection_header, live_publisher_nodes, wait_sent
 from temoto_core.wait import wait_for
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness, header_stamp
 from temoto_robot_manager.global_planner import NoPath
 from temoto_robot_manager.goal_holders import GoalHolders
+from temoto_robot_manager.guards import OdometryFresh, PublisherAlive
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 from temoto_robot_manager.scene_markers import base_scene
@@ -80,7 +84,8 @@ class NavigatorNode:
         self.map_frame: Optional[str] = None
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
-        self.nav = Navigator(Footprint.of(nav.footprint, nav.protrusions), Freshness())
+        self.nav = Navigator(Footprint.of(nav.footprint, nav.protrusions), Freshness(),
+                             odometry=OdometryFresh(nav.odom_rate, nav.odom_patience))
         self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self._tf_listener = tf2_ros.TransformListener(self.tf)
         self.rate = params.number('rate', 20.0, above=0, maximum=200)
@@ -107,7 +112,8 @@ class NavigatorNode:
         self.server = actionlib.ActionServer('move_base', MoveBaseAction, self._on_goal, self._on_cancel,
                                              auto_start=False)
         rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
-        rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
+        self._odom_sub = rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
+        self.odom_publisher = PublisherAlive(lambda: live_publisher_nodes(self._odom_sub), 'the odometry\'s publisher')
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
         rospy.Subscriber(params.text('halt_topic', halt_topic('temoto')), HALT_TYPE, self._on_halt, queue_size=5,
                          tcp_nodelay=True)
@@ -167,6 +173,7 @@ class NavigatorNode:
             raise LookupError('no transform from %r to the map\'s frame %r: %s' % (frame, self.map_frame, err))
 
     def _on_odom(self, msg: Odometry) -> None:
+        now = time.monotonic()
         if self.map_frame is None:
             return
         try:
@@ -178,7 +185,7 @@ class NavigatorNode:
         x, y = (m @ np.array([p.x, p.y, 0.0, 1.0]))[:2]
         yaw = yaw_of(q.x, q.y, q.z, q.w) + math.atan2(m[1, 0], m[0, 0])
         with self.lock:
-            self.nav.set_pose((float(x), float(y), math.atan2(math.sin(yaw), math.cos(yaw))))
+            self.nav.set_pose((float(x), float(y), math.atan2(math.sin(yaw), math.cos(yaw))), now)
 
     def _on_obstacles(self, raw: rospy.AnyMsg, topic: str) -> None:
         """A frame of the source: its arrival counted at once, its obstacles made on the frames thread. The
@@ -376,11 +383,11 @@ class NavigatorNode:
                                           self.nav.monitor.settings))
 
     def _watch_staleness(self) -> None:
-        """Zero at the obstacle source's deadline, not at the next tick (the issue's 3 periods + 20 ms)."""
+        """Zero at the obstacle source's or the odometry's deadline, not at the next tick (3 periods + 20 ms)."""
         stopped_for = None                          # the deadline already acted on
         with self.wake:
             while ok():
-                deadline = self.nav.freshness.deadline()
+                deadline = self.nav.stop_deadline()
                 now = time.monotonic()
                 driven = self.nav.goal is not None or self.teleop.active
                 if not driven or deadline is None or (deadline <= now and stopped_for == deadline):
@@ -391,8 +398,13 @@ class NavigatorNode:
                     continue
                 stopped_for = deadline
                 self._command(0.0, 0.0)
-                rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped', self.source_topic,
-                              (now - self.nav.freshness.last) * 1e3, self.nav.freshness.periods)
+                odometry = self.nav.odometry_stop(now)
+                if odometry is not None:
+                    rospy.logwarn('navigator: %s: stopped', odometry)
+                else:
+                    rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped',
+                                  self.source_topic, (now - self.nav.freshness.last) * 1e3,
+                                  self.nav.freshness.periods)
 
     def _watch_teleop(self) -> None:
         """Zero at the teleop stream's deadline, not at the next tick: a silent stream stops the base within
@@ -416,6 +428,7 @@ class NavigatorNode:
         next_at = time.monotonic()
         while not stop_requested() and ok():
             now = time.monotonic()
+            self._watch_controller()
             gone = None
             with self.lock:
                 if self.active is not None:
@@ -457,6 +470,23 @@ class NavigatorNode:
         if stop_requested():
             self._stopped()
         ok()                                      # rospy is shut down here, on the main thread (temoto_core.node)
+
+    def _watch_controller(self) -> None:
+        """The odometry's publisher (the base controller) dead: the goal ends ABORTED naming it and a teleop stream
+        stops, at once, before a respawned controller could take the old commands up again."""
+        lost = self.odom_publisher.poll()
+        if lost is None:
+            return
+        with self.lock:
+            handle, self.active = self.active, None
+            tick = self.nav.abort(lost) if handle is not None else None
+            if self.teleop.active:
+                self.teleop.halt(rospy.get_time())
+                self._say_teleop('stopped: %s' % lost)
+            self._command(0.0, 0.0)
+        rospy.logerr('navigator: %s%s', lost, ': goal %s aborted' % handle.get_goal_id().id if handle else '')
+        if handle is not None:
+            self._end(handle, tick)
 
     def _stopped(self) -> None:
         """A stop signal (the ER Manager unloading this navigator, most often because the manager that started it

@@ -428,13 +428,11 @@ def test_the_scene_draws_the_stop_zone_where_the_robot_would_stop_on_its_command
 SIM_PARAMS = {'world': 'lab', 'sweep': False, 'hand_motion': False}
 
 
-@pytest.fixture
-def navigation(procs, rospy_client, collect):
-    """The sim in the lab, the base controller, the SICK, the navigator, and the ground truth."""
+def bring_up(procs, rospy_client, collect, sim_params):
     truth = collect('/vaultbot_sim/base_state', BaseState)
     contacts = collect('/vaultbot_sim/contacts', ContactMsg)
-    procs.node('vaultbot_sim', 'vaultbot_sim', params=SIM_PARAMS)
-    procs.node('vaultbot_sim', 'base_controller')
+    procs.node('vaultbot_sim', 'vaultbot_sim', params=sim_params)
+    base = procs.node('vaultbot_sim', 'base_controller')
     sick = procs.node('vaultbot_sim', 'sick_driver')
     navigator = procs.node('temoto_robot_manager', 'navigator',
                            params={'description': DEFAULT_DESCRIPTION, 'robot': 'vaultbot',
@@ -442,7 +440,20 @@ def navigation(procs, rospy_client, collect):
     client = TrackingActionClient('/move_base', MoveBaseAction)
     assert client.wait_for_server(rospy_client.Duration(HANG)), 'the navigator\'s move_base action'
     wait_receiving([truth.sub, contacts.sub], HANG, 'the sim\'s ground truth')
-    yield dict(truth=truth, contacts=contacts, client=client, navigator=navigator, sick=sick)
+    return dict(truth=truth, contacts=contacts, client=client, navigator=navigator, sick=sick, base=base)
+
+
+@pytest.fixture
+def navigation(procs, rospy_client, collect):
+    """The sim in the lab, the base controller, the SICK, the navigator, and the ground truth."""
+    yield bring_up(procs, rospy_client, collect, SIM_PARAMS)
+
+
+@pytest.fixture
+def navigation_on_bare_motors(procs, rospy_client, collect):
+    """As ``navigation``, with motors that keep their last command for ever (no command timeout): every stop is
+    the stack's own."""
+    yield bring_up(procs, rospy_client, collect, dict(SIM_PARAMS, motor_timeout=0.0))
 
 
 def target(rospy, x, y, yaw, frame='world'):
@@ -609,3 +620,52 @@ def test_a_teleop_stream_does_not_drive_blind(navigation, rospy_client, collect)
             'the stream went on; the base stayed at zero'
     finally:
         set_cable('sick', 'plugged')
+
+
+def respawned_controller_drives_nowhere(procs, truth, rospy_client):
+    """Start a base controller again (the respawn base.launch makes): it commands zero, and for the next two
+    seconds of the sim's ground truth nothing is commanded to move."""
+    procs.node('vaultbot_sim', 'base_controller')
+    zero = commanded_zero_after(truth.msgs, rospy_client.get_time(), HANG)
+    since = zero.header.stamp.to_sec()
+    wait_for(lambda: truth.last().header.stamp.to_sec() > since + 2.0, HANG, 'two seconds after the respawn')
+    moved = [s for s in truth.msgs if s.header.stamp.to_sec() > since
+             and (s.commanded_linear != 0.0 or s.commanded_angular != 0.0)]
+    assert not moved, 'the base was commanded to move after the respawn: %s' % moved[0]
+    assert truth.last().linear == 0.0 and truth.last().angular == 0.0
+
+
+def test_a_base_controller_killed_mid_drive_ends_the_goal_naming_it_and_its_respawn_drives_nowhere(
+        navigation_on_bare_motors, procs, rospy_client):
+    """Issue 51, hole 4: a base controller SIGKILLed mid-drive and respawned drove on toward the old goal 2.6 s
+    later, and nobody was told. Its death now ends the goal at once, naming it; the respawned controller finds no
+    goal, and nothing moves. The motors keep their last command (no command timeout): between the death and the
+    respawn only hardware could stop the wheels, so only the goal's end and what follows are asserted here."""
+    nav = navigation_on_bare_motors
+    truth, client = nav['truth'], nav['client']
+    x, y, yaw = PLACES['drums']
+    send(client, target(rospy_client, x, y, yaw))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    os.kill(nav['base'].pid, signal.SIGKILL)
+    state, text = finished(client)
+    assert state == GoalStatus.ABORTED, text
+    assert '/base_controller is gone' in text and 'the robot stopped' in text, text
+    respawned_controller_drives_nowhere(procs, truth, rospy_client)
+
+
+def test_odometry_that_stops_ends_the_goal_after_its_patience_naming_it(navigation_on_bare_motors, procs,
+                                                                        rospy_client, collect):
+    """The base controller stalled (its process up, silent): the navigator hears no odometry, commands zero at its
+    deadline (3 periods), and ends the goal after the description's ``odom_patience``, naming the odometry. The
+    stalled controller replaced, nothing moves."""
+    nav = navigation_on_bare_motors
+    truth, client = nav['truth'], nav['client']
+    x, y, yaw = PLACES['drums']
+    send(client, target(rospy_client, x, y, yaw))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    set_cable('base', 'unplugged', 'stall')
+    state, text = finished(client)
+    assert state == GoalStatus.ABORTED and 'no odometry for' in text and 'the goal ends after 0.5 s' in text, text
+    nav['base'].stop()
+    set_cable('base', 'plugged')
+    respawned_controller_drives_nowhere(procs, truth, rospy_client)

@@ -99,6 +99,7 @@ def test_a_good_file_loads_every_feature(tmp_path):
     assert problems == []
     rover = robots[0]
     assert rover.navigation.places == {'dock': (1.0, 2.0, 0.5)} and rover.navigation.cmd_vel_topic == 'cmd_vel'
+    assert (rover.navigation.odom_rate, rover.navigation.odom_patience) == (50.0, 0.5), 'the defaults'
     assert rover.manipulation['arm'].named_poses == {'up': (0.0, 1.0)} and rover.gripper.arm == 'arm'
     assert rover.source.endswith('robots.yaml:2')
 
@@ -116,6 +117,10 @@ def test_a_good_file_loads_every_feature(tmp_path):
      "action 'arm follow' is not a legal ROS name"),
     ('      places:', '      protrusions: [[0.5, 0.4, 0.0, 0.1]]\n      places:', 7,
      'protrusions[0]: each min must be below its max'),
+    ('      places:', '      odom_rate: 0\n      places:', 7,
+     'navigation.odom_rate must be a number above 0 and at most 1000, got 0'),
+    ('      places:', '      odom_patience: .inf\n      places:', 7,
+     'navigation.odom_patience must be a number above 0 and at most 10, got inf'),
 ])
 def test_each_mistake_is_reported_at_its_line_and_the_robot_left_out(tmp_path, old, new, line, words):
     assert old in GOOD

@@ -110,7 +110,9 @@ class SimNode:
                         enabled=params.flag('hand_motion', True))
         self.state = SimState(sweep, hand)
         self._sweep_yielded = False             # holding the Hokuyo's arm stopped the sweep: its give-back resumes it
-        motor_timeout = params.number('motor_timeout', MOTOR_TIMEOUT_S, above=0, maximum=1.0)
+        # 0: the motors keep their last command for ever, as on a robot whose drivers have no command timeout;
+        # every stop must then come from the stack (docs/robots.md, "No stop left to the motors")
+        motor_timeout = params.number('motor_timeout', MOTOR_TIMEOUT_S, minimum=0, maximum=1.0) or math.inf
         base = BasePlant(motor_timeout=motor_timeout,
                          pose=planar_pose(rospy.get_param('~base_pose', [0.0, 0.0, 0.0]), 'base_pose'))
         self.robot = TreeModel(self.robot_urdf)
