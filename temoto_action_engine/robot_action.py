@@ -2,7 +2,7 @@
 
 A motion action holds the robot's feature through the Robot Manager for exactly as long as it runs: the
 robot moves for a holder, and when the holder goes (the action stops, its worker dies) the motion nodes see
-its goal's client go and stop (``temoto_robot_manager/goal_holders.py``). Its own failure policy is to
+its goal's client go and stop (``temoto_core/goal_holders.py``). Its own failure policy is to
 stop, never to reload silently under a moving robot: a part that fails reaches it as FAILED, the goal is
 cancelled, and the action ends FAILED with the part's reason.
 

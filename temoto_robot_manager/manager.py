@@ -117,7 +117,11 @@ class RobotManager:
                                                 dataclasses.replace(arm.manipulator, args=args),
                                                 '%s/move_arm/status' % arm.name, held))
             if 'gripper' in features:
-                parts.append(self._part(robot, 'gripper.controller', robot.gripper.controller,
+                # the operator's stop reaches the gripper as it reaches the base and the arms
+                args = ' '.join(a for a in (robot.gripper.controller.args,
+                                            '_halt_topic:=%s' % halt_topic(self.namespace)) if a)
+                parts.append(self._part(robot, 'gripper.controller',
+                                        dataclasses.replace(robot.gripper.controller, args=args),
                                         robot.gripper.action + '/status', held))
         except TemotoError:
             self.obstacles.release(load_id)       # held on this manager's account: the registrar's rollback skips it

@@ -26,7 +26,8 @@ is cancelled at once, and the arm holds.
 
 Private parameters: ``~description`` (a robot description file), ``~robot``, ``~arm`` (an arm of its
 manipulation), ``~owner_topic`` (the Robot Manager's latched topic), ``~servo_rate`` (Hz, default 125, MoveIt Servo's),
-``~halt_topic`` (default ``/temoto/halt``: the operator's "stop" aborts the goal and holds the arm).
+``~halt_topic`` (default ``/temoto/halt``: the operator's "stop" aborts the goal and holds the arm; a goal
+stamped before it that arrives after it is rejected).
 """
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ from temoto_core.rospy_internals import wait_sent
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
 from temoto_robot_manager.description import described_robot
-from temoto_robot_manager.goal_holders import GoalHolders
+from temoto_core.goal_holders import GoalHolders
 from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
 from temoto_robot_manager.obstacle_points import matrix_of_pose
 from temoto_robot_manager.self_collision import SelfCollision
@@ -223,7 +224,11 @@ class ManipulatorNode:
         goal = handle.get_goal()
         with self.lock:
             q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
+        stamp = handle.get_goal_id().stamp
         try:
+            if stamp <= self._halted_at:          # on its way when the operator said stop: overtaken by the stop
+                raise GoalRefused(INVALID_GOAL, 'goal_id.stamp: sent %.0f ms before the operator\'s stop, which '
+                                  'came first' % ((self._halted_at - stamp).to_sec() * 1e3))
             away = self.holders.owner_away()
             if away is not None:
                 raise GoalRefused(MoveArmResult.MANAGER_AWAY, away)

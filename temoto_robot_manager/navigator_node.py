@@ -10,12 +10,14 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
 - ``~scene`` (``visualization_msgs/MarkerArray``, latched, 5 Hz): the footprint, and the stop zone on the
   current command (``scene_markers.py``), for the operator's scene;
 - ``~halt_topic`` (default ``/temoto/halt``, ``std_msgs/String``): the operator's "stop": zero at once,
-  and the goal ends ABORTED with the reason (``temoto_core/halt.py``);
+  and the goal ends ABORTED with the reason (``temoto_core/halt.py``); a goal stamped before the stop that
+  arrives after it (it was on its way) is rejected;
 - ``teleop/cmd_vel`` (``TwistStamped``): a stream of velocity commands (the hand in navigation mode), under
   the same guards as a goal: refused while a goal drives, when late, or while the Robot Manager that
   started the node is away (the stream then stopped at once), zero while the obstacle source is
   stale, through the collision monitor, zero once the stream is silent for 0.1 s (``teleop_drive.py``).
-  ``teleop/status`` (latched ``String``) says what the stream gets, when that changes.
+  ``teleop/status`` (latched ``String``) says what the stream gets, when that changes (``halted: <why>``
+  after the operator's stop).
 
 In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
 ``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
@@ -62,7 +64,7 @@ from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness, header_stamp
 from temoto_robot_manager.global_planner import NoPath
-from temoto_robot_manager.goal_holders import GoalHolders
+from temoto_core.goal_holders import GoalHolders
 from temoto_robot_manager.guards import OdometryFresh, PublisherAlive
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
@@ -100,6 +102,7 @@ class NavigatorNode:
         self.pub_teleop_status = rospy.Publisher('teleop/status', String, queue_size=5, latch=True)
         self._teleop_said = None
         self.active = None                      # the goal handle being driven
+        self._halted_at = rospy.Time(0)          # the operator's last stop: a goal stamped before it is refused
         # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
         self.active_id = ''
@@ -279,8 +282,12 @@ class NavigatorNode:
             handle.set_rejected(MoveBaseResult(), away)
             return
         goal_id = handle.get_goal_id().id
+        stamp = handle.get_goal_id().stamp
         try:
             with self.lock:
+                if stamp <= self._halted_at:      # on its way when the operator said stop: overtaken by the stop
+                    raise BadGoal('goal_id.stamp', 'sent %.0f ms before the operator\'s stop, which came first'
+                                  % ((self._halted_at - stamp).to_sec() * 1e3))
                 goal = self._checked(target)
                 self.nav.start(goal, now)
                 self.teleop.end()                # the goal drives now; the stream's deadline must not zero it
@@ -315,7 +322,9 @@ class NavigatorNode:
         reason = reason_of(msg)
         with self.lock:
             self._command(0.0, 0.0)
-            self.teleop.halt(rospy.get_time())
+            self._halted_at = rospy.Time.now()
+            self.teleop.halt(self._halted_at.to_sec())
+            self._say_teleop('halted: %s' % reason)
             halted, self.active = self.active, None
             if halted is not None:
                 self.nav.cancel()

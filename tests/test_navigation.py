@@ -669,3 +669,29 @@ def test_odometry_that_stops_ends_the_goal_after_its_patience_naming_it(navigati
     nav['base'].stop()
     set_cable('base', 'plugged')
     respawned_controller_drives_nowhere(procs, truth, rospy_client)
+
+
+def test_a_goal_sent_before_a_stop_that_arrives_after_it_is_rejected(navigation, rospy_client, collect):
+    """Issue 51, hole 3: a drive goal stamped before the operator's stop, arriving after it (it was on its way), was
+    accepted and drove. It is rejected naming the stamp, and nothing moves."""
+    from move_base_msgs.msg import MoveBaseActionGoal
+    truth = navigation['truth']
+    statuses = collect('/move_base/status', GoalStatusArray)
+    halt = rospy_client.Publisher('/temoto/halt', String, queue_size=5, tcp_nodelay=True)
+    raw = rospy_client.Publisher('/move_base/goal', MoveBaseActionGoal, queue_size=5)
+    wait_for(lambda: halt.get_num_connections() > 0 and raw.get_num_connections() > 0, HANG, 'the navigator')
+    teleop = collect('/teleop/status', String)
+    before = rospy_client.Time.now()
+    halt.publish(String('test stop'))
+    wait_for(lambda: teleop.last() is not None and teleop.last().data == 'halted: test stop', HANG,
+             'the navigator to hear the stop')
+    x, y, yaw = PLACES['drums']
+    late = MoveBaseActionGoal()
+    late.header.stamp = late.goal_id.stamp = before
+    late.goal_id.id = 'late_drive'
+    late.goal.target_pose = target(rospy_client, x, y, yaw)
+    raw.publish(late)
+    ended = wait_for(lambda: next((st for m in statuses.msgs[-3:] for st in m.status_list
+                                   if st.goal_id.id == 'late_drive'), None), HANG, 'the late goal\'s status')
+    assert ended.status == GoalStatus.REJECTED and 'goal_id.stamp: sent' in ended.text, ended.text
+    assert all(s.commanded_linear == 0.0 and s.commanded_angular == 0.0 for s in truth.msgs)

@@ -487,8 +487,9 @@ def test_a_manipulator_stopped_mid_goal_ends_the_goal_naming_it_and_the_arm_hold
     manipulator's loop has seen the death) ends the goal ABORTED naming it, and the arm holds, before the node
     shuts down. Before, the node shut down at once and the goal's client heard nothing."""
     joints, states = truth
+    failures = []
     with made_interfaces(RobotManagerInterface) as make:
-        make().load_robot(['manipulation'], on_status=lambda event: None)
+        make().load_robot(['manipulation'], on_status=failures.append)
         right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
         assert right.wait_for_server(rospy.Duration(HANG))
         names = ['right_%s_joint' % j for j in ARM_JOINTS]
@@ -507,3 +508,85 @@ def test_a_manipulator_stopped_mid_goal_ends_the_goal_naming_it_and_the_arm_hold
         wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'right_arm'
                                and m.header.stamp.to_sec() > stopped and m.commanded_speed == 0.0), None),
                  HANG, 'the right arm commanded to hold')
+        # the robot FAILED once the node is gone: the next test's load is then a new robot, not this broken one
+        wait_for(lambda: any('right_arm_manipulator' in e.message for e in failures), HANG, 'the robot FAILED')
+
+
+def test_a_manipulator_killed_mid_goal_leaves_no_trajectory_running(stack, truth, collect):
+    """Issue 51, hole 2: the manipulator (the client of the controller's trajectory goal) SIGKILLed mid-goal. Its
+    controller watched nobody, and ran the trajectory to its end. It now watches its goal's client
+    (``temoto_core/goal_holders.py``): the arm holds short of the goal, and the trajectory ends naming the client."""
+    from control_msgs.msg import FollowJointTrajectoryActionResult
+    joints, states = truth
+    results = collect('/right_arm/follow_joint_trajectory/result', FollowJointTrajectoryActionResult)
+    with made_interfaces(RobotManagerInterface) as make:
+        make().load_robot(['manipulation'], on_status=lambda event: None)
+        right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
+        assert right.wait_for_server(rospy.Duration(HANG))
+        names = ['right_%s_joint' % j for j in ARM_JOINTS]
+        start = dict(zip(joints.last().name, joints.last().position))
+        far = [start[j] for j in names]
+        far[0] += 1.2 if far[0] < 0.0 else -1.2
+        right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
+                 'the right arm moving')
+        pid = next(p['pid'] for p in er_processes() if 'right_arm_manipulator' in str(p['command']))
+        killed = rospy.Time.now().to_sec()       # taken before: the controller may hear of the death first
+        os.kill(pid, signal.SIGKILL)
+        ended = wait_for(lambda: next((r for r in results.msgs if r.header.stamp.to_sec() > killed), None), HANG,
+                         'the controller\'s trajectory to end')
+        assert ended.status.status == GoalStatus.PREEMPTED, ended.status.text
+        assert ended.status.text == 'its client /right_arm_manipulator is gone: holding where it is', ended.status.text
+        stopped = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'right_arm'
+                                         and m.header.stamp.to_sec() > killed and m.commanded_speed == 0.0), None),
+                           HANG, 'the right arm commanded to hold')
+        assert stopped.header.stamp.to_sec() - killed < 5.0          # generous: catches a hang; the bound: bench
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.header.stamp.to_sec()
+                               > stopped.header.stamp.to_sec() and m.speed == 0.0), None), HANG, 'the arm at rest')
+        rest = dict(zip(joints.last().name, joints.last().position))
+        assert abs(rest[names[0]] - far[0]) > 0.1, 'the arm stopped on its way, not at the trajectory\'s end'
+
+
+def test_stop_reaches_the_gripper_and_a_goal_sent_before_it_is_not_run_after_it(stack, collect):
+    """Issue 51, hole 3: the halt topic was not given to the gripper's controller, so "stop" left the fingers
+    closing. The Robot Manager now gives it, as to the base and the arms: the fingers stop at once and the goal
+    ends ABORTED naming the stop. A goal stamped before the stop that arrives after it is refused, and nothing
+    moves (it was on its way when the operator said stop)."""
+    from control_msgs.msg import GripperCommand, GripperCommandAction, GripperCommandActionGoal, GripperCommandGoal
+    from control_msgs.msg import GripperCommandActionResult
+    from vaultbot_sim.msg import GripperState
+    states = collect('/vaultbot_sim/gripper_state', GripperState)
+    results = collect('/gripper/gripper_command/result', GripperCommandActionResult)
+    halt = rospy.Publisher('/temoto/halt', String, queue_size=5, tcp_nodelay=True)
+    raw = rospy.Publisher('/gripper/gripper_command/goal', GripperCommandActionGoal, queue_size=5)
+    with made_interfaces(RobotManagerInterface) as make:
+        make().load_robot(['gripper'], on_status=lambda event: None)
+        client = TrackingActionClient('/gripper/gripper_command', GripperCommandAction)
+        assert client.wait_for_server(rospy.Duration(HANG))
+        wait_for(lambda: halt.get_num_connections() > 0 and raw.get_num_connections() > 0, HANG,
+                 'the gripper\'s controller listening')
+        wait_receiving([states.sub], HANG, 'the gripper\'s state')
+        wait_for(lambda: states.last(), HANG, 'the gripper\'s state')
+        goal = 0.085 if states.last().gap < 0.04 else 0.0        # across the stroke, wherever it is
+        client.send_goal(GripperCommandGoal(command=GripperCommand(position=goal)))
+        wait_for(lambda: states.last().speed != 0.0, HANG, 'the fingers moving')
+        before = rospy.Time.now()
+        halt.publish(String('test stop'))
+        halted = rospy.Time.now().to_sec()
+        assert client.wait_for_result(rospy.Duration(HANG)), 'the goal never ended'
+        assert client.get_state() == GoalStatus.ABORTED, client.get_goal_status_text()
+        assert client.get_goal_status_text().startswith('halted: test stop; stopped at'), client.get_goal_status_text()
+        rest = wait_for(lambda: next((m for m in states.msgs[-20:] if m.header.stamp.to_sec() > halted
+                                      and m.speed == 0.0), None), HANG, 'the fingers at rest')
+        assert abs(rest.gap - goal) > 0.005, 'the fingers stopped on their way, not at the goal'
+        # a goal stamped before the stop, arriving after it
+        late = GripperCommandActionGoal()
+        late.header.stamp = late.goal_id.stamp = before
+        late.goal_id.id = 'late_gripper_goal'
+        late.goal.command.position = goal
+        raw.publish(late)
+        refused = wait_for(lambda: next((r for r in results.msgs if r.status.goal_id.id == 'late_gripper_goal'), None),
+                           HANG, 'the late goal\'s end')
+        assert refused.status.status == GoalStatus.ABORTED and 'before the operator\'s stop' in refused.status.text, \
+            refused.status.text
+        assert abs(states.last().gap - rest.gap) < 0.001, 'the late goal moved the fingers'

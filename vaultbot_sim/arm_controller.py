@@ -7,7 +7,9 @@ As ros_control's joint_trajectory_controller does for a real UR5:
   at ``arm.COMMAND_RATE_HZ`` and streamed to the motors, with feedback (desired, actual, error). It
   ends SUCCESSFUL within the goal tolerance, or aborts when the arm strays beyond the path tolerance (a
   protective stop, a motor that does not follow) or misses the goal's time. A new goal preempts the one
-  running; a cancel holds the arm where it is;
+  running; a cancel holds the arm where it is, and so does the end of the goal's client (its process died, or it
+  is out of reach: ``temoto_core/goal_holders.py``): PREEMPTED, as if it had cancelled, naming it. A trajectory runs for somebody, or not
+  at all (a manipulator SIGKILLed mid-trajectory once left the arm following it to its end);
 - ``<arm>/servo_command`` (``trajectory_msgs/JointTrajectory``, one point: target positions and the
   velocities to pass them with, as MoveIt Servo publishes): forwarded and extrapolated at the command
   rate while it flows; silent for ``~servo_timeout`` (0.1 s, MoveIt Servo's), the arm holds. A point with
@@ -37,6 +39,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from temoto_core import params
+from temoto_core.goal_holders import GoalHolders
 from temoto_core.node import init_node, ok, stop_requested
 from vaultbot_sim.arm import COMMAND_RATE_HZ, SPEED, JointRange
 from vaultbot_sim.cable_follower import CableFollower, fail
@@ -82,6 +85,7 @@ class ArmController:
                          tcp_nodelay=True)
         self.server = actionlib.SimpleActionServer('%s/follow_joint_trajectory' % self.arm,
                                                    FollowJointTrajectoryAction, self._execute, auto_start=False)
+        self.holders = GoalHolders('%s controller' % self.arm, None, self.server.action_server)
         self.server.start()
 
     # --- inputs ----------------------------------------------------------------------------------------
@@ -198,6 +202,8 @@ class ArmController:
         except Refused as e:
             self._end(result, e.code, str(e), aborted=True)
             return
+        goal_id = self.server.current_goal.get_goal_id().id
+        self.holders.new_goal()
         goal_tol = self._tolerances(goal.goal_tolerance, GOAL_TOLERANCE)
         path_tol = self._tolerances(goal.path_tolerance, PATH_TOLERANCE)
         time_tol = goal.goal_time_tolerance.to_sec() or GOAL_TIME_TOLERANCE
@@ -210,6 +216,13 @@ class ArmController:
             if self.server.is_preempt_requested():
                 self.hold()
                 self._end(result, 0, 'preempted: holding where it is', preempted=True)
+                return
+            gone = self.holders.gone(goal_id)
+            if gone is not None:
+                self.hold()
+                # as if the client had cancelled it: nobody is left to want the motion (control_msgs has no code
+                # for a client that is gone)
+                self._end(result, 0, '%s: holding where it is' % gone, preempted=True)
                 return
             t = time.monotonic() - t0
             want = traj.sample(t)

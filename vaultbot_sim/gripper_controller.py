@@ -13,6 +13,10 @@
   the goal's client (its process died, or it is out of reach), as the arms' manipulators do: ABORTED,
   naming it. Nothing moves for a holder that is gone (chaos, history 5: a client killed mid-stroke, and
   the fingers went on for 0.56 s).
+- ``~halt_topic`` (``std_msgs/String``, the reason; none unless given: the Robot Manager gives its namespace's
+  ``/<ns>/halt``): the operator's "stop". The fingers stop where they are at once, and the goal ends ABORTED
+  naming the reason; a goal stamped before the last stop is refused when it arrives after it (it was on its
+  way when the operator said stop);
 - between goals it sends nothing: the motor holds the fingers where the last setpoint left them (its
   watchdog, ``gripper.py``, stops them if the controller dies mid-motion);
 - its cable is the sim's ``gripper`` device: crash exits 1, stall silences it, action included.
@@ -30,8 +34,9 @@ from control_msgs.msg import GripperCommandAction, GripperCommandFeedback, Gripp
 from sensor_msgs.msg import JointState
 
 from temoto_core import params
+from temoto_core.goal_holders import GoalHolders
+from temoto_core.halt import HALT_TYPE, reason_of
 from temoto_core.node import init_node, ok, spin
-from temoto_core.rospy_internals import live_subscribers
 from vaultbot_sim.cable_follower import CableFollower, fail
 from vaultbot_sim.gripper import SPEED, STROKE
 from vaultbot_sim.spec import GRIPPER_JOINTS
@@ -43,7 +48,6 @@ STALL_TIME_S = 0.2          # s without the gap moving STALL_MOTION: stalled
 STALL_MOTION = 0.0005       # m
 DEFAULT_EFFORT = 100.0      # N, when the goal gives 0 (a 2F-85 closes with 20 to 235 N)
 MAX_EFFORT = 235.0          # N
-CLIENT_UNREACHABLE_S = 0.4  # s a goal's client may acknowledge none of the status before it counts as gone
 
 
 class Refused(ValueError):
@@ -73,6 +77,8 @@ class GripperController:
         self.gap: Optional[float] = None
         self.moving = 0.0                         # m/s of the gap now, from the finger joints' velocities
         self._gap_seen = threading.Event()
+        self._halt: Optional[str] = None          # the operator's stop, for the goal running: its reason
+        self._halted_at = rospy.Time(0)           # the last stop: a goal stamped before it is refused
         self.pub = rospy.Publisher('gripper/joint_command', JointState, queue_size=10, tcp_nodelay=True)
         self.cable = CableFollower('gripper', 'gripper: controller', self.sim_ns)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
@@ -80,6 +86,10 @@ class GripperController:
         if not self.cable.seen.wait(timeout) or not self._gap_seen.wait(timeout):
             fail('gripper: no device states or finger joint states after %.0f s (is vaultbot_sim running?)' % timeout)
         self.server = actionlib.SimpleActionServer(action, GripperCommandAction, self._execute, auto_start=False)
+        self.holders = GoalHolders('gripper controller', None, self.server.action_server)
+        halt = params.text('halt_topic', '')
+        if halt:
+            rospy.Subscriber(halt, HALT_TYPE, self._on_halt, queue_size=5, tcp_nodelay=True)
         self.server.start()
         rospy.loginfo('gripper: GripperCommand on %s, gap %.1f mm', rospy.resolve_name(action), 1000 * self.gap)
 
@@ -95,6 +105,17 @@ class GripperController:
                 self.moving = 2 * msg.velocity[i] if len(msg.velocity) > i else 0.0
             self._gap_seen.set()
 
+    def _on_halt(self, msg) -> None:
+        """The operator's stop: the fingers stop now, not at the goal's next period; the goal ends there."""
+        reason = reason_of(msg)
+        active = self.server.is_active()          # asked outside self.lock: it takes the server's lock
+        with self.lock:
+            self._halted_at = rospy.Time.now()
+            if active:
+                self._halt = reason
+        self.stop()
+        rospy.logwarn('gripper: halted (%s)', reason)
+
     def _gap(self) -> float:
         with self.lock:
             return self.gap
@@ -105,8 +126,11 @@ class GripperController:
             return
         half = self.speed / 2
         msg = JointState(name=list(GRIPPER_JOINTS), position=[gap / 2] * 2, velocity=[half] * 2)
-        msg.header.stamp = rospy.Time.now()
-        self.pub.publish(msg)
+        with self.lock:                           # never a setpoint after the operator's stop, for its goal
+            if self._halt is not None:
+                return
+            msg.header.stamp = rospy.Time.now()
+            self.pub.publish(msg)
 
     def stop(self) -> None:
         """The fingers stop where they are, still pressing on what they hold (velocities only, all zero)."""
@@ -119,17 +143,23 @@ class GripperController:
     # --- the action --------------------------------------------------------------------------------------
     def _execute(self, goal) -> None:
         target, effort_limit = goal.command.position, goal.command.max_effort
+        stamp = self.server.current_goal.get_goal_id().stamp
+        with self.lock:
+            self._halt = None
+            halted_at = self._halted_at
         try:
+            if stamp <= halted_at:
+                raise Refused('the goal was sent %.0f ms before the operator\'s stop, which came first: not run'
+                              % ((halted_at - stamp).to_sec() * 1e3))
             effort = check_goal(target, effort_limit)
         except Refused as e:
             self._end(self._result(False, False, 0.0), str(e), aborted=True)
             return
         period = 1.0 / self.rate
         budget = STROKE / self.speed + 1.0
-        # the goal's client, watched through its subscription to the status (a goal sent with no client, by
-        # rostopic, has none to watch)
-        client = self.server.current_goal.get_goal_id().id.split('-', 1)[0]
-        client_seen = False
+        # the goal's client, watched through its subscription to the status (``goal_holders.py``)
+        goal_id = self.server.current_goal.get_goal_id().id
+        self.holders.new_goal()
         ticks = Ticks(period)
         t0 = time.monotonic()
         still_since, still_gap = t0, self._gap()
@@ -143,12 +173,18 @@ class GripperController:
                 self._end(self._result(False, False, 0.0), 'preempted: stopped at %.1f mm' % (1000 * self._gap()),
                           preempted=True)
                 return
-            if client in live_subscribers(self.server.action_server.status_pub, CLIENT_UNREACHABLE_S):
-                client_seen = True
-            elif client_seen:
+            with self.lock:
+                halt, self._halt = self._halt, None
+            if halt is not None:
                 self.stop()
-                self._end(self._result(False, False, 0.0), 'its client %s is gone: stopped at %.1f mm'
-                          % (client, 1000 * self._gap()), aborted=True)
+                self._end(self._result(False, False, 0.0), 'halted: %s; stopped at %.1f mm' % (halt, 1000 * self._gap()),
+                          aborted=True)
+                return
+            gone = self.holders.gone(goal_id)
+            if gone is not None:
+                self.stop()
+                self._end(self._result(False, False, 0.0), '%s: stopped at %.1f mm' % (gone, 1000 * self._gap()),
+                          aborted=True)
                 return
             self.send(target)
             gap, now = self._gap(), time.monotonic()

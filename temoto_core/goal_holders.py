@@ -1,4 +1,7 @@
-"""Who holds a goal of a motion node (the navigator, a manipulator), watched through their connections.
+"""Who holds a goal of a motion node (the navigator, a manipulator, an arm's or a gripper's controller), watched
+through their connections. In the core, because a controller that stands in for a robot's driver (``vaultbot_sim``)
+watches its goal's client the same way: a manipulator SIGKILLed mid-trajectory left its arm running the trajectory
+to its end, with nobody behind it.
 
 The kernel closes a process's connections the moment it dies, so a connection's end is the fastest news
 of a holder's death ROS 1 can give, without a heartbeat. Two holders are watched:
