@@ -111,6 +111,22 @@ class ArmKinematics:
         self._fk.JntToCart(self._array(q), f)
         return _matrix(f)
 
+    def skeleton(self, q: Sequence[float], spacing: float = 0.05) -> np.ndarray:
+        """Points along the chain (K x 3, in the base frame): each segment's frame origin, and points every
+        ``spacing`` m on the straight line between two of them, so that a long link's middle is there too."""
+        joints = self._array(q)
+        origins = []
+        for segment in range(1, self.chain.getNrOfSegments() + 1):
+            f = PyKDL.Frame()
+            self._fk.JntToCart(joints, f, segment)
+            origins.append((f.p[0], f.p[1], f.p[2]))
+        points = [np.array(origins[:1])]
+        for a, b in zip(origins, origins[1:]):
+            a, b = np.array(a), np.array(b)
+            steps = max(1, int(math.ceil(np.linalg.norm(b - a) / spacing)))
+            points.append(a + np.outer(np.arange(1, steps + 1) / steps, b - a))
+        return np.vstack(points)
+
     def jacobian(self, q: Sequence[float]) -> np.ndarray:
         """6 x n: the tip's twist (linear, then angular, in the base frame, at the tip) per joint velocity."""
         jac = PyKDL.Jacobian(self.n)

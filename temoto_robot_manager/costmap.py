@@ -68,6 +68,12 @@ class Footprint:
         """From the base's origin to the outline's furthest corner."""
         return max(math.hypot(x, y) for x0, x1, y0, y1 in self.boxes for x in (x0, x1) for y in (y0, y1))
 
+    def grown(self, margin: float) -> 'Footprint':
+        """Each box grown by ``margin`` on every side (a negative margin shrinks it)."""
+        m = margin
+        return Footprint(self.x_min - m, self.x_max + m, self.y_min - m, self.y_max + m,
+                         tuple((x0 - m, x1 + m, y0 - m, y1 + m) for x0, x1, y0, y1 in self.protrusions))
+
     def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Which points (N x 2, base frame) are inside the outline grown by ``margin``."""
         inside = np.zeros(len(points), dtype=bool)

@@ -23,6 +23,8 @@ One file holds a list under ``robots``::
           base_frame: base_link
           footprint: [-0.50, 0.64, -0.69, 0.67]   # x_min, x_max, y_min, y_max (m) in base_frame, arms included
                                              # (or [length, width], centred): the costmap's and the monitor's
+          arm_inset: 0.04                    # m the arms' axes stay inside the footprint while the base drives (the
+                                             # links' thickness); an arm out holds the base (optional, default 0.04)
           obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
             - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data,
                package: vaultbot_sim, executable: sick_driver}     # optional: that device, not the best of the type
@@ -66,7 +68,7 @@ FEATURES = ('navigation', 'manipulation', 'gripper')
 _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_rate', 'odom_patience', 'odom_frame',
-                    'base_frame', 'footprint', 'protrusions',
+                    'base_frame', 'footprint', 'protrusions', 'arm_inset',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
@@ -124,6 +126,7 @@ class Navigation:
     protrusions: Tuple[Tuple[float, float, float, float], ...] = ()
     odom_rate: float = 50.0               # Hz: the odometry is stale after 3 of its periods (``guards.OdometryFresh``)
     odom_patience: float = 0.5            # s of stale odometry before a goal is aborted
+    arm_inset: float = 0.04               # m the arms' axes stay inside the footprint while the base drives
 
 
 @dataclass(frozen=True)
@@ -285,7 +288,8 @@ class _Reader:
             self.text(raw, 'odom_frame', at, default='odom'), self.text(raw, 'base_frame', at, default='base_link'),
             footprint, tuple(ranked), places, tuple(protrusions),
             self.number(raw, 'odom_rate', at, 50.0, above=0.0, maximum=1000.0),
-            self.number(raw, 'odom_patience', at, 0.5, above=0.0, maximum=10.0))
+            self.number(raw, 'odom_patience', at, 0.5, above=0.0, maximum=10.0),
+            self.number(raw, 'arm_inset', at, 0.04, above=-1e-9, maximum=1.0))
 
     def arm(self, name: str, value: Any, at: Sequence) -> Arm:
         raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))

@@ -12,13 +12,20 @@ Guards here:
 - :class:`PublisherAlive`: the node that publishes what a motion reads (the base controller's odometry) is alive,
   told by its connection's end, which the kernel gives the moment the process dies (a crash, a SIGKILL). A base
   controller that died and was respawned drove on toward the old goal 2.6 s later, and nobody was told: its death
-  ends the goal at once, so a respawn finds nothing to resume.
+  ends the goal at once, so a respawn finds nothing to resume;
+- :class:`ArmsInEnvelope`: every arm inside the outline that navigation keeps clear. The footprint assumes the arms
+  at their hold pose; an arm servoed out past it while the base drives is a part of the robot that nothing
+  checks against the world.
 """
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Callable, Iterable, Optional, Set
+from typing import Callable, Dict, Iterable, Mapping, Optional, Sequence, Set, Tuple
+
+import numpy as np
+
+from temoto_robot_manager.costmap import Footprint
 
 STALE_PERIODS = 3          # periods of a stream's declared rate without a message: stale (as for obstacle sources)
 
@@ -27,6 +34,7 @@ class StopCode(enum.Enum):
     """Why a guard stops a motion."""
     ODOMETRY_STALE = 'odometry_stale'
     CONTROLLER_GONE = 'controller_gone'
+    ARM_OUTSIDE = 'arm_outside'
 
 
 @dataclass(frozen=True)
@@ -98,3 +106,58 @@ class PublisherAlive:
             return None
         return StopReason(StopCode.CONTROLLER_GONE, '%s %s is gone (its connection closed)'
                           % (self.what, ', '.join(sorted(lost))), final=True)
+
+
+# an arm's skeleton (its chain's axes, K x 3 in the base frame) for its joint positions
+Skeleton = Callable[[Sequence[float]], np.ndarray]
+
+
+class ArmsInEnvelope:
+    """Every arm's skeleton (``ArmKinematics.skeleton``: the chain's axes) inside the driving outline shrunk by
+    ``inset``, in plan view.
+
+    The outline holds the arms at their hold pose with their links' thickness; their axes then lie ``inset`` or
+    more inside it (the VaultBot's: 4 cm). An axis nearer the outline than that puts the link's surface outside
+    it, where the costmap and the collision monitor do not look. Joint states older than ``state_timeout``: where
+    the arms are is not known, and that stops the base too."""
+
+    def __init__(self, footprint: Footprint, arms: Mapping[str, Tuple[Sequence[str], Skeleton]], inset: float,
+                 state_timeout: float = 0.5) -> None:
+        if inset < 0 or not state_timeout > 0:
+            raise ValueError('inset %r must be 0 or more, state_timeout %r above 0' % (inset, state_timeout))
+        self.footprint, self.inset, self.state_timeout = footprint, inset, state_timeout
+        self.arms = {name: (list(joints), skeleton) for name, (joints, skeleton) in arms.items()}
+        self._q: Dict[str, Tuple[float, ...]] = {}
+        self._heard: Optional[float] = None
+        self._verdict: Optional[Tuple[Dict[str, Tuple[float, ...]], Optional[str]]] = None   # cached by positions
+
+    def update(self, positions: Mapping[str, float], now: float) -> None:
+        """Joint positions (any subset of the robot's joints) heard at ``now`` (monotonic)."""
+        for name, (joints, _) in self.arms.items():
+            if all(j in positions for j in joints):
+                self._q[name] = tuple(float(positions[j]) for j in joints)
+        if len(self._q) == len(self.arms):
+            self._heard = now
+
+    def check(self, now: float) -> Optional[StopReason]:
+        if not self.arms:
+            return None
+        if self._heard is None or now - self._heard > self.state_timeout:
+            return StopReason(StopCode.ARM_OUTSIDE, 'where the arms are is not known (no joint states of %s for '
+                              '%.1f s)' % (', '.join(sorted(set(self.arms) - set(self._q)) or sorted(self.arms)),
+                                           self.state_timeout))
+        if self._verdict is None or self._verdict[0] != self._q:
+            self._verdict = (dict(self._q), self._outside())
+        return None if self._verdict[1] is None else StopReason(StopCode.ARM_OUTSIDE, self._verdict[1])
+
+    def _outside(self) -> Optional[str]:
+        for name, (_, skeleton) in sorted(self.arms.items()):
+            points = skeleton(self._q[name])[:, :2]
+            out = ~self.footprint.contains(points, -self.inset)
+            if out.any():
+                # the point furthest out: from the outline shrunk by the inset
+                worst = points[out][int(np.argmax(self.footprint.grown(-self.inset).distance(points[out])))]
+                return ('%s reaches outside the driving outline at (%.2f, %.2f) in the base frame (its axes must '
+                        'stay %.2f m inside it): bring it to its hold pose before driving'
+                        % (name, worst[0], worst[1], self.inset))
+        return None

@@ -10,8 +10,9 @@ this class decides. A goal is:
 - **driven** (``path_follower.py``), every command passed through the collision monitor
   (``collision_monitor.py``);
 - **paused** while the obstacle source is stale (``freshness.py``): the command is zero until a fresh
-  frame comes, from the same source or from the one the Robot Manager fails over to; and while the odometry
-  is stale (``guards.OdometryFresh``), until it comes again;
+  frame comes, from the same source or from the one the Robot Manager fails over to; and while a guard
+  (``guards.py``: the odometry fresh, the arms inside the outline) holds it, until it passes again, for
+  ``BLOCKED_PATIENCE_S`` at most;
 - **ended**: arrived, cancelled, or aborted with the reason (no path, blocked, no fresh obstacles for
   ``SOURCE_PATIENCE_S``, no odometry for the description's ``odom_patience``, or a guard's final reason:
   :meth:`Navigator.abort`).
@@ -23,7 +24,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Callable, Optional, Tuple
+from typing import Callable, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -54,7 +55,7 @@ class State(enum.Enum):
     IDLE = 'idle'
     DRIVING = 'driving'
     WAITING = 'waiting for a fresh obstacle source'
-    NO_ODOMETRY = 'waiting for odometry'
+    HELD = 'held by a guard'
     BLOCKED = 'stopped by an obstacle'
 
 
@@ -95,10 +96,13 @@ def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
 class Navigator:
     def __init__(self, footprint: Footprint, freshness: Freshness,
                  follower: Optional[PathFollower] = None, monitor: Optional[CollisionMonitor] = None,
-                 odometry: Optional[OdometryFresh] = None) -> None:
+                 odometry: Optional[OdometryFresh] = None, guards: Sequence = ()) -> None:
+        """``guards``: more rules a command must pass (each with ``check(now) -> Optional[StopReason]``)."""
         self.footprint = footprint
         self.freshness = freshness
         self.odometry = odometry                   # None: the pose is trusted as it is (the rules' own tests)
+        self.guards = ([odometry] if odometry is not None else []) + list(guards)
+        self.held_by: Optional[StopReason] = None  # why a guard holds the goal now
         self.follower = follower or PathFollower()
         self.monitor = monitor or CollisionMonitor(footprint)
         self.costmap: Optional[Costmap] = None
@@ -125,9 +129,10 @@ class Navigator:
         if now is not None and self.odometry is not None:
             self.odometry.heard(now)
 
-    def odometry_stop(self, now: float) -> Optional[StopReason]:
-        """Why the odometry forbids driving now, or None."""
-        return self.odometry.check(now) if self.odometry is not None else None
+    def guard_stop(self, now: float) -> Optional[StopReason]:
+        """Why a guard forbids driving now (a final reason first), or None."""
+        reasons = [r for r in (g.check(now) for g in self.guards) if r is not None]
+        return next((r for r in reasons if r.final), reasons[0] if reasons else None)
 
     def stop_deadline(self) -> Optional[float]:
         """The earliest moment the obstacle source or the odometry goes stale, if nothing comes; None when
@@ -254,9 +259,9 @@ class Navigator:
         """Drive to a checked ``goal`` (replacing any other); raises NoPath when none is found now."""
         if self.pose is None:
             raise BadGoal('target_pose', 'the robot\'s pose is not known yet (no odometry)')
-        stop = self.odometry_stop(now)
+        stop = self.guard_stop(now)
         if stop is not None:
-            raise BadGoal('target_pose', 'the robot\'s pose is not fresh: %s' % stop.text)
+            raise BadGoal('target_pose', 'the robot may not drive now: %s' % stop.text)
         self.path, self.target = self.route(self.pose, goal)
         self.goal = goal
         self.follower.reset()
@@ -300,17 +305,20 @@ class Navigator:
     # -- the loop ------------------------------------------------------------------------------------------
     def must_stop(self, now: float) -> bool:
         """Whether a goal is held and its obstacle source or its odometry is stale: the command must be zero now."""
-        return self.goal is not None and (not self.freshness.fresh(now) or self.odometry_stop(now) is not None)
+        return self.goal is not None and (not self.freshness.fresh(now) or self.guard_stop(now) is not None)
 
     def tick(self, now: float) -> Tick:
         if self.goal is None:
             return Tick(0.0, 0.0, State.IDLE, 0.0)
-        stop = self.odometry_stop(now)
+        stop = self.held_by = self.guard_stop(now)
         if stop is not None:
             if stop.final:
                 return self.abort(stop)
-            self._enter(State.NO_ODOMETRY, now)
-            return Tick(0.0, 0.0, State.NO_ODOMETRY, self.remaining())
+            if self.state is not State.HELD:
+                self._enter(State.HELD, now)
+            elif now - self._since > BLOCKED_PATIENCE_S:
+                return self._end(Outcome.ABORTED, 'held for %.0f s: %s' % (BLOCKED_PATIENCE_S, stop.text))
+            return Tick(0.0, 0.0, State.HELD, self.remaining())
         if not self.freshness.fresh(now):
             if self.state is not State.WAITING:
                 self._enter(State.WAITING, now)
@@ -318,7 +326,7 @@ class Navigator:
                 return self._end(Outcome.ABORTED, 'no fresh obstacle source for %.0f s: the robot will not drive '
                                  'blind' % SOURCE_PATIENCE_S)
             return Tick(0.0, 0.0, State.WAITING, self.remaining())
-        if self.state in (State.WAITING, State.NO_ODOMETRY):
+        if self.state in (State.WAITING, State.HELD):
             self._enter(State.DRIVING, now)
             self._planned = -math.inf                  # the world may have changed while waiting: plan again
         if now - self._planned >= REPLAN_PERIOD_S:

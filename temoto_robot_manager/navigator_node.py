@@ -25,7 +25,9 @@ or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic``
 ``~obstacle_source``). Out: ``cmd_vel``.
 
 A goal whose holder is gone ends at once, the robot stopped (``goal_holders.py``): a
-robot must not drive for nobody. The odometry is guarded too (``guards.py``): stale for 3 periods of the
+robot must not drive for nobody. Every arm must be inside the driving outline (``guards.ArmsInEnvelope``,
+from the URDF on ``~robot_description``, default ``robot_description``, and the joint states): an arm out
+holds the base at zero. The odometry is guarded too (``guards.py``): stale for 3 periods of the
 description's ``odom_rate``, the base is commanded zero; stale for ``odom_patience``, or its publisher (the base
 controller) dead, the goal ends ABORTED naming it, and a teleop stream is stopped, so a controller that is
 respawned finds nothing to drive on. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
@@ -51,7 +53,7 @@ from actionlib_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from move_base_msgs.msg import MoveBaseAction, MoveBaseActionGoal, MoveBaseFeedback, MoveBaseResult
 from nav_msgs.msg import OccupancyGrid, Odometry, Path
-from sensor_msgs.msg import LaserScan, PointCloud2
+from sensor_msgs.msg import JointState, LaserScan, PointCloud2
 from std_msgs.msg import Float32, String
 from visualization_msgs.msg import MarkerArray
 
@@ -60,12 +62,13 @@ from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import connection_header, live_publisher_nodes, wait_sent
 from temoto_core.wait import wait_for
+from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness, header_stamp
 from temoto_robot_manager.global_planner import NoPath
 from temoto_core.goal_holders import GoalHolders
-from temoto_robot_manager.guards import OdometryFresh, PublisherAlive
+from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 from temoto_robot_manager.scene_markers import base_scene
@@ -86,8 +89,10 @@ class NavigatorNode:
         self.map_frame: Optional[str] = None
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
-        self.nav = Navigator(Footprint.of(nav.footprint, nav.protrusions), Freshness(),
-                             odometry=OdometryFresh(nav.odom_rate, nav.odom_patience))
+        footprint = Footprint.of(nav.footprint, nav.protrusions)
+        self.arms = self._arms_guard(robot, footprint)
+        self.nav = Navigator(footprint, Freshness(), odometry=OdometryFresh(nav.odom_rate, nav.odom_patience),
+                             guards=[self.arms])
         self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self._tf_listener = tf2_ros.TransformListener(self.tf)
         self.rate = params.number('rate', 20.0, above=0, maximum=200)
@@ -118,6 +123,7 @@ class NavigatorNode:
         self._odom_sub = rospy.Subscriber(nav.odom_topic, Odometry, self._on_odom, queue_size=5, tcp_nodelay=True)
         self.odom_publisher = PublisherAlive(lambda: live_publisher_nodes(self._odom_sub), 'the odometry\'s publisher')
         rospy.Subscriber('move_base_simple/goal', PoseStamped, self._on_simple_goal, queue_size=5)
+        rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber(params.text('halt_topic', halt_topic('temoto')), HALT_TYPE, self._on_halt, queue_size=5,
                          tcp_nodelay=True)
         rospy.Subscriber('teleop/cmd_vel', TwistStamped, self._on_teleop, queue_size=5, tcp_nodelay=True)
@@ -143,7 +149,32 @@ class NavigatorNode:
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
                       rospy.resolve_name('move_base'), rospy.resolve_name(nav.cmd_vel_topic))
 
+    @staticmethod
+    def _arms_guard(robot, footprint: Footprint) -> ArmsInEnvelope:
+        """The guard that keeps every arm of ``robot`` inside the driving outline, from the URDF's chains."""
+        arms = {}
+        if robot.manipulation:
+            name = params.text('robot_description', 'robot_description', empty=False)
+            if not rospy.has_param(name):
+                raise ValueError('no URDF on the parameter %s: the arms cannot be kept inside the outline'
+                                 % rospy.resolve_name(name))
+            urdf = rospy.get_param(name)
+            base = robot.navigation.base_frame.rsplit('/', 1)[-1]      # a URDF's link: no TF frame prefix
+            for arm in robot.manipulation.values():
+                try:
+                    arms[arm.name] = (arm.joints, ArmKinematics(urdf, base, arm.tool_frame.rsplit('/', 1)[-1],
+                                                                arm.joints).skeleton)
+                except KinematicsError as err:
+                    raise ValueError('arm %s: %s' % (arm.name, err)) from None
+        return ArmsInEnvelope(footprint, arms, robot.navigation.arm_inset)
+
     # -- inputs ------------------------------------------------------------------------------------------------
+    def _on_joint_states(self, msg: JointState) -> None:
+        now = time.monotonic()
+        positions = dict(zip(msg.name, msg.position))
+        with self.lock:
+            self.arms.update(positions, now)
+
     def use_source(self, topic: str) -> None:
         """Take obstacles from ``topic`` from now on; until its first frame the robot does not drive."""
         topic = topic.strip()
@@ -407,9 +438,9 @@ class NavigatorNode:
                     continue
                 stopped_for = deadline
                 self._command(0.0, 0.0)
-                odometry = self.nav.odometry_stop(now)
-                if odometry is not None:
-                    rospy.logwarn('navigator: %s: stopped', odometry)
+                held = self.nav.guard_stop(now)
+                if held is not None:
+                    rospy.logwarn('navigator: %s: stopped', held)
                 else:
                     rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped',
                                   self.source_topic, (now - self.nav.freshness.last) * 1e3,

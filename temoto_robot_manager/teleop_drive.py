@@ -9,8 +9,8 @@ last command; MoveIt Servo for 0.1 s. Here a command, on ``teleop/cmd_vel`` (``T
 - is **refused** when it is late (stamped more than ``MAX_AGE_S`` ago: a link that held it and delivers it
   now), stamped before the operator's last "stop", or not finite;
 - is **clamped** to the follower's top speeds;
-- becomes **zero** while the obstacle source is not fresh, or the odometry: the base never drives blind,
-  whoever commands it;
+- becomes **zero** while the obstacle source is not fresh, or a guard holds the base (``guards.py``: the
+  odometry stale, an arm outside the outline): the base never drives blind, whoever commands it;
 - passes the **collision monitor**, as a goal's commands do: zero in the stop zone, slowed in the slow zone;
 - **lasts** ``TIMEOUT_S``: when the stream is silent that long, the base is commanded zero once (the
   base controller's own cmd_vel timeout, 0.25 s, stays behind it).
@@ -75,9 +75,9 @@ class TeleopDrive:
             return Decision(0.0, 0.0, 'the robot\'s pose is not known yet (no odometry): the map is not checked')
         if not self.nav.freshness.fresh(now):
             return Decision(0.0, 0.0, 'no fresh obstacle source: the base does not drive blind')
-        stop = self.nav.odometry_stop(now)
+        stop = self.nav.guard_stop(now)
         if stop is not None:
-            return Decision(0.0, 0.0, 'no fresh odometry: %s' % stop.text)
+            return Decision(0.0, 0.0, 'held: %s' % stop.text)
         if linear == 0.0 and angular == 0.0:
             return Decision(0.0, 0.0)
         verdict = self.nav.monitor.check(self.nav.monitor_points(), linear, angular)

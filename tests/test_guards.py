@@ -77,7 +77,7 @@ def test_stale_odometry_zeroes_the_drive_fresh_odometry_resumes_it_and_its_patie
     assert nav.must_stop(0.061) and not nav.must_stop(0.059), 'stale after 3 periods of 20 ms'
     assert nav.stop_deadline() == pytest.approx(0.06), 'the odometry\'s deadline is the earlier one'
     held = nav.tick(0.07)
-    assert (held.linear, held.angular, held.state, held.ending) == (0.0, 0.0, State.NO_ODOMETRY, None)
+    assert (held.linear, held.angular, held.state, held.ending) == (0.0, 0.0, State.HELD, None)
     nav.set_pose((0.0, 0.0, 0.0), 0.08)
     nav.set_obstacles(np.zeros((0, 2)), 0.08)
     assert nav.tick(0.09).state is State.DRIVING, 'it drives on when odometry is back'
@@ -90,7 +90,7 @@ def test_stale_odometry_zeroes_the_drive_fresh_odometry_resumes_it_and_its_patie
 def test_a_goal_is_refused_while_the_odometry_is_stale(lab_navigator_parts):
     nav = driving(lab_navigator_parts)
     nav.cancel()
-    with pytest.raises(ValueError, match='not fresh: no odometry for'):
+    with pytest.raises(ValueError, match='may not drive now: no odometry for'):
         nav.start(nav.goal or (2.0, 0.0, 0.0), 0.2)
 
 
@@ -100,7 +100,7 @@ def test_a_teleop_command_is_zero_while_the_odometry_is_stale(lab_navigator_part
     teleop = TeleopDrive(nav)
     nav.set_obstacles(np.zeros((0, 2)), 0.1)
     decision = teleop.command(10.0, 10.0, 0.1, 0.0, 0.5)
-    assert (decision.linear, decision.angular) == (0.0, 0.0) and decision.why.startswith('no fresh odometry')
+    assert (decision.linear, decision.angular) == (0.0, 0.0) and decision.why.startswith('held: no odometry')
 
 
 def test_a_lost_controller_aborts_the_goal_naming_it(lab_navigator_parts):
@@ -114,3 +114,73 @@ def test_a_lost_controller_aborts_the_goal_naming_it(lab_navigator_parts):
     assert ended.ending.text == ('the odometry\'s publisher /base_controller is gone (its connection closed): '
                                  'the robot stopped')
     assert nav.goal is None
+
+
+@pytest.fixture(scope='module')
+def arms_guard():
+    from temoto_robot_manager.arm_kinematics import ArmKinematics
+    from temoto_robot_manager.guards import ArmsInEnvelope
+    from vaultbot_sim.kinematics import ROBOT_URDF
+    with open(ROBOT_URDF) as f:
+        urdf = f.read()
+    arms = {a.name: (a.joints, ArmKinematics(urdf, 'base_link', a.tool_frame, a.joints).skeleton)
+            for a in VAULTBOT.manipulation.values()}
+    return lambda: ArmsInEnvelope(HUSKY, arms, VAULTBOT.navigation.arm_inset)
+
+
+def held_positions(**moved):
+    """Every arm joint at the VaultBot's hold pose, but for ``moved`` (joint: radians added)."""
+    out = {}
+    for arm in VAULTBOT.manipulation.values():
+        out.update(zip(arm.joints, arm.named_poses['hold']))
+    for joint, delta in moved.items():
+        out[joint] += delta
+    return out
+
+
+def test_arms_at_their_hold_pose_pass_and_an_elbow_swung_out_holds_the_base_naming_the_arm(arms_guard):
+    guard = arms_guard()
+    assert guard.check(0.0).code is StopCode.ARM_OUTSIDE and 'not known' in guard.check(0.0).text
+    guard.update(held_positions(), 0.0)
+    assert guard.check(0.1) is None
+    guard.update(held_positions(left_elbow_joint=1.0), 0.2)
+    out = guard.check(0.2)
+    assert out.code is StopCode.ARM_OUTSIDE and not out.final
+    assert out.text.startswith('left_arm reaches outside the driving outline at (') and 'hold pose' in out.text
+    guard.update(held_positions(right_shoulder_pan_joint=-1.5), 0.3)
+    assert guard.check(0.3).text.startswith('right_arm reaches outside'), guard.check(0.3).text
+    guard.update(held_positions(), 0.4)
+    assert guard.check(0.4) is None
+    assert 'not known' in guard.check(1.0).text, 'joint states 0.6 s old: where the arms are is not known'
+
+
+def test_a_robot_without_arms_has_nothing_to_keep_inside():
+    from temoto_robot_manager.guards import ArmsInEnvelope
+    assert ArmsInEnvelope(HUSKY, {}, 0.04).check(0.0) is None
+
+
+def test_an_arm_outside_holds_a_goal_which_drives_on_once_it_is_back(lab_navigator_parts, arms_guard):
+    guard = arms_guard()
+    nav = Navigator(HUSKY, Freshness(declared=0.04), guards=[guard])
+    nav.set_map(Costmap(lab_navigator_parts.origin, lab_navigator_parts.resolution, lab_navigator_parts.cells > 0,
+                        HUSKY))
+    nav.set_pose((0.0, 0.0, 0.0))
+    for k in range(5):
+        nav.set_obstacles(np.zeros((0, 2)), -0.04 * (4 - k))
+    guard.update(held_positions(left_elbow_joint=1.0), 0.0)
+    x, y, yaw = VAULTBOT.navigation.places['drums']
+    goal = nav.check(x, y, (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+    with pytest.raises(ValueError, match='may not drive now: left_arm reaches outside'):
+        nav.start(goal, 0.0)
+    guard.update(held_positions(), 0.0)
+    nav.start(goal, 0.0)
+    nav.set_obstacles(np.zeros((0, 2)), 0.05)
+    assert nav.tick(0.05).linear > 0.0
+    guard.update(held_positions(left_elbow_joint=1.0), 0.06)
+    nav.set_obstacles(np.zeros((0, 2)), 0.1)
+    held = nav.tick(0.1)
+    assert (held.linear, held.angular, held.state) == (0.0, 0.0, State.HELD)
+    assert nav.held_by.text.startswith('left_arm reaches outside')
+    guard.update(held_positions(), 0.15)
+    nav.set_obstacles(np.zeros((0, 2)), 0.15)
+    assert nav.tick(0.15).state is State.DRIVING

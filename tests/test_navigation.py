@@ -695,3 +695,46 @@ def test_a_goal_sent_before_a_stop_that_arrives_after_it_is_rejected(navigation,
                                    if st.goal_id.id == 'late_drive'), None), HANG, 'the late goal\'s status')
     assert ended.status == GoalStatus.REJECTED and 'goal_id.stamp: sent' in ended.text, ended.text
     assert all(s.commanded_linear == 0.0 and s.commanded_angular == 0.0 for s in truth.msgs)
+
+
+def test_an_arm_swung_out_of_the_outline_holds_the_drive_and_its_return_lets_it_go_on(navigation_on_bare_motors,
+                                                                                      rospy_client, collect):
+    """Issue 51, hole 6: the footprint holds the arms at their hold pose, and nothing stopped an arm being moved out
+    past it while the base drove. The navigator now keeps every arm inside the outline (its URDF chain, from the
+    joint states): an arm out holds the base at zero, a goal sent then is refused naming the arm, and the drive
+    goes on once the arm is back. The arm is moved as its controller would, by setpoints to the sim's motors."""
+    from sensor_msgs.msg import JointState
+    nav = navigation_on_bare_motors
+    truth, client = nav['truth'], nav['client']
+    arm = VAULTBOT.manipulation['left_arm']
+    joints = collect('/joint_states', JointState)
+    motors = rospy_client.Publisher('/left_arm/joint_command', JointState, queue_size=5, tcp_nodelay=True)
+    wait_for(lambda: motors.get_num_connections() > 0 and joints.last() is not None, HANG, 'the sim\'s arm motors')
+
+    def move_arm(elbow_delta):
+        q = list(arm.named_poses['hold'])
+        q[2] += elbow_delta
+        msg = JointState(name=list(arm.joints), position=q, velocity=[0.0] * len(q))
+        msg.header.stamp = rospy_client.Time.now()
+        motors.publish(msg)
+        wait_for(lambda: abs(dict(zip(joints.last().name, joints.last().position))[arm.joints[2]] - q[2]) < 0.01,
+                 HANG, 'the left elbow at %.2f rad' % q[2])
+
+    x, y, yaw = PLACES['drums']
+    send(client, target(rospy_client, x, y, yaw))
+    wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    out_at = rospy_client.get_time()
+    move_arm(1.0)
+    commanded_zero_after(truth.msgs, out_at, HANG)
+    wait_for(lambda: truth.last().linear == 0.0 and truth.last().angular == 0.0, HANG, 'the base at rest')
+    assert client.get_state() == GoalStatus.ACTIVE, 'held, not ended: ' + client.get_goal_status_text()
+    rest = truth.last()
+    move_arm(0.0)
+    state, text = finished(client, 120.0)
+    assert state == GoalStatus.SUCCEEDED, text
+    assert math.hypot(truth.last().x - rest.x, truth.last().y - rest.y) > 0.3, 'it drove on once the arm was back'
+    # and a goal sent with the arm out is refused, naming it
+    move_arm(1.0)
+    send(client, target(rospy_client, 0.0, 0.0, 0.0))
+    state, text = finished(client)
+    assert state == GoalStatus.REJECTED and 'left_arm reaches outside the driving outline' in text, text
