@@ -8,11 +8,14 @@ Three accounts meet here, none of them a manager's:
 
 The invariants (docs/chaos.md):
 1. nothing moves unless a live client holds a motion goal for that part: every moment of a span of motion
-   lies within some hold of the part, from its goal's sending to its end (the goal's end, its cancel, the
-   client's death) plus the part's *stop allowance*, the longest stop case's detection plus the part's
-   braking from top speed;
+   lies within some hold of the part, from its goal's sending to its end plus the *stop allowance* of how it
+   ended: a goal that ended or was let go, the part's braking and the end's way to the robot
+   (``END_LATENCY_S``); a client killed, that stop case's bound; a hold that ended while the link was cut
+   (the cancel could not cross), the cut's bound. An ended, cancelled or replaced goal excuses nothing more;
 2. after a stop-case fault, a part that was moving is at rest within that case's bound (its detection
-   bound, docs/robots.md, plus the braking), unless a hold of that part begins meanwhile (a new goal);
+   bound, docs/robots.md, plus the braking), unless a hold of that part begins meanwhile (a new goal). A
+   fault that stays in force (``PERSISTENT``: a source unplugged, a controller down) is no such excuse: no
+   new goal may move the part through it;
 3. no contact;
 4. no base motion while no obstacle source is fresh (``motion_truth.blind_after``);
 5. a refused goal moved nothing: it is no hold, so motion it caused would break 1, and is said so;
@@ -59,14 +62,22 @@ MAX_JUDGED = 5000        # judged spans kept for the stop cases still open (a fe
 TOLERANCE_S = 0.03       # an uncovered sliver shorter than this is the samples' own period (50 Hz), not motion
 
 
+# the stop cases whose fault stays in force after it is done: a new goal cannot excuse motion through them
+PERSISTENT = frozenset(('obstacle_unplugged', 'controller_killed', 'controller_stalled', 'hand_unplugged'))
+# s from a client's end of a hold (it heard the goal end, or sent its cancel) to the robot's knowing it, at most,
+# on a loaded machine: the cancel's message on its way and the motion node's next look
+END_LATENCY_S = 0.3
+
+
 def stop_bound(case: str, part: str) -> float:
     return DETECTION_S.get((case, part), DETECTION_S[case]) + BRAKING_S[part]
 
 
-# the longest stop case of each part whose holder may let go before the robot hears it (a killed client, a cut
-# link): motion after a hold ends is allowed for this long
-ALLOWANCE_S = {part: max(stop_bound(c, part) for c in ('client_killed', 'manager_killed', 'link_cut'))
-               for part in BRAKING_S}
+# motion allowed after a hold's end, by how it ended: let go or ended (the braking and the end's way), its client
+# killed (that case's bound), or during a cut link (the cut's bound: the cancel could not cross)
+ALLOWANCE_S = {part: BRAKING_S[part] + END_LATENCY_S for part in BRAKING_S}
+KILLED_ALLOWANCE_S = {part: stop_bound('client_killed', part) for part in BRAKING_S}
+CUT_ALLOWANCE_S = {part: stop_bound('link_cut', part) for part in BRAKING_S}
 
 
 @dataclasses.dataclass
@@ -125,6 +136,7 @@ class MotionLedger:
         self.worst_uncovered = 0.0
         self.reported: set = set()
         self.finding: List[str] = []                 # violations found and not yet returned
+        self.cuts: List[List[float]] = []            # [cut, healed] of the link (healed inf while it is down)
 
     # -- what comes in -----------------------------------------------------------------------------------------
     def journal(self, records: Iterable[dict]) -> None:
@@ -165,6 +177,23 @@ class MotionLedger:
                     parts.add(hold.part)
         for part in sorted(parts):
             self.fault('client_killed', t, part, step, mine)
+
+    def link(self, up: bool, t: float) -> None:
+        """The link between the hosts cut (``up`` False) or plugged back at ``t``."""
+        if not up:
+            self.cuts.append([t, math.inf])
+        elif self.cuts and self.cuts[-1][1] == math.inf:
+            self.cuts[-1][1] = t
+
+    def allowance(self, hold: Hold) -> float:
+        """How long after ``hold``'s end its part may still move (``ALLOWANCE_S``, by how it ended)."""
+        if hold.end is None:
+            return 0.0
+        if hold.cause == 'client killed':
+            return KILLED_ALLOWANCE_S[hold.part]
+        if any(cut <= hold.end <= healed for cut, healed in self.cuts):
+            return CUT_ALLOWANCE_S[hold.part]
+        return ALLOWANCE_S[hold.part]
 
     def fault(self, case: str, t: float, part: str, step: int, affected: Tuple[str, ...] = (),
               detection: Optional[float] = None) -> None:
@@ -216,7 +245,7 @@ class MotionLedger:
         return out
 
     def _judge_span(self, part: str, start: float, end: float, peak: float) -> List[str]:
-        covers = sorted((h.sent, h.until() + ALLOWANCE_S[part]) for h in self.holds.values()
+        covers = sorted((h.sent, h.until() + self.allowance(h)) for h in self.holds.values()
                         if h.part == part and h.holds)
         gaps = _uncovered(start, end, covers)
         gaps = [(a, b) for a, b in gaps if b - a > TOLERANCE_S]
@@ -229,7 +258,7 @@ class MotionLedger:
         a, b = gaps[0]
         self.worst_uncovered = max(self.worst_uncovered, sum(y - x for x, y in gaps))
         refused = [h for h in self.holds.values() if h.part == part and h.refused is not None
-                   and h.sent <= b and h.refused + ALLOWANCE_S[part] >= a]
+                   and h.sent <= b and h.refused + KILLED_ALLOWANCE_S[part] >= a]
         near = sorted(self.holds.values(), key=lambda h: abs(h.until() - a))[:3]
         return ['motion: the %s moved (up to %.2f) from t %.3f to %.3f with no live holder for %.3f s of it%s; '
                 'the nearest holds: %s' % (
@@ -250,8 +279,8 @@ class MotionLedger:
                 if now - case.t > JUDGE_AFTER_S:
                     case.outcome = 'was at rest'
                 continue
-            started = [h for h in self.holds.values() if h.part == case.part and h.holds
-                       and case.t < h.sent <= case.t + bound]
+            started = case.case not in PERSISTENT and [h for h in self.holds.values() if h.part == case.part
+                                                       and h.holds and case.t < h.sent <= case.t + bound]
             held = case.affected and [h for h in self.holds.values() if h.part == case.part and h.holds
                                       and h.sent <= case.t < h.until() and h.id not in case.affected]
             end = moving_at.get('end')

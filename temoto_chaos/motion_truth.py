@@ -8,13 +8,16 @@ ROS so that every rule is tested alone:
 - a *span* of motion per part: from the first sample above the part's rest threshold to the first below
   it (or to the part's last sample, when the samples stop: the robot lost power), with its peak speed;
 - each contact;
-- a *blind* span: the base moving while no obstacle source has sent anything within its freshness bound
-  plus the base's braking time, which a stop that came in time still needs. The bound is the navigator's
-  contract (docs/robots.md), judged here on its own from the messages' arrivals: three of the source's
-  periods and 20 ms, the period being the one a scan declares (or the median of its last 5 intervals, if
-  slower), or, for a cloud, which declares none, the 90th percentile of its last 20 intervals, the third
-  longest (a camera rendered on a busy machine is slow, and is allowed its own pace): the contract's own
-  definition, ``freshness.Pace``, applied to the messages the watch hears.
+- a *blind* span: the base moving while the obstacle source the navigator drives on (its *active* source: the
+  one topic of the sources it subscribes to, as the master says) has sent nothing within its freshness bound
+  plus the base's braking time, which a stop that came in time still needs. Another source flowing does not
+  make a drive on a silent one safe. While the active source is not known (no navigator, or before the first
+  look), any source fresh will do.
+
+  The bound is the navigator's contract (docs/robots.md), worked out here on its own, never with the stack's
+  code: three of the source's periods and 20 ms. The period is the one the robot's sensor catalogue declares
+  for it, or, for a source that runs slower than it declares (a camera rendered on a busy machine), the 90th
+  percentile of its last 20 intervals, its third longest.
 
 The events are numbered, so a reader asks for what came after the last one it saw; a bounded deque keeps
 the newest (a reader that asks every check never misses one).
@@ -24,8 +27,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 from typing import Deque, Dict, List, Optional
-
-from temoto_robot_manager.freshness import Pace
 
 BASE, LEFT_ARM, RIGHT_ARM, GRIPPER = 'base', 'left_arm', 'right_arm', 'gripper'
 PARTS = (BASE, LEFT_ARM, RIGHT_ARM, GRIPPER)
@@ -38,11 +39,15 @@ GRIPPER_REST = 0.002         # m/s of the gap
 SAMPLES_LOST_S = 0.5
 # the base's braking from top speed (docs/robots.md: 2 m/s² from 0.5 m/s, and 0.25 s more to turn from top)
 BASE_BRAKING_S = 0.5
-# the navigator's obstacle sources (the robot description's, in the robot's namespace) and the period each
-# declares (a LaserScan's scan_time), or None (a PointCloud2 declares none)
-OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': None, 'd435/depth_registered/points': None}
+# the navigator's obstacle sources (the robot description's, in the robot's namespace) and the period of the
+# rate each declares in the VaultBot's sensor catalogue (temoto_sensor_manager/config/vaultbot.yaml;
+# tests/test_chaos_motion.py checks that the two agree)
+OBSTACLE_SOURCES = {'sick/scan': 1 / 25.0, 'laser_stitcher/cloud': 1 / 10.0, 'd435/depth_registered/points': 1 / 30.0}
 STALE_PERIODS, STALE_MARGIN_S = 3, 0.02
-# a period learnt from arrivals (a cloud's) is learnt by two observers, the navigator and the watch, each
+WINDOW = 20                  # intervals a slow source's period is taken from
+SLOW_RANK = 3                # its third longest of them: the 90th percentile of 20
+SLOWER = 1.1                 # a source runs slower than it declares when its own pace is 10 % longer (jitter is not)
+# a period learnt from arrivals (a slow source's) is learnt by two observers, the navigator and the watch, each
 # receiving a megabyte-sized message when its own threads get a CPU: their estimates differ by tens of ms on
 # a loaded machine (seed 17, step 2086: one base sample 14 ms past the watch's bound)
 LEARNT_TOLERANCE_S = 0.05
@@ -60,21 +65,37 @@ def blind_after(period: float) -> float:
 
 
 class SourceClock:
-    """When a source's messages came, and the period the contract holds it to (``freshness.Pace``: the
-    navigator's own rule, applied to what the watch hears)."""
+    """When a source's messages came, and the period the contract holds it to: the declared one, or the slow
+    source's own (the ``SLOW_RANK``-th longest of its last ``WINDOW`` intervals) when that is longer. An interval
+    is the shorter of the arrivals' and the header stamps': the watch's own thread, starved, hears a message late,
+    and the interval before it is longer than the source's."""
 
     def __init__(self, declared: Optional[float]) -> None:
         self.declared = declared
         self.last: Optional[float] = None
-        self.pace = Pace(declared)
+        self.intervals: Deque[float] = collections.deque(maxlen=WINDOW)
+        self._stamp: Optional[float] = None
 
     def heard(self, t: float, stamp: Optional[float] = None) -> None:
         """A message at ``t``, with its header stamp if it had one."""
-        self.pace.arrived(t, stamp)
-        self.last = t
+        if self.last is not None and t > self.last:
+            interval = t - self.last
+            if stamp is not None and self._stamp is not None and stamp > self._stamp:
+                interval = min(interval, stamp - self._stamp)
+            self.intervals.append(interval)
+        self.last, self._stamp = t, stamp
+
+    def slow_period(self) -> Optional[float]:
+        """The source's own pace, when enough of it is known: the ``SLOW_RANK``-th longest interval."""
+        if len(self.intervals) < SLOW_RANK:
+            return None
+        return sorted(self.intervals)[-SLOW_RANK]
 
     def period(self) -> Optional[float]:
-        return self.pace.period()
+        slow = self.slow_period()
+        if self.declared is None:
+            return slow
+        return slow if slow is not None and slow > SLOWER * self.declared else self.declared
 
     def stale_bound(self) -> Optional[float]:
         """``stale_after`` of the period the contract holds the source to, with a learnt period's tolerance of
@@ -82,7 +103,8 @@ class SourceClock:
         period = self.period()
         if period is None:
             return None
-        return stale_after(period) + (0.0 if self.declared is not None else LEARNT_TOLERANCE_S)
+        learnt = self.declared is None or period > self.declared
+        return stale_after(period) + (LEARNT_TOLERANCE_S if learnt else 0.0)
 
     def fresh(self, t: float) -> bool:
         stale = self.stale_bound()
@@ -99,6 +121,7 @@ class _Open:
 class GroundTruth:
     def __init__(self, sources: Optional[Dict[str, float]] = None, max_events: int = MAX_EVENTS) -> None:
         self.sources = {s: SourceClock(p) for s, p in (OBSTACLE_SOURCES if sources is None else sources).items()}
+        self.active: Optional[str] = None               # the source the navigator drives on; None: not known
         self.moving: Dict[str, _Open] = {}              # part -> its span under way
         self.last: Dict[str, float] = {}                # part -> its last sample
         self._blind: Optional[_Open] = None
@@ -126,6 +149,12 @@ class GroundTruth:
     def obstacle(self, t: float, source: str, stamp: Optional[float] = None) -> None:
         self.sources[source].heard(t, stamp)
 
+    def navigator_reads(self, sources: List[str]) -> None:
+        """The obstacle sources the navigator subscribes to now (the master's word): one is the active source;
+        none or several, and it is not known."""
+        known = [s for s in sources if s in self.sources]
+        self.active = known[0] if len(known) == 1 else None
+
     def tick(self, now: float) -> None:
         """Close the spans of parts whose samples stopped (``SAMPLES_LOST_S``) at their last sample."""
         for part, span in list(self.moving.items()):
@@ -146,6 +175,8 @@ class GroundTruth:
 
     # -- rules -------------------------------------------------------------------------------------------------
     def fresh(self, t: float) -> bool:
+        if self.active is not None:
+            return self.sources[self.active].fresh(t)
         return any(clock.fresh(t) for clock in self.sources.values())
 
     def _sample(self, part: str, t: float, moving: bool, speed: float) -> None:
@@ -178,7 +209,8 @@ class GroundTruth:
         span, self._blind = self._blind, None
         heard = {s: (round(span.start - c.last, 3), round(c.period() or 0.0, 3))
                  for s, c in self.sources.items() if c.last is not None}
-        self._emit({'type': 'blind', 'start': span.start, 'end': span.last, 'since_heard': heard})
+        self._emit({'type': 'blind', 'start': span.start, 'end': span.last, 'since_heard': heard,
+                    'active': self.active or 'not known'})
 
     def _emit(self, event: dict) -> None:
         self.seq += 1

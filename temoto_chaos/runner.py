@@ -646,6 +646,8 @@ class Chaos:
             for part in servoed:
                 self.motion.fault('link_cut', time.time(), part, getattr(self, '_step_index', -1))
         cut = time.monotonic()
+        if self.opts.motion:
+            self.motion.link(False, time.time())
         self.hosts.link(False)
         return lambda: self._heal(clients, held, cut, seconds)
 
@@ -665,6 +667,8 @@ class Chaos:
                 time.sleep(0.05)
         finally:
             self.hosts.link(True)
+            if self.opts.motion:
+                self.motion.link(True, time.time())
         if unheard:
             self.partition_violations.append('link down: no FAILED heard within %.1f s for %s'
                                              % (PARTITION_FAILED_BOUND, ', '.join(unheard)))

@@ -109,6 +109,12 @@ def registered_nodes(master_uri: str, timeout: float = 1.0) -> set[str]:
     return names
 
 
+def subscriptions_of(master_uri: str, node_name: str, timeout: float = 1.0) -> set[str]:
+    """The topics ``node_name`` subscribes to, as the master has them (getSystemState)."""
+    code, _msg, state = _proxy(master_uri, timeout).getSystemState(CALLER_ID)
+    return {topic for topic, nodes in state[1] if node_name in nodes} if code == 1 else set()
+
+
 # topics every rospy node may have: they say nothing of which node answers at a URI
 COMMON_TOPICS = frozenset(('/rosout', '/clock', '/rosout_agg'))
 

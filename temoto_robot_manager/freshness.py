@@ -31,7 +31,6 @@ D435 that stalled under a loaded navigator stopped the base 2.2 s later, not 3 s
 from __future__ import annotations
 
 import statistics
-import struct
 from collections import deque
 from typing import Optional
 
@@ -43,19 +42,6 @@ PERCENTILE = 0.9
 RECENT = 5                     # intervals a source that declares its period is judged by, when slower than it says
 # the PERCENTILE of a full WINDOW, as the rank from the longest: the third longest of 20
 RANK_FROM_LONGEST = WINDOW - int(PERCENTILE * (WINDOW - 1))
-
-
-# a message that begins with a std_msgs/Header (a LaserScan, a PointCloud2), serialised: seq, then the stamp
-_HEADER_STAMP = struct.Struct('<II')
-
-
-def header_stamp(buff: bytes) -> Optional[float]:
-    """The header stamp (s) of a serialised message that begins with a ``std_msgs/Header``, read without
-    deserialising the rest (a megabyte cloud); None when there is none (too short, or zero)."""
-    if buff is None or len(buff) < 4 + _HEADER_STAMP.size:
-        return None
-    secs, nsecs = _HEADER_STAMP.unpack_from(buff, 4)
-    return secs + nsecs * 1e-9 if secs or nsecs else None
 
 
 def shorter_interval(arrival: float, stamps: Optional[float]) -> float:
@@ -76,8 +62,8 @@ def learnt_period(intervals) -> Optional[float]:
 class Pace:
     """A source's last ``WINDOW`` intervals between frames, and the period they give.
 
-    One class for the navigator's ``Freshness`` and the chaos watch, so that two observers of one stream
-    learn its pace the same way (each interval by ``shorter_interval``) and differ only in when they heard it.
+    Each interval is taken by ``shorter_interval``. The chaos watch works the same contract out with code of its
+    own (``temoto_chaos/motion_truth.py``): a checker never judges with the code it checks.
     """
 
     def __init__(self, declared: Optional[float] = None) -> None:

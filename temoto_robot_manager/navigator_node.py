@@ -61,11 +61,12 @@ from temoto_core import params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import connection_header, live_publisher_nodes, wait_sent
+from temoto_core.serialized import header_stamp
 from temoto_core.wait import wait_for
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
-from temoto_robot_manager.freshness import Freshness, header_stamp
+from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
 from temoto_core.goal_holders import GoalHolders
 from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive

@@ -139,3 +139,13 @@ def test_robot_launch_takes_a_catalogue_that_replaces_the_vaultbot_s_and_the_doc
     (tmp_path / 'mine.yaml').write_text(example)
     out = run_cli('sensors', 'check', str(tmp_path / 'mine.yaml'))
     assert out.returncode == 0 and out.stdout.count('ok ') == 2, out.stdout + out.stderr
+
+
+def test_the_motion_checker_imports_nothing_of_the_robot_manager():
+    """A checker never judges with the code it checks: the chaos motion checker (the ground truth, the ledger, the
+    watch) works the navigator's contract out on its own, from the sim and the robot's declarations."""
+    checker = [os.path.join(ROOT, 'temoto_chaos', name)
+               for name in ('motion_truth.py', 'motion_checker.py', 'motion_watch.py')]
+    offenders = {os.path.relpath(p, ROOT): m for p in checker for m in imported_modules(p)
+                 if m.startswith('temoto_robot_manager')}
+    assert offenders == {}

@@ -20,7 +20,8 @@ from temoto_robot_manager import global_planner
 from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
 from temoto_robot_manager.description import load_file
-from temoto_robot_manager.freshness import Freshness, header_stamp
+from temoto_core.serialized import header_stamp
+from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_robot_manager.scene_markers import base_scene, stop_pose
