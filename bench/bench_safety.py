@@ -130,7 +130,6 @@ class Bench:
         wait_for(lambda: self.truth.last(self.truth.base) and self.truth.last(self.truth.gripper), HANG, 'the truth')
         wait_for(lambda: self.halt.get_num_connections() >= 3 and self.teleop.get_num_connections() >= 1, HANG,
                  'the motion nodes listening')
-        self.toward = 0
 
     def _navigator(self, args=()):
         return self.launcher.node('temoto_robot_manager', 'navigator', args=list(args), params={
@@ -143,17 +142,21 @@ class Bench:
 
     # -- motions ---------------------------------------------------------------------------------------------
     def target(self):
-        """The next place: drums and home in turn, so that each drive has room to reach speed."""
-        self.toward += 1
-        x, y, yaw = PLACES['drums' if self.toward % 2 else 'home']
+        """Of the drums and home, the one further from where the base is: each drive has room to reach speed."""
+        here = self.truth.last(self.truth.base)
+        x, y, yaw = max((PLACES['drums'], PLACES['home']), key=lambda p: math.hypot(p[0] - here.x, p[1] - here.y))
         pose = PoseStamped()
         pose.header.frame_id, pose.header.stamp = 'world', rospy.Time.now()
         pose.pose.position.x, pose.pose.position.y = x, y
         pose.pose.orientation.z, pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
         return pose
 
-    def driving(self, speed=0.3):
-        wait_for(lambda: self.truth.last(self.truth.base).commanded_linear > speed, HANG, 'the base driving')
+    def driving(self, speed=0.15, client=None):
+        def moving():
+            if client is not None and client.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE):
+                raise RuntimeError('the drive ended before it drove: %s' % client.get_goal_status_text())
+            return self.truth.last(self.truth.base).commanded_linear > speed
+        wait_for(moving, HANG, 'the base driving')
 
     def at_rest(self):
         wait_for(lambda: (lambda m: m.linear == 0.0 and m.angular == 0.0)(self.truth.last(self.truth.base)), HANG,
@@ -161,7 +164,7 @@ class Bench:
 
     def start_drive(self):
         self.drive.send_goal(MoveBaseGoal(target_pose=self.target()))
-        self.driving()
+        self.driving(client=self.drive)
 
     def end_drive(self):
         if self.drive.get_state() in (GoalStatus.PENDING, GoalStatus.ACTIVE):
@@ -209,8 +212,10 @@ class Bench:
     def holders_case(self, trials):
         out = {'drive_client': [], 'arm_client': [], 'manipulator': []}
         for k in range(trials):
-            x, y, yaw = PLACES['drums' if k % 2 == 0 else 'home']
-            client = self.launcher.command(GOAL_CLIENT + [str(x), str(y), str(yaw)], 'goal_client')
+            pose = self.target().pose
+            client = self.launcher.command(GOAL_CLIENT + [str(pose.position.x), str(pose.position.y),
+                                                          str(2 * math.atan2(pose.orientation.z, pose.orientation.w))],
+                                           'goal_client')
             self.driving()
             t = time.time()
             os.kill(client.pid, signal.SIGKILL)
@@ -256,11 +261,11 @@ class Bench:
         out = []
         for k in range(trials):
             self.start_drive()
-            set_cable('sick', 'unplugged', 'stall')
             cut = time.time()
-            z = zero_after(self.truth, self.truth.base, cut - 1.0, lambda m: base_zero(m), 'the base zero')
-            before = [t for t in self.scans if t <= z]
-            out.append(z - max(before))
+            set_cable('sick', 'unplugged', 'stall')
+            # the first zero after the stall: one from before it (the drive's own start) is not a staleness stop
+            z = zero_after(self.truth, self.truth.base, cut, base_zero, 'the base zero')
+            out.append(z - max(t for t in self.scans if t <= z))
             self.sick.stop()
             set_cable('sick', 'plugged')
             self.sick = self.launcher.node('vaultbot_sim', 'sick_driver')
@@ -317,7 +322,6 @@ class Bench:
             with self.truth.lock:
                 out['resumed'] += any(m.header.stamp.to_sec() > zero and not base_zero(m) for m in self.truth.base)
             self.at_rest()
-            self.toward += 1                               # it stopped on the way: drive back where it came from
         return out
 
 
