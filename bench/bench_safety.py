@@ -194,6 +194,7 @@ class Bench:
     def halt_case(self, trials):
         out = {'base': [], 'arm': [], 'gripper': []}
         for k in range(trials):
+            self.arm_home()                        # an arm stopped on its way out holds the base (its guard)
             self.start_drive()
             t = time.time()
             self.halt.publish(String('bench stop'))
@@ -212,6 +213,7 @@ class Bench:
     def holders_case(self, trials):
         out = {'drive_client': [], 'arm_client': [], 'manipulator': []}
         for k in range(trials):
+            self.arm_home()
             pose = self.target().pose
             client = self.launcher.command(GOAL_CLIENT + [str(pose.position.x), str(pose.position.y),
                                                           str(2 * math.atan2(pose.orientation.z, pose.orientation.w))],

@@ -30,6 +30,15 @@ def lookup_node(master_uri: str, node_name: str, timeout: float = 1.0) -> str | 
     return uri if code == 1 else None
 
 
+def node_host(master_uri: str, node_name: str, timeout: float = 1.0) -> str | None:
+    """The host a node's XML-RPC URI names, or None when the master does not know the node or cannot be asked."""
+    try:
+        uri = lookup_node(master_uri, node_name, timeout)
+    except (OSError, xmlrpc.client.Error, http.client.HTTPException):
+        return None
+    return urllib.parse.urlparse(uri).hostname if uri else None
+
+
 def node_pid(node_uri: str, timeout: float = 1.0) -> int | None:
     try:
         code, _msg, pid = _proxy(node_uri, timeout).getPid(CALLER_ID)

@@ -31,10 +31,18 @@ STALE_PERIODS = 3          # periods of a stream's declared rate without a messa
 
 
 class StopCode(enum.Enum):
-    """Why a guard stops a motion."""
+    """Why a motion is held or stopped: a guard's reason here, and the motion node's own (the ``reason`` of a
+    ``temoto_core/MotionStatus``)."""
     ODOMETRY_STALE = 'odometry_stale'
     CONTROLLER_GONE = 'controller_gone'
     ARM_OUTSIDE = 'arm_outside'
+    OBSTACLES_STALE = 'obstacles_stale'     # the active obstacle source sent nothing for 3 of its periods
+    BLOCKED = 'blocked'                     # an obstacle in the stop zone
+    HALTED = 'halted'                       # the operator's "stop"
+    HOLDER_GONE = 'holder_gone'             # the goal's client, or the manager that started the node, is gone
+    DEADMAN = 'deadman'                     # a command stream fell silent
+    REFUSED = 'refused'                     # a command or goal refused (late, bad, or while a goal drives)
+    ENDED = 'ended'                         # the goal ended by itself (arrived, or aborted for its own reason)
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from temoto_core.action_client import TrackingActionClient
-from temoto_core import params
+from temoto_core import clocks, params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import wait_sent
@@ -91,6 +91,7 @@ class ManipulatorNode:
         self._new_target = False
         self._hold_now = ''                      # a streamer's hold, for the loop to send: the reason
         self._halted_at = rospy.Time(0)          # the operator's last stop: a target stamped before it is dropped
+        self.clocks = clocks.for_this_node()     # a station's stamps on this host's clock
         self._checked_at = 0.0                         # the servo's last self-collision check
         self._streaming = False                        # servo commands are being sent
         self._controller_seen = False                  # connected to the controller's status once
@@ -163,11 +164,13 @@ class ManipulatorNode:
     def _on_servo_target(self, msg: PoseStamped) -> None:
         age = 0.0
         if not msg.header.stamp.is_zero():
-            if msg.header.stamp <= self._halted_at:
+            wall = rospy.get_time()
+            stamp = self.clocks.observe(msg._connection_header.get('callerid', ''), msg.header.stamp.to_sec(), wall)
+            if stamp <= self._halted_at.to_sec():
                 return                  # sent before the operator's stop, and overtaken by it
             # the stream's timeout counts from when the target was sent: over a link that was cut, TCP keeps a
             # stream's targets and delivers them seconds late, once the link is back; they are not followed
-            age = max(0.0, rospy.get_time() - msg.header.stamp.to_sec())
+            age = max(0.0, wall - stamp)
             if age > SERVO_TIMEOUT_S:
                 why = 'refusing servo targets sent %.0f ms ago (more than the stream\'s %.0f ms)' % (
                     1e3 * age, 1e3 * SERVO_TIMEOUT_S)
@@ -224,11 +227,13 @@ class ManipulatorNode:
         goal = handle.get_goal()
         with self.lock:
             q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
-        stamp = handle.get_goal_id().stamp
+        stamp = self.clocks.observe(handle.get_goal_id().id.split('-', 1)[0], handle.get_goal_id().stamp.to_sec(),
+                                    rospy.get_time())
         try:
-            if stamp <= self._halted_at:          # on its way when the operator said stop: overtaken by the stop
+            halted = self._halted_at.to_sec()
+            if stamp <= halted:                   # on its way when the operator said stop: overtaken by the stop
                 raise GoalRefused(INVALID_GOAL, 'goal_id.stamp: sent %.0f ms before the operator\'s stop, which '
-                                  'came first' % ((self._halted_at - stamp).to_sec() * 1e3))
+                                  'came first' % ((halted - stamp) * 1e3))
             away = self.holders.owner_away()
             if away is not None:
                 raise GoalRefused(MoveArmResult.MANAGER_AWAY, away)

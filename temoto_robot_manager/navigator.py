@@ -32,7 +32,7 @@ from temoto_robot_manager import global_planner
 from temoto_robot_manager.collision_monitor import CollisionMonitor, Verdict, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.freshness import Freshness
-from temoto_robot_manager.guards import OdometryFresh, StopReason
+from temoto_robot_manager.guards import OdometryFresh, StopCode, StopReason
 from temoto_robot_manager.path_follower import PathFollower, Phase, wrap
 
 REPLAN_PERIOD_S = 1.0
@@ -77,6 +77,7 @@ class BadGoal(ValueError):
 class Ending:
     outcome: Outcome
     text: str
+    code: StopCode = StopCode.ENDED          # why it ended, typed
 
 
 @dataclass(frozen=True)
@@ -279,7 +280,7 @@ class Navigator:
     def abort(self, reason: StopReason) -> Tick:
         """End the goal ABORTED for a guard's final ``reason`` (its controller is gone): zero, and nothing resumes
         without a new goal."""
-        return self._end(Outcome.ABORTED, '%s: the robot stopped' % reason.text)
+        return self._end(Outcome.ABORTED, '%s: the robot stopped' % reason.text, reason.code)
 
     def _finish(self) -> None:
         self.goal, self.path, self.target = None, None, None
@@ -289,10 +290,10 @@ class Navigator:
         if state is not self.state:
             self.state, self._since = state, now
 
-    def _end(self, outcome: Outcome, text: str) -> Tick:
+    def _end(self, outcome: Outcome, text: str, code: StopCode = StopCode.ENDED) -> Tick:
         remaining = self.remaining()
         self._finish()
-        return Tick(0.0, 0.0, State.IDLE, remaining, Ending(outcome, text))
+        return Tick(0.0, 0.0, State.IDLE, remaining, Ending(outcome, text, code))
 
     def remaining(self) -> float:
         if self.path is None or self.pose is None:
@@ -317,14 +318,14 @@ class Navigator:
             if self.state is not State.HELD:
                 self._enter(State.HELD, now)
             elif now - self._since > BLOCKED_PATIENCE_S:
-                return self._end(Outcome.ABORTED, 'held for %.0f s: %s' % (BLOCKED_PATIENCE_S, stop.text))
+                return self._end(Outcome.ABORTED, 'held for %.0f s: %s' % (BLOCKED_PATIENCE_S, stop.text), stop.code)
             return Tick(0.0, 0.0, State.HELD, self.remaining())
         if not self.freshness.fresh(now):
             if self.state is not State.WAITING:
                 self._enter(State.WAITING, now)
             elif now - self._since > SOURCE_PATIENCE_S:
                 return self._end(Outcome.ABORTED, 'no fresh obstacle source for %.0f s: the robot will not drive '
-                                 'blind' % SOURCE_PATIENCE_S)
+                                 'blind' % SOURCE_PATIENCE_S, StopCode.OBSTACLES_STALE)
             return Tick(0.0, 0.0, State.WAITING, self.remaining())
         if self.state in (State.WAITING, State.HELD):
             self._enter(State.DRIVING, now)
@@ -387,7 +388,7 @@ class Navigator:
                 self._enter(State.BLOCKED, now)
             elif now - self._since > BLOCKED_PATIENCE_S:
                 return self._end(Outcome.ABORTED, 'blocked for %.0f s by an obstacle %.2f m from the robot'
-                                 % (BLOCKED_PATIENCE_S, verdict.nearest))
+                                 % (BLOCKED_PATIENCE_S, verdict.nearest), StopCode.BLOCKED)
         else:
             self._enter(State.DRIVING, now)
         return Tick(verdict.linear, verdict.angular, self.state, self.remaining(), verdict=verdict)

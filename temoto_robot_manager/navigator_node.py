@@ -12,6 +12,8 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
 - ``~halt_topic`` (default ``/temoto/halt``, ``std_msgs/String``): the operator's "stop": zero at once,
   and the goal ends ABORTED with the reason (``temoto_core/halt.py``); a goal stamped before the stop that
   arrives after it (it was on its way) is rejected;
+- ``~motion_status`` (``temoto_core/MotionStatus``, latched): what the base gets now, typed (idle, moving, held,
+  stopped), with the rule's code (``guards.StopCode``) and the text, when that changes;
 - ``teleop/cmd_vel`` (``TwistStamped``): a stream of velocity commands (the hand in navigation mode), under
   the same guards as a goal: refused while a goal drives, when late, or while the Robot Manager that
   started the node is away (the stream then stopped at once), zero while the obstacle source is
@@ -57,8 +59,9 @@ from sensor_msgs.msg import JointState, LaserScan, PointCloud2
 from std_msgs.msg import Float32, String
 from visualization_msgs.msg import MarkerArray
 
-from temoto_core import params
+from temoto_core import clocks, params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
+from temoto_core.msg import MotionStatus
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import connection_header, live_publisher_nodes, wait_sent
 from temoto_core.serialized import header_stamp
@@ -69,7 +72,7 @@ from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
 from temoto_core.goal_holders import GoalHolders
-from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive
+from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, StopCode
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 from temoto_robot_manager.scene_markers import base_scene
@@ -100,6 +103,9 @@ class NavigatorNode:
         self.pub_cmd = rospy.Publisher(nav.cmd_vel_topic, Twist, queue_size=5, tcp_nodelay=True)
         self.pub_plan = rospy.Publisher('~plan', Path, queue_size=1, latch=True)
         self.pub_scene = rospy.Publisher('~scene', MarkerArray, queue_size=1, latch=True)
+        self.pub_status = rospy.Publisher('~motion_status', MotionStatus, queue_size=10, latch=True)
+        self._status_lock = threading.Lock()
+        self._status_said = None
         self.commanded = (0.0, 0.0)
         self._scene_at = 0.0
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
@@ -109,6 +115,7 @@ class NavigatorNode:
         self._teleop_said = None
         self.active = None                      # the goal handle being driven
         self._halted_at = rospy.Time(0)          # the operator's last stop: a goal stamped before it is refused
+        self.clocks = clocks.for_this_node()     # a station's stamps on this host's clock
         # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
         self.active_id = ''
@@ -145,6 +152,7 @@ class NavigatorNode:
         self.holders = GoalHolders('navigator', self._owner, self.server,
                                    fire_and_forget='move_base_simple-')
         self.server.start()
+        self._report(MotionStatus.IDLE, None, 'nothing commands the base')
         threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
         threading.Thread(target=self._watch_teleop, name='teleop watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
@@ -314,12 +322,13 @@ class NavigatorNode:
             handle.set_rejected(MoveBaseResult(), away)
             return
         goal_id = handle.get_goal_id().id
-        stamp = handle.get_goal_id().stamp
+        stamp = self.clocks.observe(goal_id.split('-', 1)[0], handle.get_goal_id().stamp.to_sec(), rospy.get_time())
         try:
             with self.lock:
-                if stamp <= self._halted_at:      # on its way when the operator said stop: overtaken by the stop
+                halted = self._halted_at.to_sec()
+                if stamp <= halted:               # on its way when the operator said stop: overtaken by the stop
                     raise BadGoal('goal_id.stamp', 'sent %.0f ms before the operator\'s stop, which came first'
-                                  % ((self._halted_at - stamp).to_sec() * 1e3))
+                                  % ((halted - stamp) * 1e3))
                 goal = self._checked(target)
                 self.nav.start(goal, now)
                 self.teleop.end()                # the goal drives now; the stream's deadline must not zero it
@@ -346,6 +355,7 @@ class NavigatorNode:
             self.nav.cancel()
             self.pub_cmd.publish(Twist())
             self.active = None
+            self._report(MotionStatus.STOPPED, StopCode.ENDED, 'canceled: the robot stops')
         handle.set_canceled(MoveBaseResult(), 'canceled: the robot stops')
         rospy.loginfo('navigator: goal %s canceled', handle.get_goal_id().id)
 
@@ -357,6 +367,7 @@ class NavigatorNode:
             self._halted_at = rospy.Time.now()
             self.teleop.halt(self._halted_at.to_sec())
             self._say_teleop('halted: %s' % reason)
+            self._report(MotionStatus.STOPPED, StopCode.HALTED, 'halted: %s' % reason)
             halted, self.active = self.active, None
             if halted is not None:
                 self.nav.cancel()
@@ -370,6 +381,7 @@ class NavigatorNode:
         """A command of the teleop stream: decided and sent at once, under the lock the loop and the
         staleness watch hold, so a zero decided by either is never overtaken by a command decided before it."""
         now, wall = time.monotonic(), rospy.get_time()
+        stamp = self.clocks.observe(msg._connection_header.get('callerid', ''), msg.header.stamp.to_sec(), wall)
         holders = getattr(self, 'holders', None)        # None until the action server starts
         away = holders.owner_away() if holders is not None else 'the navigator is still starting'
         with self.wake:
@@ -380,15 +392,30 @@ class NavigatorNode:
                         self.teleop.end()
                         self._command(0.0, 0.0)
                     raise Refused(away)
-                decision = self.teleop.command(msg.header.stamp.to_sec(), wall, now, msg.twist.linear.x,
-                                               msg.twist.angular.z)
+                decision = self.teleop.command(stamp, wall, now, msg.twist.linear.x, msg.twist.angular.z)
             except Refused as err:
                 self._say_teleop('refused: %s' % err)
+                self._report(MotionStatus.STOPPED, StopCode.REFUSED, 'a teleop command refused: %s' % err)
                 return
             self._command(decision.linear, decision.angular)
             if started:
                 self.wake.notify_all()         # the watches now have a stream to guard
             self._say_teleop(decision.why or 'driving')
+            if decision.held is not None:
+                self._report(MotionStatus.HELD, decision.held, decision.why)
+            else:
+                self._report(MotionStatus.MOVING, None, decision.why or 'a teleop stream drives it')
+
+    def _report(self, state: int, reason: Optional[StopCode], text: str) -> None:
+        """``~motion_status`` when the base's state or its reason changes (the text of the first of a run)."""
+        key = (state, reason)
+        with self._status_lock:
+            if key == self._status_said:
+                return
+            self._status_said = key
+            msg = MotionStatus(actuator='base', state=state, reason=reason.value if reason else '', text=text)
+            msg.header.stamp = rospy.Time.now()
+            self.pub_status.publish(msg)
 
     def _say_teleop(self, text: str) -> None:
         """``teleop/status`` when what the stream gets changes (not at 100 Hz); called with the lock held."""
@@ -463,6 +490,8 @@ class NavigatorNode:
                 self.teleop.expire(now)
                 self._command(0.0, 0.0)
                 self._say_teleop('stopped: no teleop command for %.0f ms' % (self.teleop.timeout * 1e3))
+                self._report(MotionStatus.STOPPED, StopCode.DEADMAN, 'no teleop command for %.0f ms'
+                             % (self.teleop.timeout * 1e3))
 
     def spin(self) -> None:
         period = 1.0 / self.rate
@@ -479,6 +508,7 @@ class NavigatorNode:
                         self._command(0.0, 0.0)
                         orphan, self.active = self.active, None
             if gone is not None:
+                self._report(MotionStatus.STOPPED, StopCode.HOLDER_GONE, gone)
                 rospy.logwarn('navigator: goal %s: %s: the robot stops', orphan.get_goal_id().id, gone)
                 orphan.set_aborted(MoveBaseResult(), '%s: the robot stopped' % gone)
                 self._publish_plan(None)
@@ -492,6 +522,8 @@ class NavigatorNode:
                 replanned = handle is not None and tick.ending is None and tick.state is State.DRIVING
                 path = self.nav.path
                 pose = self.nav.pose
+            if handle is not None and tick.ending is None:
+                self._report_tick(tick)
             if handle is not None and tick.ending is None and tick.state is not was:
                 rospy.loginfo('navigator: goal %s: %s', handle.get_goal_id().id, tick.state.value)
             if tick.ending is not None:
@@ -525,6 +557,8 @@ class NavigatorNode:
                 self.teleop.halt(rospy.get_time())
                 self._say_teleop('stopped: %s' % lost)
             self._command(0.0, 0.0)
+            if handle is None:                     # a goal's end says it, with the goal's words
+                self._report(MotionStatus.STOPPED, lost.code, lost.text)
         rospy.logerr('navigator: %s%s', lost, ': goal %s aborted' % handle.get_goal_id().id if handle else '')
         if handle is not None:
             self._end(handle, tick)
@@ -557,8 +591,21 @@ class NavigatorNode:
         handle.publish_feedback(fb)
         self.pub_left.publish(Float32(remaining))
 
+    def _report_tick(self, tick) -> None:
+        """The goal's state as the base's status."""
+        if tick.state is State.DRIVING:
+            self._report(MotionStatus.MOVING, None, 'driving to the goal')
+        elif tick.state is State.WAITING:
+            self._report(MotionStatus.HELD, StopCode.OBSTACLES_STALE, 'no fresh obstacle source from %s: the goal '
+                         'waits' % self.source_topic)
+        elif tick.state is State.BLOCKED:
+            self._report(MotionStatus.HELD, StopCode.BLOCKED, 'stopped by an obstacle: the goal waits')
+        elif tick.state is State.HELD and self.nav.held_by is not None:
+            self._report(MotionStatus.HELD, self.nav.held_by.code, self.nav.held_by.text)
+
     def _end(self, handle, tick) -> None:
         text = tick.ending.text
+        self._report(MotionStatus.STOPPED, tick.ending.code, text)
         if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
             return
         if tick.ending.outcome is Outcome.SUCCEEDED:

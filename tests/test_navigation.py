@@ -637,20 +637,25 @@ def respawned_controller_drives_nowhere(procs, truth, rospy_client):
 
 
 def test_a_base_controller_killed_mid_drive_ends_the_goal_naming_it_and_its_respawn_drives_nowhere(
-        navigation_on_bare_motors, procs, rospy_client):
+        navigation_on_bare_motors, procs, rospy_client, collect):
     """Issue 51, hole 4: a base controller SIGKILLed mid-drive and respawned drove on toward the old goal 2.6 s
     later, and nobody was told. Its death now ends the goal at once, naming it; the respawned controller finds no
     goal, and nothing moves. The motors keep their last command (no command timeout): between the death and the
     respawn only hardware could stop the wheels, so only the goal's end and what follows are asserted here."""
+    from temoto_core.msg import MotionStatus
     nav = navigation_on_bare_motors
     truth, client = nav['truth'], nav['client']
+    status = collect('/navigator/motion_status', MotionStatus)
     x, y, yaw = PLACES['drums']
     send(client, target(rospy_client, x, y, yaw))
     wait_for(lambda: truth.last() is not None and truth.last().commanded_linear > 0.15, HANG, 'the base driving')
+    wait_for(lambda: status.last() is not None and status.last().state == MotionStatus.MOVING, HANG, 'said moving')
     os.kill(nav['base'].pid, signal.SIGKILL)
     state, text = finished(client)
     assert state == GoalStatus.ABORTED, text
     assert '/base_controller is gone' in text and 'the robot stopped' in text, text
+    said = wait_for(lambda: status.last() if status.last().state == MotionStatus.STOPPED else None, HANG, 'stopped')
+    assert (said.actuator, said.reason) == ('base', 'controller_gone') and said.text == text, said
     respawned_controller_drives_nowhere(procs, truth, rospy_client)
 
 
@@ -705,8 +710,10 @@ def test_an_arm_swung_out_of_the_outline_holds_the_drive_and_its_return_lets_it_
     joint states): an arm out holds the base at zero, a goal sent then is refused naming the arm, and the drive
     goes on once the arm is back. The arm is moved as its controller would, by setpoints to the sim's motors."""
     from sensor_msgs.msg import JointState
+    from temoto_core.msg import MotionStatus
     nav = navigation_on_bare_motors
     truth, client = nav['truth'], nav['client']
+    status = collect('/navigator/motion_status', MotionStatus)
     arm = VAULTBOT.manipulation['left_arm']
     joints = collect('/joint_states', JointState)
     motors = rospy_client.Publisher('/left_arm/joint_command', JointState, queue_size=5, tcp_nodelay=True)
@@ -729,6 +736,8 @@ def test_an_arm_swung_out_of_the_outline_holds_the_drive_and_its_return_lets_it_
     commanded_zero_after(truth.msgs, out_at, HANG)
     wait_for(lambda: truth.last().linear == 0.0 and truth.last().angular == 0.0, HANG, 'the base at rest')
     assert client.get_state() == GoalStatus.ACTIVE, 'held, not ended: ' + client.get_goal_status_text()
+    held = wait_for(lambda: status.last() if status.last().state == MotionStatus.HELD else None, HANG, 'said held')
+    assert held.reason == 'arm_outside' and held.text.startswith('left_arm reaches outside'), held
     rest = truth.last()
     move_arm(0.0)
     state, text = finished(client, 120.0)

@@ -8,6 +8,7 @@ never does, and drove on until the link came back. The first fix dropped the con
 (TCP_USER_TIMEOUT): the base stopped, but the client heard no status for a minute once the link was back
 (chaos, the same seed, step 578), so the connection is kept now and the client judged from TCP's own state."""
 import os
+import sys
 import time
 
 import pytest
@@ -76,3 +77,32 @@ def test_a_drive_whose_client_is_cut_off_stops_and_stays_stopped(two_hosts, driv
                      HANG, 'the goal\'s end to reach its client')
     assert ended.startswith('goal ended 4:') and 'is gone' in ended, ended       # ABORTED, naming the client
     client.stop()
+
+
+@pytest.mark.parametrize('skew', ['+0.5', '-0.5'])
+def test_a_station_whose_clock_is_skewed_drives_and_its_held_stream_is_still_refused(two_hosts, drive_across, skew):
+    """Issue 51, the clock: the lateness rules compared a station's stamps with the robot's clock. A station 0.5 s
+    behind had every command refused as late (a false stop); one 0.5 s ahead had a stream that a link held 0.3 s
+    taken as fresh (a missed stop). The navigator now learns the station's clock from its messages
+    (``temoto_core/clocks.py``): the stream turns the base, and the held part of it is refused and stops it.
+    The station's process runs under faketime; the base's motion is the robot host's ground truth."""
+    station, truth = drive_across
+    stream = station.command(['faketime', '-f', skew, sys.executable, '-m', 'temoto_testing.teleop_stream',
+                              '3.0', '1.5', '0.3'], 'teleop_stream')
+    try:
+        wait_for(lambda: 'phase late' in stream.log(), HANG, 'the stream\'s on-time part')
+        late = time.time()
+        lines = stream.log().splitlines()
+        on_time = [line[7:] for line in lines[:lines.index('phase late')] if line.startswith('status ')]
+        assert 'driving' in on_time and not any(s.startswith('refused') for s in on_time), 'a false stop: %s' % on_time
+        assert any(e['type'] == 'span' and e['part'] == 'base' for e in truth()['events']) or \
+            'base' in truth()['moving'], 'the on-time stream never turned the base: %s' % on_time
+        wait_for(lambda: 'done' in stream.log(), HANG, 'the stream\'s end')
+        statuses = [line[7:] for line in stream.log().splitlines() if line.startswith('status ')]
+        assert any(s.startswith('refused: sent') and 'late' in s for s in statuses), 'a missed stop: %s' % statuses
+        seen = truth()
+        ends = [e['end'] for e in seen['events'] if e['type'] == 'span' and e['part'] == 'base']
+        assert 'base' not in seen['moving'] and ends and max(ends) < late + 1.0, \
+            'the held stream moved the base until %.2f s after it began' % (max(ends) - late)
+    finally:
+        stream.stop()

@@ -33,7 +33,7 @@ import rospy
 from control_msgs.msg import GripperCommandAction, GripperCommandFeedback, GripperCommandResult
 from sensor_msgs.msg import JointState
 
-from temoto_core import params
+from temoto_core import clocks, params
 from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, reason_of
 from temoto_core.node import init_node, ok, spin
@@ -79,6 +79,7 @@ class GripperController:
         self._gap_seen = threading.Event()
         self._halt: Optional[str] = None          # the operator's stop, for the goal running: its reason
         self._halted_at = rospy.Time(0)           # the last stop: a goal stamped before it is refused
+        self.clocks = clocks.for_this_node()      # a station's stamps on this host's clock
         self.pub = rospy.Publisher('gripper/joint_command', JointState, queue_size=10, tcp_nodelay=True)
         self.cable = CableFollower('gripper', 'gripper: controller', self.sim_ns)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
@@ -143,14 +144,15 @@ class GripperController:
     # --- the action --------------------------------------------------------------------------------------
     def _execute(self, goal) -> None:
         target, effort_limit = goal.command.position, goal.command.max_effort
-        stamp = self.server.current_goal.get_goal_id().stamp
+        sent = self.server.current_goal.get_goal_id()
+        stamp = self.clocks.observe(sent.id.split('-', 1)[0], sent.stamp.to_sec(), rospy.get_time())
         with self.lock:
             self._halt = None
-            halted_at = self._halted_at
+            halted_at = self._halted_at.to_sec()
         try:
             if stamp <= halted_at:
                 raise Refused('the goal was sent %.0f ms before the operator\'s stop, which came first: not run'
-                              % ((halted_at - stamp).to_sec() * 1e3))
+                              % ((halted_at - stamp) * 1e3))
             effort = check_goal(target, effort_limit)
         except Refused as e:
             self._end(self._result(False, False, 0.0), str(e), aborted=True)
