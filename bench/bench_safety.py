@@ -17,7 +17,11 @@ controller and manipulator, the gripper's controller, each as the Robot Manager 
    last odometry relayed;
 6. the base controller SIGKILLed mid-drive: only hardware could stop the wheels (no command timeout); measured is
    how fast the goal's client hears ABORTED with the reason, and whether anything moves once the controller is
-   respawned (it must not: the goal is over).
+   respawned (it must not: the goal is over);
+7. false stops (``--only false_stops --minutes M``): the base driving between the lab's places and the left arm
+   servoed back and forth, nothing unplugged, for M minutes: every hold of the base by a freshness rule (the
+   navigator's ``~motion_status`` HELD with ``obstacles_stale`` or ``odometry_stale``) is a false stop, and so
+   is every hold of the arm for a silent stream or stale joint states.
 
 ``--hogs N`` runs N busy loops beside it. Prints a markdown table and writes bench/results/safety.json.
 Usage: python bench/bench_safety.py [--trials N] [--hogs N] [--only halt|holders|stream|obstacles|odometry|controller]
@@ -45,11 +49,13 @@ from std_msgs.msg import String  # noqa: E402
 from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs, write_results  # noqa: E402
 from temoto_core.action_client import TrackingActionClient  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
+from temoto_robot_manager.arm_kinematics import ArmKinematics  # noqa: E402
 from temoto_robot_manager.description import load_file  # noqa: E402
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal  # noqa: E402
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402
 from temoto_testing.motion import ARM_CLIENT, GOAL_CLIENT  # noqa: E402
 from temoto_testing.sensor_manager import set_cable  # noqa: E402
+from vaultbot_sim.kinematics import ROBOT_URDF, quat_from_matrix  # noqa: E402
 from vaultbot_sim.msg import ArmState, BaseState, GripperState  # noqa: E402
 
 HANG = 60.0
@@ -58,6 +64,7 @@ PLACES = VAULTBOT.navigation.places
 LEFT = VAULTBOT.manipulation['left_arm']
 HALT = '/temoto/halt'
 CASES = ('halt', 'holders', 'stream', 'obstacles', 'odometry', 'controller')
+EXTRA = ('false_stops',)               # run only when asked: it takes minutes
 
 
 class Truth:
@@ -306,6 +313,57 @@ class Bench:
             assert self.drive.wait_for_server(rospy.Duration(HANG))
         return out
 
+    def false_stops_case(self, minutes):
+        """Drives between the places and a servo stream on the left arm, healthy, for ``minutes``: the holds."""
+        from temoto_core.msg import MotionStatus
+        held = []
+        sub = rospy.Subscriber('/navigator/motion_status', MotionStatus, lambda m: held.append(m)
+                               if m.state == MotionStatus.HELD and m.reason in ('obstacles_stale', 'odometry_stale')
+                               else None, queue_size=50)
+        servo_says = []
+        said = rospy.Subscriber('/left_arm/servo_status', String, lambda m: servo_says.append(m.data), queue_size=50)
+        pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=5, tcp_nodelay=True)
+        wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator on servo targets')
+        self.arm_home()
+        stop = threading.Event()
+
+        with open(ROBOT_URDF) as f:                       # the tool at the hold pose, in the arm's base frame
+            hold = ArmKinematics(f.read(), LEFT.base_frame, LEFT.tool_frame, LEFT.joints).fk(LEFT.named_poses['hold'])
+        qx, qy, qz, qw = quat_from_matrix(hold)
+
+        def stream():
+            tool = PoseStamped()
+            tool.header.frame_id = LEFT.base_frame           # 2 cm up and down about the hold pose (in plan view
+            # the arm stays inside the driving outline), a 4 s period
+            tool.pose.orientation.x, tool.pose.orientation.y, tool.pose.orientation.z = qx, qy, qz
+            tool.pose.orientation.w = qw
+            k = 0
+            while not stop.is_set():
+                tool.header.stamp = rospy.Time.now()
+                tool.pose.position.x, tool.pose.position.y = hold[0, 3], hold[1, 3]
+                tool.pose.position.z = hold[2, 3] + 0.02 * math.sin(k * 0.02 * 2 * math.pi / 4.0)
+                pub.publish(tool)
+                k += 1
+                stop.wait(0.02)                             # the stream's own pace: 50 Hz
+        servo = threading.Thread(target=stream, daemon=True)
+        end = time.time() + 60.0 * minutes
+        drives = 0
+        servo.start()
+        try:
+            while time.time() < end:
+                self.drive.send_goal(MoveBaseGoal(target_pose=self.target()))
+                wait_for(lambda: self.drive.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), 240.0,
+                         'the drive to end')
+                drives += 1
+        finally:
+            stop.set()
+            servo.join(5.0)
+            sub.unregister()
+            said.unregister()
+        arm_holds = [s for s in servo_says if s.startswith('stopping: no target') or 'no joint states' in s]
+        return {'minutes': minutes, 'drives': drives, 'base_holds': [(m.reason, m.text) for m in held],
+                'arm_holds': arm_holds}
+
     def controller_case(self, trials):
         out = {'told': [], 'reasons': [], 'resumed': 0, 'moved_blind_s': []}
         for k in range(trials):
@@ -339,18 +397,19 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--trials', type=int, default=20)
     p.add_argument('--hogs', type=int, default=0)
-    p.add_argument('--only', choices=CASES)
+    p.add_argument('--only', choices=CASES + EXTRA)
+    p.add_argument('--minutes', type=float, default=10.0, help='of driving and servoing, for false_stops')
     args = p.parse_args()
     master, launcher = loopback_master('bench_safety_')
     hogs = cpu_hogs(args.hogs)
     results, rows = {'hogs': args.hogs, 'trials': args.trials}, []
     try:
         bench = Bench(launcher)
-        for case in CASES:
-            if args.only not in (None, case):
+        for case in CASES + EXTRA:
+            if args.only != case and (args.only is not None or case in EXTRA):
                 continue
-            print('bench_safety: %s x %d ...' % (case, args.trials), file=sys.stderr, flush=True)
-            results[case] = getattr(bench, case + '_case')(args.trials)
+            print('bench_safety: %s ...' % case, file=sys.stderr, flush=True)
+            results[case] = getattr(bench, case + '_case')(args.minutes if case in EXTRA else args.trials)
     finally:
         stop_hogs(hogs)
         launcher.stop_all()
@@ -387,6 +446,11 @@ def main() -> int:
         rows.append(('… the kill → the respawned controller\'s zero: the wheels at their last command, only hardware '
                      'could stop them sooner, p50 / max', '%s / %s' % (ms(pct(r['moved_blind_s'], 50)),
                                                                      ms(max(r['moved_blind_s']))), 'reported'))
+    if 'false_stops' in results:
+        r = results['false_stops']
+        rows.append(('false stops in %.0f min of driving (%d drives) and servoing, nothing unplugged: the base held '
+                     'by a freshness rule / the arm held by its stream\'s or its states\' silence'
+                     % (r['minutes'], r['drives']), '%d / %d' % (len(r['base_holds']), len(r['arm_holds'])), '0 / 0'))
     print_table('Safety: the stack\'s own stops, motors\' command timeout off (%d CPU hogs)' % args.hogs, rows)
     write_results('safety' if not args.hogs else 'safety_hogs', results)
     return 0
