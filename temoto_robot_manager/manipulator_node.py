@@ -50,7 +50,7 @@ from temoto_core.action_client import TrackingActionClient
 from temoto_core import clocks, params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
-from temoto_core.rospy_internals import wait_sent
+from temoto_core.rospy_internals import sender_of, wait_sent
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
 from temoto_robot_manager.description import described_robot
@@ -165,7 +165,7 @@ class ManipulatorNode:
         age = 0.0
         if not msg.header.stamp.is_zero():
             wall = rospy.get_time()
-            stamp = self.clocks.observe(msg._connection_header.get('callerid', ''), msg.header.stamp.to_sec(), wall)
+            stamp = self.clocks.observe(sender_of(msg), msg.header.stamp.to_sec(), wall)
             if stamp <= self._halted_at.to_sec():
                 return                  # sent before the operator's stop, and overtaken by it
             # the stream's timeout counts from when the target was sent: over a link that was cut, TCP keeps a

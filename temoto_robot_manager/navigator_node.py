@@ -63,7 +63,7 @@ from temoto_core import clocks, params
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
 from temoto_core.node import init_node, ok, stop_requested
-from temoto_core.rospy_internals import connection_header, live_publisher_nodes, wait_sent
+from temoto_core.rospy_internals import connection_header, live_publisher_nodes, sender_of, wait_sent
 from temoto_core.serialized import header_stamp
 from temoto_core.wait import wait_for
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
@@ -381,7 +381,7 @@ class NavigatorNode:
         """A command of the teleop stream: decided and sent at once, under the lock the loop and the
         staleness watch hold, so a zero decided by either is never overtaken by a command decided before it."""
         now, wall = time.monotonic(), rospy.get_time()
-        stamp = self.clocks.observe(msg._connection_header.get('callerid', ''), msg.header.stamp.to_sec(), wall)
+        stamp = self.clocks.observe(sender_of(msg), msg.header.stamp.to_sec(), wall)
         holders = getattr(self, 'holders', None)        # None until the action server starts
         away = holders.owner_away() if holders is not None else 'the navigator is still starting'
         with self.wake:
