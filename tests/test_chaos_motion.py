@@ -328,26 +328,21 @@ def test_the_base_driving_on_a_silent_active_source_is_blind_though_another_sour
     """Mutation (the issue's probe): the SICK silent, a D435 cloud flowing, the base driving for 4 s. The old rule
     passed if any source was fresh; the navigator drove on the SICK, and only its freshness counts."""
     cloud = 'd435/depth_registered/points'
-    truth = GroundTruth({SICK: 0.04, cloud: 1 / 30.0})
-    truth.navigator_reads([SICK])
-    truth.obstacle(0.0, SICK)
-    t = 0.0
-    while t < 4.0:
-        truth.obstacle(t, cloud)
-        truth.base(t, 0.4, 0.0)
-        t += 0.03
-    truth.base(4.0, 0.0, 0.0)
-    [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
+
+    def blind_drives(active):
+        truth = GroundTruth({SICK: 0.04, cloud: 1 / 30.0})
+        truth.navigator_reads([active])
+        truth.obstacle(0.0, SICK)                  # the SICK's last scan; the cloud flows all along
+        t = 0.0
+        while t < 4.0:
+            truth.obstacle(t, cloud)
+            truth.base(t, 0.4, 0.0)
+            t += 0.03
+        truth.base(4.0, 0.0, 0.0)
+        return [e for e in truth.since(0)['events'] if e['type'] == 'blind']
+    [blind] = blind_drives(SICK)
     assert blind['active'] == SICK and blind['start'] == pytest.approx(blind_after(0.04), abs=0.03)
-    truth = GroundTruth({SICK: 0.04, cloud: 1 / 30.0})     # the navigator on the cloud: not blind
-    truth.navigator_reads([cloud])
-    truth.obstacle(0.0, SICK)
-    t = 0.0
-    while t < 4.0:
-        truth.obstacle(t, cloud)
-        truth.base(t, 0.4, 0.0)
-        t += 0.03
-    assert [e for e in truth.since(0)['events'] if e['type'] == 'blind'] == []
+    assert blind_drives(cloud) == [], 'the navigator on the cloud: not blind'
 
 
 def test_a_source_is_held_to_its_declared_rate_unless_it_runs_slower():

@@ -482,23 +482,31 @@ def manager_back(stack):
     stack.robot_manager = start_robot_manager(stack)
 
 
+def right_arm_moving(make, truth, on_status):
+    """The robot's manipulation loaded, and a goal of the right arm's 1.2 rad away on its shoulder, moving; its
+    client, the arm's joints and the goal's positions."""
+    joints, states = truth
+    make().load_robot(['manipulation'], on_status=on_status)
+    right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
+    assert right.wait_for_server(rospy.Duration(HANG))
+    names = ['right_%s_joint' % j for j in ARM_JOINTS]
+    here = dict(zip(joints.last().name, joints.last().position))
+    far = [here[j] for j in names]
+    far[0] += 1.2 if far[0] < 0.0 else -1.2
+    right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+    wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
+             'the right arm moving')
+    return right, names, far
+
+
 def test_a_manipulator_stopped_mid_goal_ends_the_goal_naming_it_and_the_arm_holds(stack, truth):
     """A stop signal (the ER Manager's unload: most often its manager died, and the signal may come before the
     manipulator's loop has seen the death) ends the goal ABORTED naming it, and the arm holds, before the node
     shuts down. Before, the node shut down at once and the goal's client heard nothing."""
-    joints, states = truth
+    _, states = truth
     failures = []
     with made_interfaces(RobotManagerInterface) as make:
-        make().load_robot(['manipulation'], on_status=failures.append)
-        right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
-        assert right.wait_for_server(rospy.Duration(HANG))
-        names = ['right_%s_joint' % j for j in ARM_JOINTS]
-        here = dict(zip(joints.last().name, joints.last().position))
-        far = [here[j] for j in names]
-        far[0] += 1.2 if far[0] < 0.0 else -1.2
-        right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
-        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
-                 'the right arm moving')
+        right, _, _ = right_arm_moving(make, truth, failures.append)
         pid = next(p['pid'] for p in er_processes() if 'right_arm_manipulator' in str(p['command']))
         os.kill(pid, signal.SIGINT)
         stopped = rospy.Time.now().to_sec()
@@ -520,16 +528,7 @@ def test_a_manipulator_killed_mid_goal_leaves_no_trajectory_running(stack, truth
     joints, states = truth
     results = collect('/right_arm/follow_joint_trajectory/result', FollowJointTrajectoryActionResult)
     with made_interfaces(RobotManagerInterface) as make:
-        make().load_robot(['manipulation'], on_status=lambda event: None)
-        right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
-        assert right.wait_for_server(rospy.Duration(HANG))
-        names = ['right_%s_joint' % j for j in ARM_JOINTS]
-        start = dict(zip(joints.last().name, joints.last().position))
-        far = [start[j] for j in names]
-        far[0] += 1.2 if far[0] < 0.0 else -1.2
-        right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
-        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
-                 'the right arm moving')
+        _, names, far = right_arm_moving(make, truth, lambda event: None)
         pid = next(p['pid'] for p in er_processes() if 'right_arm_manipulator' in str(p['command']))
         killed = rospy.Time.now().to_sec()       # taken before: the controller may hear of the death first
         os.kill(pid, signal.SIGKILL)
