@@ -70,6 +70,11 @@ class PeerClocks:
             self._offsets[host] = (offset, arrival)
         return stamp + offset
 
+    def goal_sent(self, goal_id, arrival: float) -> float:
+        """When an actionlib goal (its ``actionlib_msgs/GoalID``) was sent, on this host's clock: its sender is the
+        node its id begins with (``/node-N-stamp``), as actionlib's clients make them."""
+        return self.observe(goal_id.id.split('-', 1)[0], goal_id.stamp.to_sec(), arrival)
+
     def offset(self, sender: str) -> Optional[float]:
         """The learnt offset of ``sender``'s host (None: its own clock is this one's, or nothing is known)."""
         host = self.host(sender)

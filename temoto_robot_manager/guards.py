@@ -137,7 +137,9 @@ class ArmsInEnvelope:
         self.arms = {name: (list(joints), skeleton) for name, (joints, skeleton) in arms.items()}
         self._q: Dict[str, Tuple[float, ...]] = {}
         self._heard: Optional[float] = None
-        self._verdict: Optional[Tuple[Dict[str, Tuple[float, ...]], Optional[str]]] = None   # cached by positions
+        # each arm's verdict, kept with the positions it was made at: an arm that does not move (the camera's, while
+        # the Hokuyo's wrist sweeps) costs no kinematics on the next check, which every teleop command makes
+        self._verdicts: Dict[str, Tuple[Tuple[float, ...], Optional[str]]] = {}
 
     def update(self, positions: Mapping[str, float], now: float) -> None:
         """Joint positions (any subset of the robot's joints) heard at ``now`` (monotonic)."""
@@ -154,18 +156,22 @@ class ArmsInEnvelope:
             return StopReason(StopCode.ARM_OUTSIDE, 'where the arms are is not known (no joint states of %s for '
                               '%.1f s)' % (', '.join(sorted(set(self.arms) - set(self._q)) or sorted(self.arms)),
                                            self.state_timeout))
-        if self._verdict is None or self._verdict[0] != self._q:
-            self._verdict = (dict(self._q), self._outside())
-        return None if self._verdict[1] is None else StopReason(StopCode.ARM_OUTSIDE, self._verdict[1])
-
-    def _outside(self) -> Optional[str]:
-        for name, (_, skeleton) in sorted(self.arms.items()):
-            points = skeleton(self._q[name])[:, :2]
-            out = ~self.footprint.contains(points, -self.inset)
-            if out.any():
-                # the point furthest out: from the outline shrunk by the inset
-                worst = points[out][int(np.argmax(self.footprint.grown(-self.inset).distance(points[out])))]
-                return ('%s reaches outside the driving outline at (%.2f, %.2f) in the base frame (its axes must '
-                        'stay %.2f m inside it): bring it to its hold pose before driving'
-                        % (name, worst[0], worst[1], self.inset))
+        for name in sorted(self.arms):
+            q = self._q[name]
+            known = self._verdicts.get(name)
+            if known is None or known[0] != q:
+                known = self._verdicts[name] = (q, self._outside(name, q))
+            if known[1] is not None:
+                return StopReason(StopCode.ARM_OUTSIDE, known[1])
         return None
+
+    def _outside(self, name: str, q: Tuple[float, ...]) -> Optional[str]:
+        """Why arm ``name`` at ``q`` is outside the outline, or None."""
+        points = self.arms[name][1](q)[:, :2]
+        out = ~self.footprint.contains(points, -self.inset)
+        if not out.any():
+            return None
+        # the point furthest out: from the outline shrunk by the inset
+        worst = points[out][int(np.argmax(self.footprint.grown(-self.inset).distance(points[out])))]
+        return ('%s reaches outside the driving outline at (%.2f, %.2f) in the base frame (its axes must stay %.2f m '
+                'inside it): bring it to its hold pose before driving' % (name, worst[0], worst[1], self.inset))

@@ -48,13 +48,13 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import clocks, params
+from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import sender_of, wait_sent
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
 from temoto_robot_manager.description import described_robot
-from temoto_core.goal_holders import GoalHolders
 from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
 from temoto_robot_manager.obstacle_points import matrix_of_pose
 from temoto_robot_manager.self_collision import SelfCollision
@@ -227,8 +227,7 @@ class ManipulatorNode:
         goal = handle.get_goal()
         with self.lock:
             q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
-        stamp = self.clocks.observe(handle.get_goal_id().id.split('-', 1)[0], handle.get_goal_id().stamp.to_sec(),
-                                    rospy.get_time())
+        stamp = self.clocks.goal_sent(handle.get_goal_id(), rospy.get_time())
         try:
             halted = self._halted_at.to_sec()
             if stamp <= halted:                   # on its way when the operator said stop: overtaken by the stop

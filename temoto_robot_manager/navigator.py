@@ -305,7 +305,8 @@ class Navigator:
 
     # -- the loop ------------------------------------------------------------------------------------------
     def must_stop(self, now: float) -> bool:
-        """Whether a goal is held and its obstacle source or its odometry is stale: the command must be zero now."""
+        """Whether a goal is held and its obstacle source is stale, or a guard holds it: the command must be zero
+        now."""
         return self.goal is not None and (not self.freshness.fresh(now) or self.guard_stop(now) is not None)
 
     def tick(self, now: float) -> Tick:

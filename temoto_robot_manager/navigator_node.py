@@ -60,6 +60,7 @@ from std_msgs.msg import Float32, String
 from visualization_msgs.msg import MarkerArray
 
 from temoto_core import clocks, params
+from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
 from temoto_core.node import init_node, ok, stop_requested
@@ -71,7 +72,6 @@ from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
-from temoto_core.goal_holders import GoalHolders
 from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, StopCode
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
@@ -114,7 +114,9 @@ class NavigatorNode:
         self.pub_teleop_status = rospy.Publisher('teleop/status', String, queue_size=5, latch=True)
         self._teleop_said = None
         self.active = None                      # the goal handle being driven
-        self._halted_at = rospy.Time(0)          # the operator's last stop: a goal stamped before it is refused
+        # the operator's last stop (this host's wall clock): a goal stamped before it is refused. Not the teleop
+        # stream's own horizon, which a lost base controller moves too
+        self._halted_at = -math.inf
         self.clocks = clocks.for_this_node()     # a station's stamps on this host's clock
         # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
@@ -322,10 +324,10 @@ class NavigatorNode:
             handle.set_rejected(MoveBaseResult(), away)
             return
         goal_id = handle.get_goal_id().id
-        stamp = self.clocks.observe(goal_id.split('-', 1)[0], handle.get_goal_id().stamp.to_sec(), rospy.get_time())
+        stamp = self.clocks.goal_sent(handle.get_goal_id(), rospy.get_time())
         try:
             with self.lock:
-                halted = self._halted_at.to_sec()
+                halted = self._halted_at
                 if stamp <= halted:               # on its way when the operator said stop: overtaken by the stop
                     raise BadGoal('goal_id.stamp', 'sent %.0f ms before the operator\'s stop, which came first'
                                   % ((halted - stamp) * 1e3))
@@ -364,8 +366,8 @@ class NavigatorNode:
         reason = reason_of(msg)
         with self.lock:
             self._command(0.0, 0.0)
-            self._halted_at = rospy.Time.now()
-            self.teleop.halt(self._halted_at.to_sec())
+            self._halted_at = rospy.get_time()
+            self.teleop.halt(self._halted_at)
             self._say_teleop('halted: %s' % reason)
             self._report(MotionStatus.STOPPED, StopCode.HALTED, 'halted: %s' % reason)
             halted, self.active = self.active, None

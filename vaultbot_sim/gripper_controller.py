@@ -144,8 +144,7 @@ class GripperController:
     # --- the action --------------------------------------------------------------------------------------
     def _execute(self, goal) -> None:
         target, effort_limit = goal.command.position, goal.command.max_effort
-        sent = self.server.current_goal.get_goal_id()
-        stamp = self.clocks.observe(sent.id.split('-', 1)[0], sent.stamp.to_sec(), rospy.get_time())
+        stamp = self.clocks.goal_sent(self.server.current_goal.get_goal_id(), rospy.get_time())
         with self.lock:
             self._halt = None
             halted_at = self._halted_at.to_sec()
