@@ -13,6 +13,8 @@ Guards here:
   told by its connection's end, which the kernel gives the moment the process dies (a crash, a SIGKILL). A base
   controller that died and was respawned drove on toward the old goal 2.6 s later, and nobody was told: its death
   ends the goal at once, so a respawn finds nothing to resume;
+- :class:`SourceFresh`: the active obstacle source heard within 3 of its periods (``freshness.py``). A base that
+  drives on obstacles it no longer sees drives blind;
 - :class:`ArmsInEnvelope`: every arm inside the outline that navigation keeps clear. The footprint assumes the arms
   at their hold pose; an arm servoed out past it while the base drives is a part of the robot that nothing
   checks against the world.
@@ -92,6 +94,29 @@ class OdometryFresh:
         return StopReason(StopCode.ODOMETRY_STALE, 'no odometry for %.0f ms (stale after %d periods of %.0f Hz%s)'
                           % (age * 1e3, self.periods, 1.0 / self.period,
                              '; the goal ends after %.1f s' % self.patience if final else ''), final)
+
+
+class SourceFresh:
+    """The obstacle source the base drives on, fresh (``freshness.Freshness``: 3 of its periods, once proven).
+
+    Not final: a goal waits for a fresh frame, from the same source or from the one the Robot Manager fails over to,
+    and ends only after the navigator's own patience. ``name()`` says which source, for the text."""
+
+    def __init__(self, freshness, name: Callable[[], str]) -> None:
+        self.freshness, self.name = freshness, name
+
+    def check(self, now: float) -> Optional[StopReason]:
+        if self.freshness.fresh(now):
+            return None
+        last = self.freshness.last
+        if last is None:
+            since = 'nothing heard yet'
+        elif self.freshness.deadline() is None:
+            since = 'still proving itself: %d frames' % self.freshness.frames
+        else:
+            since = 'no frame for %.0f ms' % ((now - last) * 1e3)
+        return StopReason(StopCode.OBSTACLES_STALE, 'no fresh obstacle source (%s: %s): the base does not drive blind'
+                          % (self.name() or 'none named', since))
 
 
 class PublisherAlive:

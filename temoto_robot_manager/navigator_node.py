@@ -32,10 +32,14 @@ from the URDF on ``~robot_description``, default ``robot_description``, and the 
 holds the base at zero. The odometry is guarded too (``guards.py``): stale for 3 periods of the
 description's ``odom_rate``, the base is commanded zero; stale for ``odom_patience``, or its publisher (the base
 controller) dead, the goal ends ABORTED naming it, and a teleop stream is stopped, so a controller that is
-respawned finds nothing to drive on. Two threads command the base: the control loop at ``~rate``, and the staleness watch, which wakes at
-the obstacle source's deadline (``freshness.py``) and commands zero at that moment rather than at
-the next tick. Both hold one lock around deciding and publishing, so a stale zero is never followed
-by a command decided before it.
+respawned finds nothing to drive on.
+
+One writer commands the base: its command gate (``command_gate.py``), with the goal's input above the teleop
+stream's, and the guards (the obstacle source fresh, the odometry fresh, the arms inside the outline) that every
+command passes. Three threads offer it commands or zeros, all under one lock: the control loop at ``~rate``, the
+stream's callback, and the deadline watch, which wakes at the stream's deadman or the source's or the odometry's
+staleness and zeroes the base at that moment rather than at the next tick. So a zero is never followed by a
+command decided before it. The gate says the base's state on ``~motion_status``.
 
 Private parameters: ``~description`` (a robot description file), ``~robot`` (its robot's name),
 ``~obstacle_topic`` (optional), ``~obstacle_source_topic``, ``~rate`` (Hz, default 20).
@@ -67,16 +71,18 @@ from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import connection_header, live_publisher_nodes, sender_of, wait_sent
 from temoto_core.serialized import header_stamp
 from temoto_core.wait import wait_for
+from temoto_robot_manager import command_gate
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.command_gate import CommandGate
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
-from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, StopCode
+from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, SourceFresh, StopCode, StopReason
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 from temoto_robot_manager.scene_markers import base_scene
-from temoto_robot_manager.teleop_drive import Refused, TeleopDrive
+from temoto_robot_manager.teleop_drive import BASE_INPUTS, Refused, TeleopDrive
 
 FEEDBACK_PERIOD_S = 0.2
 LAST_WORDS_S = 1.0             # a stopped navigator's goal end, sent before rospy shuts down (node.py's grace: 2 s)
@@ -104,9 +110,11 @@ class NavigatorNode:
         self.pub_plan = rospy.Publisher('~plan', Path, queue_size=1, latch=True)
         self.pub_scene = rospy.Publisher('~scene', MarkerArray, queue_size=1, latch=True)
         self.pub_status = rospy.Publisher('~motion_status', MotionStatus, queue_size=10, latch=True)
-        self._status_lock = threading.Lock()
-        self._status_said = None
         self.commanded = (0.0, 0.0)
+        self.source_topic = ''
+        # the only writer of cmd_vel: every command and every zero goes through it, under self.lock
+        self.gate = CommandGate('base', BASE_INPUTS, [SourceFresh(self.nav.freshness, lambda: self.source_topic)]
+                                + self.nav.guards, send=self._send, zero=(0.0, 0.0), report=self._report)
         self._scene_at = 0.0
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
@@ -122,7 +130,6 @@ class NavigatorNode:
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
         self.active_id = ''
         self._source_sub = None
-        self.source_topic = ''
         self._frames = threading.Condition()    # the latest frame of the source, for the frames thread
         self._frame = None
         threading.Thread(target=self._make_obstacles, name='obstacle frames', daemon=True).start()
@@ -154,9 +161,7 @@ class NavigatorNode:
         self.holders = GoalHolders('navigator', self._owner, self.server,
                                    fire_and_forget='move_base_simple-')
         self.server.start()
-        self._report(MotionStatus.IDLE, None, 'nothing commands the base')
-        threading.Thread(target=self._watch_staleness, name='staleness watch', daemon=True).start()
-        threading.Thread(target=self._watch_teleop, name='teleop watch', daemon=True).start()
+        threading.Thread(target=self._watch_deadlines, name='deadline watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
                       rospy.resolve_name('move_base'), rospy.resolve_name(nav.cmd_vel_topic))
 
@@ -333,7 +338,8 @@ class NavigatorNode:
                                   % ((halted - stamp) * 1e3))
                 goal = self._checked(target)
                 self.nav.start(goal, now)
-                self.teleop.end()                # the goal drives now; the stream's deadline must not zero it
+                # the goal has the base from now: a stream is refused, and stopped if it drove
+                self.gate.offer('goal', (0.0, 0.0), now, moving=False, why='driving to the goal')
                 previous, self.active, self.active_id = self.active, handle, goal_id
                 self.holders.new_goal()
                 path = self.nav.path
@@ -355,9 +361,8 @@ class NavigatorNode:
             if self.active is None or self.active_id != goal_id:
                 return
             self.nav.cancel()
-            self.pub_cmd.publish(Twist())
+            self.gate.release('goal', StopReason(StopCode.ENDED, 'canceled: the robot stops'))
             self.active = None
-            self._report(MotionStatus.STOPPED, StopCode.ENDED, 'canceled: the robot stops')
         handle.set_canceled(MoveBaseResult(), 'canceled: the robot stops')
         rospy.loginfo('navigator: goal %s canceled', handle.get_goal_id().id)
 
@@ -365,11 +370,10 @@ class NavigatorNode:
         """The operator's "stop" (``temoto_core/halt.py``): zero now, whoever drives; the goal ends ABORTED."""
         reason = reason_of(msg)
         with self.lock:
-            self._command(0.0, 0.0)
+            self.gate.stop(StopReason(StopCode.HALTED, 'halted: %s' % reason))
             self._halted_at = rospy.get_time()
             self.teleop.halt(self._halted_at)
             self._say_teleop('halted: %s' % reason)
-            self._report(MotionStatus.STOPPED, StopCode.HALTED, 'halted: %s' % reason)
             halted, self.active = self.active, None
             if halted is not None:
                 self.nav.cancel()
@@ -387,37 +391,29 @@ class NavigatorNode:
         holders = getattr(self, 'holders', None)        # None until the action server starts
         away = holders.owner_away() if holders is not None else 'the navigator is still starting'
         with self.wake:
-            started = not self.teleop.active
+            started = self.gate.owner != 'teleop'
             try:
                 if away is not None:              # as a goal is: nothing moves for a node nobody manages
-                    if self.teleop.active:
-                        self.teleop.end()
-                        self._command(0.0, 0.0)
+                    self.gate.release('teleop', StopReason(StopCode.HOLDER_GONE, away))
                     raise Refused(away)
-                decision = self.teleop.command(stamp, wall, now, msg.twist.linear.x, msg.twist.angular.z)
-            except Refused as err:
+                decision = self.teleop.command(stamp, wall, msg.twist.linear.x, msg.twist.angular.z)
+                status = self.gate.offer('teleop', (decision.linear, decision.angular), now, decision.moving,
+                                         decision.held, decision.why or 'a teleop stream drives it')
+            except (Refused, command_gate.Refused) as err:
                 self._say_teleop('refused: %s' % err)
-                self._report(MotionStatus.STOPPED, StopCode.REFUSED, 'a teleop command refused: %s' % err)
+                self.gate.refused(StopReason(StopCode.REFUSED, 'a teleop command refused: %s' % err))
                 return
-            self._command(decision.linear, decision.angular)
             if started:
-                self.wake.notify_all()         # the watches now have a stream to guard
-            self._say_teleop(decision.why or 'driving')
-            if decision.held is not None:
-                self._report(MotionStatus.HELD, decision.held, decision.why)
-            else:
-                self._report(MotionStatus.MOVING, None, decision.why or 'a teleop stream drives it')
+                self.wake.notify_all()         # the deadline watch now has a stream to guard
+            self._say_teleop('held: %s' % status.text if status.state is command_gate.State.HELD
+                             else decision.why or 'driving')
 
-    def _report(self, state: int, reason: Optional[StopCode], text: str) -> None:
-        """``~motion_status`` when the base's state or its reason changes (the text of the first of a run)."""
-        key = (state, reason)
-        with self._status_lock:
-            if key == self._status_said:
-                return
-            self._status_said = key
-            msg = MotionStatus(actuator='base', state=state, reason=reason.value if reason else '', text=text)
-            msg.header.stamp = rospy.Time.now()
-            self.pub_status.publish(msg)
+    def _report(self, status: command_gate.Status) -> None:
+        """``~motion_status``: the gate says when the base's state or its reason changes (with the gate's lock)."""
+        msg = MotionStatus(actuator='base', state=int(status.state), reason=status.reason.value if status.reason
+                           else '', text=status.text)
+        msg.header.stamp = rospy.Time.now()
+        self.pub_status.publish(msg)
 
     def _say_teleop(self, text: str) -> None:
         """``teleop/status`` when what the stream gets changes (not at 100 Hz); called with the lock held."""
@@ -437,11 +433,12 @@ class NavigatorNode:
         self.pub_plan.publish(msg)
 
     # -- commanding the base -----------------------------------------------------------------------------------
-    def _command(self, linear: float, angular: float) -> None:
+    def _send(self, command) -> None:
+        """The gate's writer: nothing else publishes ``cmd_vel``."""
         cmd = Twist()
-        cmd.linear.x, cmd.angular.z = linear, angular
+        cmd.linear.x, cmd.angular.z = command
         self.pub_cmd.publish(cmd)
-        self.commanded = (linear, angular)
+        self.commanded = command
 
     def _publish_scene(self, now: float) -> None:
         """The footprint and the stop zone on the last command, for the operator's scene, at ``SCENE_PERIOD_S``."""
@@ -452,48 +449,34 @@ class NavigatorNode:
         self.pub_scene.publish(base_scene(self.nav.footprint, self.base_frame, linear, angular, rospy.Time.now(),
                                           self.nav.monitor.settings))
 
-    def _watch_staleness(self) -> None:
-        """Zero at the obstacle source's or the odometry's deadline, not at the next tick (3 periods + 20 ms)."""
-        stopped_for = None                          # the deadline already acted on
+    def _watch_deadlines(self) -> None:
+        """Zero at a deadline, not at the next tick: the teleop stream's deadman (``TELEOP_TIMEOUT_S``), and the
+        obstacle source's or the odometry's staleness (3 periods + 20 ms), by the gate's own rules."""
+        acted = -math.inf                            # the last deadline acted on: deadlines only move on
         with self.wake:
             while ok():
-                deadline = self.nav.stop_deadline()
+                deadlines = [self.gate.deadline()]
+                if self.gate.owner is not None:
+                    deadlines.append(self.nav.stop_deadline())
+                due = [d for d in deadlines if d is not None and d > acted]
                 now = time.monotonic()
-                driven = self.nav.goal is not None or self.teleop.active
-                if not driven or deadline is None or (deadline <= now and stopped_for == deadline):
+                if not due:
                     self.wake.wait(0.5)
                     continue
-                if now < deadline:
-                    self.wake.wait(deadline - now)
+                if now < min(due):
+                    self.wake.wait(min(due) - now)
                     continue
-                stopped_for = deadline
-                self._command(0.0, 0.0)
-                held = self.nav.guard_stop(now)
-                if held is not None:
-                    rospy.logwarn('navigator: %s: stopped', held)
-                else:
-                    rospy.logwarn('navigator: no obstacle frame from %s for %.0f ms (%d periods): stopped',
-                                  self.source_topic, (now - self.nav.freshness.last) * 1e3,
-                                  self.nav.freshness.periods)
-
-    def _watch_teleop(self) -> None:
-        """Zero at the teleop stream's deadline, not at the next tick: a silent stream stops the base within
-        ``TIMEOUT_S`` of its last command."""
-        with self.wake:
-            while ok():
-                deadline = self.teleop.deadline()
-                now = time.monotonic()
-                if deadline is None:
-                    self.wake.wait(0.5)
+                acted = now
+                owner = self.gate.owner
+                stopped = self.gate.enforce(now)
+                if stopped is None:
                     continue
-                if now < deadline:
-                    self.wake.wait(deadline - now)
+                if stopped.code is StopCode.DEADMAN:
+                    self._say_teleop('stopped: %s' % stopped.text)
                     continue
-                self.teleop.expire(now)
-                self._command(0.0, 0.0)
-                self._say_teleop('stopped: no teleop command for %.0f ms' % (self.teleop.timeout * 1e3))
-                self._report(MotionStatus.STOPPED, StopCode.DEADMAN, 'no teleop command for %.0f ms'
-                             % (self.teleop.timeout * 1e3))
+                if owner == 'teleop':
+                    self._say_teleop('held: %s' % stopped.text)
+                rospy.logwarn('navigator: %s: stopped', stopped)
 
     def spin(self) -> None:
         period = 1.0 / self.rate
@@ -507,25 +490,25 @@ class NavigatorNode:
                     gone = self.holders.gone(self.active_id)
                     if gone is not None:
                         self.nav.cancel()
-                        self._command(0.0, 0.0)
+                        self.gate.release('goal', StopReason(StopCode.HOLDER_GONE, gone))
                         orphan, self.active = self.active, None
             if gone is not None:
-                self._report(MotionStatus.STOPPED, StopCode.HOLDER_GONE, gone)
                 rospy.logwarn('navigator: goal %s: %s: the robot stops', orphan.get_goal_id().id, gone)
                 orphan.set_aborted(MoveBaseResult(), '%s: the robot stopped' % gone)
                 self._publish_plan(None)
             with self.lock:
                 handle, was = self.active, self.nav.state
                 tick = self.nav.tick(now)
-                if handle is not None:
-                    self._command(tick.linear, tick.angular)
+                if handle is not None and tick.ending is not None:
+                    self.gate.release('goal', StopReason(tick.ending.code, tick.ending.text))
+                elif handle is not None:
+                    self.gate.offer('goal', (tick.linear, tick.angular), now, tick.linear != 0.0 or tick.angular != 0.0,
+                                    self._held(tick), 'driving to the goal')
                 if tick.ending is not None:
                     self.active = None
                 replanned = handle is not None and tick.ending is None and tick.state is State.DRIVING
                 path = self.nav.path
                 pose = self.nav.pose
-            if handle is not None and tick.ending is None:
-                self._report_tick(tick)
             if handle is not None and tick.ending is None and tick.state is not was:
                 rospy.loginfo('navigator: goal %s: %s', handle.get_goal_id().id, tick.state.value)
             if tick.ending is not None:
@@ -555,12 +538,11 @@ class NavigatorNode:
         with self.lock:
             handle, self.active = self.active, None
             tick = self.nav.abort(lost) if handle is not None else None
-            if self.teleop.active:
+            if self.gate.owner == 'teleop':
                 self.teleop.halt(rospy.get_time())
                 self._say_teleop('stopped: %s' % lost)
-            self._command(0.0, 0.0)
-            if handle is None:                     # a goal's end says it, with the goal's words
-                self._report(MotionStatus.STOPPED, lost.code, lost.text)
+            # said in the goal's words when a goal ends by it
+            self.gate.stop(StopReason(lost.code, tick.ending.text if tick is not None else lost.text, lost.final))
         rospy.logerr('navigator: %s%s', lost, ': goal %s aborted' % handle.get_goal_id().id if handle else '')
         if handle is not None:
             self._end(handle, tick)
@@ -574,7 +556,7 @@ class NavigatorNode:
             handle, goal_id, self.active = self.active, self.active_id, None
             if handle is not None:
                 self.nav.cancel()
-            self._command(0.0, 0.0)
+            self.gate.stop(StopReason(StopCode.HOLDER_GONE, 'the navigator was stopped'))
         if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
             return
         why = self.holders.gone(goal_id) or 'the navigator was stopped'
@@ -593,21 +575,19 @@ class NavigatorNode:
         handle.publish_feedback(fb)
         self.pub_left.publish(Float32(remaining))
 
-    def _report_tick(self, tick) -> None:
-        """The goal's state as the base's status."""
-        if tick.state is State.DRIVING:
-            self._report(MotionStatus.MOVING, None, 'driving to the goal')
-        elif tick.state is State.WAITING:
-            self._report(MotionStatus.HELD, StopCode.OBSTACLES_STALE, 'no fresh obstacle source from %s: the goal '
-                         'waits' % self.source_topic)
-        elif tick.state is State.BLOCKED:
-            self._report(MotionStatus.HELD, StopCode.BLOCKED, 'stopped by an obstacle: the goal waits')
-        elif tick.state is State.HELD and self.nav.held_by is not None:
-            self._report(MotionStatus.HELD, self.nav.held_by.code, self.nav.held_by.text)
+    def _held(self, tick) -> Optional[StopReason]:
+        """The goal's own reason for a zero, as the gate says it (a guard that trips is the gate's own)."""
+        if tick.state is State.WAITING:
+            return StopReason(StopCode.OBSTACLES_STALE, 'no fresh obstacle source from %s: the goal waits'
+                              % self.source_topic)
+        if tick.state is State.BLOCKED:
+            return StopReason(StopCode.BLOCKED, 'stopped by an obstacle: the goal waits')
+        if tick.state is State.HELD:
+            return self.nav.held_by
+        return None
 
     def _end(self, handle, tick) -> None:
         text = tick.ending.text
-        self._report(MotionStatus.STOPPED, tick.ending.code, text)
         if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
             return
         if tick.ending.outcome is Outcome.SUCCEEDED:

@@ -1,20 +1,18 @@
-"""Driving the base by a stream of velocity commands (the operator's hand), under the navigator's guards. No ROS.
+"""What one command of a teleop stream (the operator's hand driving the base) asks of the base, checked. No ROS.
 
 A goal is one command that the navigator plans and drives; a teleoperated base is a stream, and a stream is
-only as safe as what happens when it stops, lies or goes blind. twist_mux holds a stream for 0.5 s after its
-last command; MoveIt Servo for 0.1 s. Here a command, on ``teleop/cmd_vel`` (``TwistStamped``):
+only as safe as what happens when it stops, lies or goes blind. This class judges the command itself; the base's
+command gate (``command_gate.py``) does the rest, as for every input: the stream's deadman (``TIMEOUT_S``, MoveIt
+Servo's: twist_mux holds a stream for 0.5 s), its place below a goal (a stream is refused while a goal drives:
+one commander at a time), and the guards (the obstacle source fresh, the odometry, the arms inside the outline).
+A command, on ``teleop/cmd_vel`` (``TwistStamped``):
 
-- is **refused** while a goal drives: one commander at a time (the Robot Manager gives the navigation to one
-  holder; a stray stream must not fight a goal);
 - is **refused** when it is late (stamped more than ``MAX_AGE_S`` ago: a link that held it and delivers it
   now), stamped in the future by as much, stamped before the operator's last "stop", or not finite. The stamp
   is on the robot's clock: the node turns a station's stamp into it first (``temoto_core/clocks.py``);
 - is **clamped** to the follower's top speeds;
-- becomes **zero** while the obstacle source is not fresh, or a guard holds the base (``guards.py``: the
-  odometry stale, an arm outside the outline): the base never drives blind, whoever commands it;
-- passes the **collision monitor**, as a goal's commands do: zero in the stop zone, slowed in the slow zone;
-- **lasts** ``TIMEOUT_S``: when the stream is silent that long, the base is commanded zero once (the
-  base controller's own cmd_vel timeout, 0.25 s, stays behind it).
+- is **zero** while the robot's pose is unknown (nothing to check the map against);
+- passes the **collision monitor**, as a goal's commands do: zero in the stop zone, slowed in the slow zone.
 """
 from __future__ import annotations
 
@@ -23,11 +21,15 @@ from dataclasses import dataclass
 from typing import Optional
 
 from temoto_robot_manager.collision_monitor import Zone
-from temoto_robot_manager.guards import StopCode
+from temoto_robot_manager.command_gate import Input
+from temoto_robot_manager.guards import StopCode, StopReason
 from temoto_robot_manager.navigator import Navigator
 
 TIMEOUT_S = 0.1              # a silent stream: zero after this (MoveIt Servo's incoming command timeout)
 MAX_AGE_S = 0.1              # a command stamped this long ago is late: refused (as the manipulator's servo)
+# The base's gate's inputs, highest first. A goal above the stream: the Robot Manager gives the navigation to one
+# holder, and a stray stream must not fight a goal; a goal accepted takes the base from a stream at once.
+BASE_INPUTS = (Input('goal', 20), Input('teleop', 10, TIMEOUT_S))
 
 
 class Refused(ValueError):
@@ -38,31 +40,25 @@ class Refused(ValueError):
 class Decision:
     linear: float
     angular: float
-    why: str = ''            # '' when passed as asked (clamped at most); else what held or slowed it
-    held: Optional[StopCode] = None      # what holds it at zero, if something does
+    why: str = ''            # '' when passed as asked (clamped at most); else what slowed it
+    held: Optional[StopReason] = None      # what holds it at zero, if something does
+
+    @property
+    def moving(self) -> bool:
+        return self.linear != 0.0 or self.angular != 0.0
 
 
 class TeleopDrive:
-    def __init__(self, nav: Navigator, timeout: float = TIMEOUT_S, max_age: float = MAX_AGE_S) -> None:
-        if not timeout > 0 or not max_age > 0:
-            raise ValueError('timeout %r and max_age %r must be above 0' % (timeout, max_age))
-        self.nav, self.timeout, self.max_age = nav, timeout, max_age
-        self.until: Optional[float] = None        # when the current command runs out (monotonic)
+    def __init__(self, nav: Navigator, max_age: float = MAX_AGE_S) -> None:
+        if not max_age > 0:
+            raise ValueError('max_age %r must be above 0' % max_age)
+        self.nav, self.max_age = nav, max_age
         self.halted_stamp = -math.inf             # the stamp (wall clock) of the operator's last "stop"
 
-    @property
-    def active(self) -> bool:
-        """A command stream drives the base now (until ``deadline()``)."""
-        return self.until is not None
-
-    def deadline(self) -> Optional[float]:
-        return self.until
-
-    def command(self, stamp: float, wall_now: float, now: float, linear: float, angular: float) -> Decision:
-        """One command stamped ``stamp`` (this host's wall clock: ``clocks.PeerClocks`` turns a sender's into it), arriving at ``wall_now`` / ``now`` (monotonic): what to
-        command the base. Raises ``Refused``; a refused command changes nothing."""
-        if self.nav.goal is not None:
-            raise Refused('a navigation goal is driving the base: cancel it before teleoperating')
+    def command(self, stamp: float, wall_now: float, linear: float, angular: float) -> Decision:
+        """One command stamped ``stamp`` (this host's wall clock: ``clocks.PeerClocks`` turns a sender's into it),
+        arriving at ``wall_now``: what to offer the base's gate. Raises ``Refused``; a refused command changes
+        nothing."""
         if not all(math.isfinite(v) for v in (stamp, linear, angular)):
             raise Refused('linear %r, angular %r, stamp %r: every value must be finite' % (linear, angular, stamp))
         if stamp <= self.halted_stamp:
@@ -75,36 +71,19 @@ class TeleopDrive:
         lim = self.nav.follower.limits
         linear = max(-lim.max_speed, min(lim.max_speed, linear))
         angular = max(-lim.max_turn, min(lim.max_turn, angular))
-        self.until = now + self.timeout
         if self.nav.pose is None:
-            return Decision(0.0, 0.0, 'the robot\'s pose is not known yet (no odometry): the map is not checked',
-                            StopCode.ODOMETRY_STALE)
-        if not self.nav.freshness.fresh(now):
-            return Decision(0.0, 0.0, 'no fresh obstacle source: the base does not drive blind', StopCode.OBSTACLES_STALE)
-        stop = self.nav.guard_stop(now)
-        if stop is not None:
-            return Decision(0.0, 0.0, 'held: %s' % stop.text, stop.code)
+            return Decision(0.0, 0.0, held=StopReason(
+                StopCode.ODOMETRY_STALE, 'the robot\'s pose is not known yet (no odometry): the map is not checked'))
         if linear == 0.0 and angular == 0.0:
             return Decision(0.0, 0.0)
         verdict = self.nav.monitor.check(self.nav.monitor_points(), linear, angular)
         if verdict.zone is Zone.STOP:
-            return Decision(0.0, 0.0, 'an obstacle %.2f m away, in the stop zone' % verdict.nearest, StopCode.BLOCKED)
+            return Decision(0.0, 0.0, held=StopReason(
+                StopCode.BLOCKED, 'an obstacle %.2f m away, in the stop zone' % verdict.nearest))
         if verdict.zone is Zone.SLOW:
             return Decision(verdict.linear, verdict.angular, 'slowed: an obstacle %.2f m away' % verdict.nearest)
         return Decision(verdict.linear, verdict.angular)
 
-    def expire(self, now: float) -> bool:
-        """At (or after) ``deadline()``: whether the stream ran out now (the base must be commanded zero)."""
-        if self.until is None or now < self.until:
-            return False
-        self.until = None
-        return True
-
-    def end(self) -> None:
-        """The stream ends with nothing to command (a goal took the base over)."""
-        self.until = None
-
     def halt(self, stamp: float) -> None:
-        """The operator's "stop": the stream ends, and nothing stamped before it is taken."""
+        """The operator's "stop" (or a lost controller): nothing stamped before it is taken."""
         self.halted_stamp = max(self.halted_stamp, stamp)
-        self.until = None

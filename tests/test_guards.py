@@ -5,13 +5,14 @@ import math
 import numpy as np
 import pytest
 
+from temoto_robot_manager.command_gate import CommandGate
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.guards import OdometryFresh, PublisherAlive, StopCode
 from temoto_robot_manager.navigator import Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_robot_manager.teleop_drive import TeleopDrive
+from temoto_robot_manager.teleop_drive import BASE_INPUTS, TeleopDrive
 from vaultbot_sim.kinematics import WORLDS, TreeModel
 from vaultbot_sim.world_map import world_map
 
@@ -94,13 +95,15 @@ def test_a_goal_is_refused_while_the_odometry_is_stale(lab_navigator_parts):
         nav.start(nav.goal or (2.0, 0.0, 0.0), 0.2)
 
 
-def test_a_teleop_command_is_zero_while_the_odometry_is_stale(lab_navigator_parts):
+def test_the_base_s_gate_holds_a_teleop_command_while_the_odometry_is_stale(lab_navigator_parts):
     nav = driving(lab_navigator_parts)
     nav.cancel()
-    teleop = TeleopDrive(nav)
     nav.set_obstacles(np.zeros((0, 2)), 0.1)
-    decision = teleop.command(10.0, 10.0, 0.1, 0.0, 0.5)
-    assert (decision.linear, decision.angular) == (0.0, 0.0) and decision.why.startswith('held: no odometry')
+    sent = []
+    gate = CommandGate('base', BASE_INPUTS, nav.guards, sent.append, (0.0, 0.0))
+    decision = TeleopDrive(nav).command(10.0, 10.0, 0.0, 0.5)
+    said = gate.offer('teleop', (decision.linear, decision.angular), 0.1)
+    assert sent == [(0.0, 0.0)] and said.reason is StopCode.ODOMETRY_STALE and said.text.startswith('no odometry')
 
 
 def test_a_lost_controller_aborts_the_goal_naming_it(lab_navigator_parts):

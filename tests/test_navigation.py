@@ -18,14 +18,16 @@ from std_msgs.msg import String
 
 from temoto_robot_manager import global_planner
 from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Zone
+from temoto_robot_manager.command_gate import CommandGate, Refused as GateRefused, State as GateState
 from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
 from temoto_robot_manager.description import load_file
 from temoto_core.serialized import header_stamp
 from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.guards import SourceFresh, StopCode, StopReason
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_robot_manager.scene_markers import base_scene, stop_pose
-from temoto_robot_manager.teleop_drive import TIMEOUT_S as TELEOP_TIMEOUT_S, Refused, TeleopDrive
+from temoto_robot_manager.teleop_drive import BASE_INPUTS, Refused, TeleopDrive
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import GOAL_CLIENT, aborted_goal, commanded_zero_after
 from temoto_testing.sensor_manager import set_cable
@@ -361,51 +363,56 @@ def teleop_at_home(lab, walls=True):
     return nav, TeleopDrive(nav)
 
 
-def test_a_teleop_command_is_clamped_lasts_its_timeout_and_a_stop_ends_the_stream(lab):
+def test_a_teleop_command_is_clamped_and_one_stamped_before_a_stop_is_refused(lab):
     nav, drive = teleop_at_home(lab, walls=False)         # nothing near to slow it: the clamp alone
-    d = drive.command(100.0, 100.01, 0.01, 5.0, -9.0)
+    d = drive.command(100.0, 100.01, 5.0, -9.0)
     assert (d.linear, d.angular) == (nav.follower.limits.max_speed, -nav.follower.limits.max_turn)
-    assert drive.active and drive.deadline() == pytest.approx(0.01 + TELEOP_TIMEOUT_S)
-    assert not drive.expire(0.01 + TELEOP_TIMEOUT_S - 1e-3) and drive.expire(0.01 + TELEOP_TIMEOUT_S)
-    assert not drive.active and not drive.expire(1.0), 'the zero is said once'
-    drive.command(100.05, 100.06, 0.05, 0.2, 0.0)
     drive.halt(100.1)
-    assert not drive.active
     with pytest.raises(Refused, match='before the operator'):
-        drive.command(100.09, 100.11, 0.11, 0.2, 0.0)
-    proven(nav, 0.13)
-    assert drive.command(100.12, 100.13, 0.13, 0.2, 0.0).linear == pytest.approx(0.2)
+        drive.command(100.09, 100.11, 0.2, 0.0)
+    assert drive.command(100.12, 100.13, 0.2, 0.0).linear == pytest.approx(0.2)
 
 
 @pytest.mark.parametrize('stamp, linear, words', [
     (99.5, 0.2, 'late: more than 100 ms'),
+    (100.2, 0.2, 'in the future'),
     (100.0, math.nan, 'must be finite'),
     (math.inf, 0.2, 'must be finite'),
 ])
-def test_a_bad_teleop_command_is_refused_naming_why_and_changes_nothing(lab, stamp, linear, words):
+def test_a_bad_teleop_command_is_refused_naming_why(lab, stamp, linear, words):
     nav, drive = teleop_at_home(lab)
     with pytest.raises(Refused, match=words):
-        drive.command(stamp, 100.0, 0.0, linear, 0.0)
-    assert not drive.active
+        drive.command(stamp, 100.0, linear, 0.0)
+
+
+def base_gate(nav):
+    """The navigator node's gate for ``nav``, sending into a list."""
+    sent = []
+    gate = CommandGate('base', BASE_INPUTS, [SourceFresh(nav.freshness, lambda: 'sick/scan')] + nav.guards,
+                       sent.append, (0.0, 0.0))
+    return gate, sent
 
 
 def test_a_teleop_stream_is_refused_while_a_goal_drives_and_zero_while_the_source_is_stale(lab):
     nav, drive = teleop_at_home(lab)
-    nav.start(nav.check(*PLACES['drums'][:2], quat(PLACES['drums'][2])), 0.0)
-    with pytest.raises(Refused, match='a navigation goal is driving'):
-        drive.command(100.0, 100.0, 0.0, 0.2, 0.0)
-    nav.cancel()
-    assert drive.command(100.0, 100.0, 0.0, 0.2, 0.0).linear == pytest.approx(0.2)
-    stale = drive.command(100.2, 100.2, 0.2, 0.2, 0.0)
-    assert (stale.linear, stale.angular) == (0.0, 0.0) and 'does not drive blind' in stale.why
+    gate, sent = base_gate(nav)
+    gate.offer('goal', (0.0, 0.0), 0.0, moving=False)
+    with pytest.raises(GateRefused, match='held by goal'):
+        gate.offer('teleop', (0.2, 0.0), 0.0)
+    gate.release('goal', StopReason(StopCode.ENDED, 'canceled'))
+    d = drive.command(100.0, 100.0, 0.2, 0.0)
+    assert gate.offer('teleop', (d.linear, d.angular), 0.0).state is GateState.MOVING and sent[-1] == (0.2, 0.0)
+    d = drive.command(100.2, 100.2, 0.2, 0.0)
+    stale = gate.offer('teleop', (d.linear, d.angular), 0.2)
+    assert sent[-1] == (0.0, 0.0) and stale.reason is StopCode.OBSTACLES_STALE and 'does not drive blind' in stale.text
 
 
 def test_a_teleop_command_into_an_obstacle_is_zeroed_by_the_collision_monitor(lab):
     nav, drive = teleop_at_home(lab)
     nav.set_obstacles(np.array([[0.75, 0.0]]), 0.0)          # just ahead of the bumper
-    ahead = drive.command(100.0, 100.0, 0.0, 0.8, 0.0)
-    assert (ahead.linear, ahead.angular) == (0.0, 0.0) and 'stop zone' in ahead.why
-    back = drive.command(100.01, 100.01, 0.01, -0.3, 0.0)
+    ahead = drive.command(100.0, 100.0, 0.8, 0.0)
+    assert (ahead.linear, ahead.angular) == (0.0, 0.0) and 'stop zone' in ahead.held.text
+    back = drive.command(100.01, 100.01, -0.3, 0.0)
     assert back.linear == pytest.approx(-0.3) or 'slowed' in back.why, back
 
 
@@ -613,7 +620,7 @@ def test_a_teleop_stream_does_not_drive_blind(navigation, rospy_client, collect)
     stream(pub, rospy_client, 0.0, 0.5, lambda: truth.last().commanded_angular > 0.0)
     set_cable('sick', 'unplugged', 'stall')
     try:
-        stream(pub, rospy_client, 0.0, 0.5, lambda: status.last().data.startswith('no fresh obstacle source'))
+        stream(pub, rospy_client, 0.0, 0.5, lambda: status.last().data.startswith('held: no fresh obstacle source'))
         stream(pub, rospy_client, 0.0, 0.5, lambda: truth.last().commanded_angular == 0.0)
         at = rospy_client.get_time()
         stream(pub, rospy_client, 0.0, 0.5, lambda: rospy_client.get_time() - at > 1.0)
