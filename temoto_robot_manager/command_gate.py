@@ -15,7 +15,9 @@ every zero through :meth:`CommandGate.stop` or a guard; adding a safety rule is 
   guards between commands, at a guard's deadline, so a stale source zeroes the actuator at that moment and not at
   the next command.
 - **Stops**: :meth:`stop` (the operator's halt, a dead controller, a goal that ended) sends zero, ends every input,
-  and says STOPPED with the reason. Nothing moves again until an input's next command.
+  and says STOPPED with the reason. Nothing moves again until an input's next command, and a command *decided*
+  before the stop (its ``now``) is refused: a servo step computed while the stop came, or a goal planned then,
+  must not follow the stop's zero.
 
 What it says is a :class:`Status` (the typed ``temoto_core/MotionStatus``), given to ``report`` when the state or
 its reason changes. The gate is not thread-safe by itself: its owner calls it under the one lock that also guards
@@ -79,6 +81,7 @@ class CommandGate(Generic[Command]):
         self.guards = list(guards)
         self._send, self._zero, self._report = send, zero, report
         self._until: Dict[str, float] = {}        # each live input: when it lapses (inf: until released)
+        self._stopped_at = float('-inf')          # the last stop: a command decided before it is refused
         self.owner: Optional[str] = None          # the input whose command the actuator has now
         self.moving = False                       # the last command sent was not zero
         self.status = Status(State.IDLE, None, 'nothing commands the %s' % actuator)
@@ -92,6 +95,9 @@ class CommandGate(Generic[Command]):
         goal waiting for an obstacle to clear). Raises :class:`Refused` when a higher input is live; a refused
         command changes nothing."""
         source = self.inputs[name]
+        if now <= self._stopped_at:
+            raise Refused('decided %.0f ms before the %s was stopped' % ((self._stopped_at - now) * 1e3,
+                                                                        self.actuator))
         self._lapse(now)
         higher = [i for i in self._until if self.inputs[i].priority > source.priority]
         if higher:
@@ -117,8 +123,10 @@ class CommandGate(Generic[Command]):
             self._put(self._zero, False)
             self._say(State.STOPPED, reason.code, reason.text)
 
-    def stop(self, reason: StopReason) -> None:
-        """Zero now, whoever commands, and every input ended: the operator's halt, a dead controller."""
+    def stop(self, reason: StopReason, now: float) -> None:
+        """Zero now, whoever commands, and every input ended: the operator's halt, a dead controller. A command
+        decided at ``now`` or before is refused after it."""
+        self._stopped_at = max(self._stopped_at, now)
         self._until.clear()
         self.owner = None
         self._put(self._zero, False)

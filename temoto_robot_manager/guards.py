@@ -38,6 +38,7 @@ class StopCode(enum.Enum):
     ODOMETRY_STALE = 'odometry_stale'
     CONTROLLER_GONE = 'controller_gone'
     ARM_OUTSIDE = 'arm_outside'
+    STATE_STALE = 'state_stale'             # an arm's joint states stale: where it is is not known
     OBSTACLES_STALE = 'obstacles_stale'     # the active obstacle source sent nothing for 3 of its periods
     BLOCKED = 'blocked'                     # an obstacle in the stop zone
     HALTED = 'halted'                       # the operator's "stop"

@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import List, Optional
+from dataclasses import dataclass
+from typing import List, Optional, Sequence
 
 import actionlib
 import numpy as np
@@ -50,11 +51,15 @@ from temoto_core.action_client import TrackingActionClient
 from temoto_core import clocks, params
 from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
+from temoto_core.msg import MotionStatus
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import sender_of, wait_sent
 from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager import command_gate
 from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
+from temoto_robot_manager.command_gate import CommandGate, Input
 from temoto_robot_manager.description import described_robot
+from temoto_robot_manager.guards import StopCode, StopReason
 from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
 from temoto_robot_manager.obstacle_points import matrix_of_pose
 from temoto_robot_manager.self_collision import SelfCollision
@@ -65,6 +70,24 @@ STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not kn
 REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)
 LAST_WORDS_S = 1.0           # a stopped node's goal end, sent before rospy shuts down (node.py's grace: 2 s)
 COLLISION_PERIOD_S = 0.04    # between two self-collision checks of the servo (25 Hz; MoveIt Servo checks at 50 Hz)
+# An arm's gate's inputs, highest first: a trajectory goal takes the arm from a servo stream (as MoveIt's
+# trajectory execution and Servo: one at a time), and a stream is refused while a goal runs.
+ARM_INPUTS = (Input('trajectory', 20), Input('servo', 10, SERVO_TIMEOUT_S))
+
+
+@dataclass(frozen=True)
+class ServoPoint:
+    """One servo step for the controller's servo input."""
+    positions: Sequence[float]
+    velocities: Sequence[float]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A trajectory goal for the controller's action, and the goal handle it runs for."""
+    goal: FollowJointTrajectoryGoal
+    handle: object
+    duration: float
 
 
 class ManipulatorNode:
@@ -91,9 +114,10 @@ class ManipulatorNode:
         self._new_target = False
         self._hold_now = ''                      # a streamer's hold, for the loop to send: the reason
         self._halted_at = rospy.Time(0)          # the operator's last stop: a target stamped before it is dropped
+        self._said = None
         self.clocks = clocks.for_this_node()     # a station's stamps on this host's clock
         self._checked_at = 0.0                         # the servo's last self-collision check
-        self._streaming = False                        # servo commands are being sent
+        self._moved_by: Optional[str] = None           # what the last command sent moves: 'servo', 'trajectory'
         self._controller_seen = False                  # connected to the controller's status once
         self.q: Optional[List[float]] = None
         self.q_at = 0.0
@@ -112,6 +136,9 @@ class ManipulatorNode:
         self.controller = TrackingActionClient(self.arm.action, FollowJointTrajectoryAction)
         self.pub_servo = rospy.Publisher(self.arm.servo_topic, JointTrajectory, queue_size=5, tcp_nodelay=True)
         self.pub_status = rospy.Publisher('%s/servo_status' % name, String, queue_size=5, latch=True)
+        self.pub_motion = rospy.Publisher('%s/motion_status' % name, MotionStatus, queue_size=10, latch=True)
+        # the only writer of the arm's commands (the controller's servo input and its trajectory action)
+        self.gate = CommandGate(name, ARM_INPUTS, [], self._write, None, self._report)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_hold' % name, String, self._on_servo_hold, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
@@ -129,7 +156,6 @@ class ManipulatorNode:
                                              auto_start=False)
         self.holders = GoalHolders('manipulator', self._owner, self.server)
         self.server.start()
-        self._said = None
         rospy.loginfo('manipulator: %s of %s, goals on %s, servo targets on %s', name, robot.name,
                       rospy.resolve_name('%s/move_arm' % name), rospy.resolve_name('%s/servo_target' % name))
 
@@ -205,11 +231,15 @@ class ManipulatorNode:
         with self.lock:
             halted, self.active = self.active, None
             self.target = None
-            self._hold_now = 'halted: %s' % reason
+            why = 'halted: %s' % reason
+            streaming = self.gate.owner == 'servo'
+            self.gate.stop(StopReason(StopCode.HALTED, why), time.monotonic())   # now: the loop says the rest
+            if streaming:
+                self._stopping, self._stop_sent_at = why, time.monotonic()
+            self._hold_now = why
             self._new_target = True
             self.wake.notify()
         if halted is not None:
-            self.controller.cancel_goal()
             text = 'halted: %s; the arm holds' % reason
             halted.set_aborted(self._result(MoveArmResult.PREEMPTED, text), text)
         rospy.logwarn('manipulator: halted (%s)', reason)
@@ -224,6 +254,7 @@ class ManipulatorNode:
 
     # -- goals -------------------------------------------------------------------------------------------------
     def _on_goal(self, handle) -> None:
+        now = time.monotonic()
         goal = handle.get_goal()
         with self.lock:
             q = list(self.q) if self.q is not None and time.monotonic() - self.q_at < 1.0 else None
@@ -255,16 +286,25 @@ class ManipulatorNode:
             trajectory.trajectory.points.append(point)
         goal_id = handle.get_goal_id().id
         with self.lock:
-            previous, self.active, self.active_id = self.active, handle, goal_id
-            self.holders.new_goal()
-            self.target = None                   # a trajectory takes the arm from the servo stream
-            self._streaming = False
+            try:
+                # sent to the controller by the gate: a trajectory takes the arm from the servo stream
+                self.gate.offer('trajectory', Trajectory(trajectory, handle, points[-1][0]), now,
+                                why='moving to the goal')
+            except command_gate.Refused as err:            # the operator's stop came while it was planned
+                refused = str(err)
+            else:
+                refused = None
+                previous, self.active, self.active_id = self.active, handle, goal_id
+                self.holders.new_goal()
+                self.target = None
+        if refused is not None:
+            rospy.logwarn('manipulator: goal %s refused: %s', goal_id, refused)
+            handle.set_rejected(self._result(INVALID_GOAL, 'goal_id.stamp: ' + refused), refused)
+            return
         if previous is not None:
             previous.set_canceled(self._result(MoveArmResult.PREEMPTED), 'preempted by goal %s'
                                   % handle.get_goal_id().id)
         handle.set_accepted('moving %s: %.1f s' % (self.arm.name, points[-1][0]))
-        self.controller.send_goal(trajectory, done_cb=lambda state, result: self._done(handle, state, result),
-                                  feedback_cb=lambda fb: self._feedback(handle, fb, points[-1][0]))
         rospy.loginfo('manipulator: goal %s: %d points over %.2f s sent to the controller%s', handle.get_goal_id().id,
                       len(points), points[-1][0], ' (preempting %s)' % previous.get_goal_id().id if previous else '')
 
@@ -274,21 +314,27 @@ class ManipulatorNode:
             if self.active is None or self.active_id != goal_id:
                 return
             self.active = None
-        self.controller.cancel_goal()            # the controller holds the arm where it is
+            # the controller holds the arm where it is
+            self.gate.release('trajectory', StopReason(StopCode.ENDED, 'canceled: the arm holds where it is'))
         handle.set_canceled(self._result(MoveArmResult.PREEMPTED), 'canceled: the arm holds where it is')
 
     def _done(self, handle, state: int, result) -> None:
         rospy.loginfo('manipulator: goal %s: the controller ended it (status %d)', handle.get_goal_id().id, state)
+        if state == GoalStatus.SUCCEEDED:
+            text = 'there'
+        else:
+            why = (result.error_string if result is not None else '') or self.controller.get_goal_status_text() \
+                or 'status %d' % state
+            text = 'the arm\'s controller ended the motion: %s' % why
         with self.lock:
             if self.active is not handle:
                 return                           # preempted, canceled or orphaned already
             self.active = None
+            self._moved_by = None                # the controller ended it: nothing to cancel
+            self.gate.release('trajectory', StopReason(StopCode.ENDED, text))
         if state == GoalStatus.SUCCEEDED:
-            handle.set_succeeded(self._result(MoveArmResult.SUCCESS), 'there')
+            handle.set_succeeded(self._result(MoveArmResult.SUCCESS), text)
             return
-        why = (result.error_string if result is not None else '') or self.controller.get_goal_status_text() \
-            or 'status %d' % state
-        text = 'the arm\'s controller ended the motion: %s' % why
         handle.set_aborted(self._result(MoveArmResult.CONTROLLER_FAILED, text), text)
 
     def _feedback(self, handle, fb, duration: float) -> None:
@@ -310,7 +356,7 @@ class ManipulatorNode:
         while not stop_requested() and ok():
             with self.wake:
                 wake_at = next_at
-                if self._streaming:               # the stream's silence is acted on at its moment, not a tick later
+                if self.gate.owner == 'servo':    # the stream's silence is acted on at its moment, not a tick later
                     wake_at = min(wake_at, self.target_at + SERVO_TIMEOUT_S + 0.0005)
                 delay = wake_at - time.monotonic()
                 if delay > 0 and not self._new_target:
@@ -331,11 +377,12 @@ class ManipulatorNode:
         goal's client would hear nothing (as a navigator's did: CI at dda811a)."""
         with self.lock:
             handle, goal_id, self.active = self.active, self.active_id, None
-        if self._streaming:
-            self._hold('the manipulator was stopped')
+            streaming = self.gate.owner == 'servo'
+            self.gate.stop(StopReason(StopCode.HOLDER_GONE, 'the manipulator was stopped'), time.monotonic())
+            if streaming:
+                self._say('stopping: the manipulator was stopped')
         if handle is None:
             return
-        self.controller.cancel_goal()
         why = self.holders.gone(goal_id) or 'the manipulator was stopped'
         rospy.logwarn('manipulator: goal %s: %s: the arm holds', goal_id, why)
         handle.set_aborted(self._result(MoveArmResult.PREEMPTED, why), '%s: the arm holds' % why)
@@ -349,59 +396,94 @@ class ManipulatorNode:
             if self.active is not None:
                 self._stopping = ''
                 return
+            lapsed = self.gate.enforce(now)               # the gate's own deadman, behind the target's below
+            if lapsed is not None:
+                self._stopping, self._stop_sent_at = lapsed.text, time.monotonic()
+                self._say('stopping: %s' % lapsed.text)
+            streaming = self.gate.owner == 'servo'
             target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
             stopped = self._stopping and self._still_at > self._stop_sent_at
-        if told:
-            if self._streaming:
-                self._hold(told)
-            elif self._stopping and not stopped:      # a hold on its way: said, once it took, for this reason
-                self._stopping = told
-                self._say('stopping: %s' % told)
-            else:                                     # an arm the stream does not move is left alone
-                self._stopping = ''
-                self._say('holding: %s' % told)
-            self._streaming = False
-            return
-        away = self.holders.owner_away() if target is not None else None
-        if target is None or q is None or away is not None:
-            if self._streaming:
-                # the stream fell silent, the arm's state did, or the manager went: hold now, not one more
-                # deadman later (a hold needs no state: the motors brake where the joints are)
-                self._streaming = False
-                if target is None:
-                    why = 'no target for %.1f s' % SERVO_TIMEOUT_S
-                else:
-                    why = away or 'no joint states for %.1f s' % STATE_TIMEOUT_S
-                self._hold(why)
-            elif stopped:
-                self._say('holding: %s' % self._stopping)
-                self._stopping = ''
-            return
-        self._streaming = True
-        self._stopping = ''
+            if told:
+                if streaming:
+                    self._hold(StopReason(StopCode.ENDED, told))
+                elif self._stopping and not stopped:      # a hold on its way: said, once it took, for this reason
+                    self._stopping = told
+                    self._say('stopping: %s' % told)
+                else:                                     # an arm the stream does not move is left alone
+                    self._stopping = ''
+                    self._say('holding: %s' % told)
+                return
+            away = self.holders.owner_away() if target is not None else None
+            if target is None or q is None or away is not None:
+                if streaming:
+                    # the stream fell silent, the arm's state did, or the manager went: hold now, not one more
+                    # deadman later (a hold needs no state: the motors brake where the joints are)
+                    if target is None:
+                        self._hold(StopReason(StopCode.DEADMAN, 'no target for %.1f s' % SERVO_TIMEOUT_S))
+                    elif away is not None:
+                        self._hold(StopReason(StopCode.HOLDER_GONE, away))
+                    else:
+                        self._hold(StopReason(StopCode.STATE_STALE, 'no joint states for %.1f s' % STATE_TIMEOUT_S))
+                elif stopped:
+                    self._say('holding: %s' % self._stopping)
+                    self._stopping = ''
+                return
+            self._stopping = ''
         check = now - self._checked_at >= COLLISION_PERIOD_S
         if check:
             self._checked_at = now
         self.servo.body_distance = self._body_distance if check else None
-        step = self.servo.step(q, target)
-        self._say(step.why)
-        self._send(step.positions, step.velocities)
+        step = self.servo.step(q, target)                 # outside the lock: the IK takes its time
+        with self.lock:
+            try:
+                self.gate.offer('servo', ServoPoint(step.positions, step.velocities), now,
+                                why=step.why or 'following the servo target')
+            except command_gate.Refused:
+                return          # a stop, a hold or a trajectory came while the step was computed: not sent
+            self._say(step.why)
 
-    def _send(self, positions, velocities) -> None:
+    def _write(self, command) -> None:
+        """The gate's writer: nothing else commands the arm. ``None`` is the gate's zero: a hold of what moves it
+        (a trajectory cancelled: the controller holds; a servo stream: zero velocities, no positions, the motors
+        brake where the joints are). A hold at the positions last seen would pull the arm back to them: seen up to
+        ``STATE_TIMEOUT_S`` ago, of an arm still moving, or already given back to the sim's sweep (seed 17, steps
+        1263 and 1509). An arm nothing here moves is left alone (its own sweep goes on)."""
+        if isinstance(command, Trajectory):
+            handle, duration = command.handle, command.duration
+            self.controller.send_goal(command.goal, done_cb=lambda state, result: self._done(handle, state, result),
+                                      feedback_cb=lambda fb: self._feedback(handle, fb, duration))
+            self._moved_by = 'trajectory'
+            return
+        if isinstance(command, ServoPoint):
+            self._publish(command.positions, command.velocities)
+            self._moved_by = 'servo'
+            return
+        if self._moved_by == 'trajectory':
+            self.controller.cancel_goal()
+        elif self._moved_by == 'servo':
+            self._publish([], [0.0] * len(self.arm.joints))
+        self._moved_by = None
+
+    def _publish(self, positions, velocities) -> None:
         point = JointTrajectoryPoint(positions=list(positions), velocities=list(velocities))
         msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
         msg.header.stamp = rospy.Time.now()
         self.pub_servo.publish(msg)
 
-    def _hold(self, why: str) -> None:
-        """Brake where the joints are: no positions, every velocity zero (the controller's hold). A hold at the
-        positions last seen would pull the arm back to them: seen up to ``STATE_TIMEOUT_S`` ago, of an arm
-        still moving, or already given back to the sim's sweep (seed 17, steps 1263 and 1509). "holding" is
-        said by the loop once the arm is seen at rest after it."""
-        self._send([], [0.0] * len(self.arm.joints))
-        self._stopping, self._stop_sent_at = why, time.monotonic()
-        self._say('stopping: %s' % why)
+    def _hold(self, reason: StopReason) -> None:
+        """The stream's hold, through the gate (with the lock). "holding" is said by the loop once the arm is seen
+        at rest after it."""
+        self.gate.release('servo', reason)
+        self._stopping, self._stop_sent_at = reason.text, time.monotonic()
+        self._say('stopping: %s' % reason.text)
+
+    def _report(self, status: command_gate.Status) -> None:
+        """``<arm>/motion_status``: the gate says when the arm's state or its reason changes."""
+        msg = MotionStatus(actuator=self.arm.name, state=int(status.state),
+                           reason=status.reason.value if status.reason else '', text=status.text)
+        msg.header.stamp = rospy.Time.now()
+        self.pub_motion.publish(msg)
 
     def _watch_goal(self) -> None:
         """End the running goal at once when its holder or its controller is gone; the arm holds."""
@@ -416,9 +498,11 @@ class ManipulatorNode:
                     code, gone = MoveArmResult.CONTROLLER_FAILED, 'the arm\'s controller is gone'
             if gone is not None:
                 self.active = None
+                self.gate.release('trajectory', StopReason(
+                    StopCode.CONTROLLER_GONE if code == MoveArmResult.CONTROLLER_FAILED else StopCode.HOLDER_GONE,
+                    '%s: the arm holds' % gone))
         if gone is None:
             return
-        self.controller.cancel_goal()
         rospy.logwarn('manipulator: goal %s: %s: the arm holds', handle.get_goal_id().id, gone)
         handle.set_aborted(self._result(code, gone), '%s: the arm holds' % gone)
 

@@ -338,8 +338,12 @@ class NavigatorNode:
                                   % ((halted - stamp) * 1e3))
                 goal = self._checked(target)
                 self.nav.start(goal, now)
-                # the goal has the base from now: a stream is refused, and stopped if it drove
-                self.gate.offer('goal', (0.0, 0.0), now, moving=False, why='driving to the goal')
+                try:
+                    # the goal has the base from now: a stream is refused, and stopped if it drove
+                    self.gate.offer('goal', (0.0, 0.0), now, moving=False, why='driving to the goal')
+                except command_gate.Refused as err:        # the operator's stop came while it was checked
+                    self.nav.cancel()
+                    raise BadGoal('goal_id', str(err)) from None
                 previous, self.active, self.active_id = self.active, handle, goal_id
                 self.holders.new_goal()
                 path = self.nav.path
@@ -370,7 +374,7 @@ class NavigatorNode:
         """The operator's "stop" (``temoto_core/halt.py``): zero now, whoever drives; the goal ends ABORTED."""
         reason = reason_of(msg)
         with self.lock:
-            self.gate.stop(StopReason(StopCode.HALTED, 'halted: %s' % reason))
+            self.gate.stop(StopReason(StopCode.HALTED, 'halted: %s' % reason), time.monotonic())
             self._halted_at = rospy.get_time()
             self.teleop.halt(self._halted_at)
             self._say_teleop('halted: %s' % reason)
@@ -542,7 +546,8 @@ class NavigatorNode:
                 self.teleop.halt(rospy.get_time())
                 self._say_teleop('stopped: %s' % lost)
             # said in the goal's words when a goal ends by it
-            self.gate.stop(StopReason(lost.code, tick.ending.text if tick is not None else lost.text, lost.final))
+            self.gate.stop(StopReason(lost.code, tick.ending.text if tick is not None else lost.text, lost.final),
+                           time.monotonic())
         rospy.logerr('navigator: %s%s', lost, ': goal %s aborted' % handle.get_goal_id().id if handle else '')
         if handle is not None:
             self._end(handle, tick)
@@ -556,7 +561,7 @@ class NavigatorNode:
             handle, goal_id, self.active = self.active, self.active_id, None
             if handle is not None:
                 self.nav.cancel()
-            self.gate.stop(StopReason(StopCode.HOLDER_GONE, 'the navigator was stopped'))
+            self.gate.stop(StopReason(StopCode.HOLDER_GONE, 'the navigator was stopped'), time.monotonic())
         if handle is None or handle.get_goal_status().status not in (GoalStatus.ACTIVE, GoalStatus.PREEMPTING):
             return
         why = self.holders.gone(goal_id) or 'the navigator was stopped'

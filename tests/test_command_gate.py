@@ -73,11 +73,21 @@ def test_a_goal_comes_before_a_stream_and_takes_the_base_from_it():
 def test_a_stop_zeroes_whoever_commands_and_ends_every_input():
     gate, sent, said = gate_with()
     gate.offer('teleop', 0.3, 0.0)
-    gate.stop(StopReason(StopCode.HALTED, 'halted: operator'))
+    gate.stop(StopReason(StopCode.HALTED, 'halted: operator'), 0.05)
     assert sent[-1] == 0.0 and gate.owner is None and gate.deadline() is None
     assert (said[-1].state, said[-1].reason) == (State.STOPPED, StopCode.HALTED)
-    gate.stop(StopReason(StopCode.HALTED, 'halted: again'))
+    gate.stop(StopReason(StopCode.HALTED, 'halted: again'), 0.06)
     assert sent[-2:] == [0.0, 0.0], 'a stop sends zero whatever was sent before'
+
+
+def test_a_command_decided_before_a_stop_is_refused_after_it():
+    gate, sent, said = gate_with()
+    gate.offer('teleop', 0.3, 0.0)
+    gate.stop(StopReason(StopCode.HALTED, 'halted'), 0.05)
+    with pytest.raises(Refused, match='decided 1 ms before the base was stopped'):
+        gate.offer('goal', 0.4, 0.049)                   # a goal planned while the stop came
+    assert sent[-1] == 0.0 and gate.owner is None
+    assert gate.offer('goal', 0.4, 0.051).state is State.MOVING, 'a command decided after the stop passes'
 
 
 def test_the_input_s_own_hold_is_said_and_a_refusal_is_said_only_when_nobody_moves_it():

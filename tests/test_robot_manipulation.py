@@ -262,8 +262,10 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
     <arm>/servo_hold rather than falling silent for the stream's timeout; the status names its reason:
     "stopping" as the hold is sent, "holding" only once the arm is at rest (a streamer hands the arm on when
     it hears it: chaos, seed 17, step 2157)."""
+    from temoto_core.msg import MotionStatus
     joints, states = truth
     status = collect('/left_arm/servo_status', String)
+    typed = collect('/left_arm/motion_status', MotionStatus)
     hold = rospy.Publisher('/left_arm/servo_hold', String, queue_size=1)
     wait_for(lambda: hold.get_num_connections() > 0, HANG, 'the manipulator to subscribe to holds')
     stop = threading.Event()
@@ -278,6 +280,10 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
     hold.publish(String('no hand sample for 25 ms'))
     wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm' and m.header.stamp.to_sec() > told
                            and m.commanded_speed == 0.0), None), HANG, 'the left arm commanded to hold')
+    stopped = wait_for(lambda: next((m for m in typed.msgs if m.state == MotionStatus.STOPPED
+                                     and m.text == 'no hand sample for 25 ms'), None), HANG, 'the typed status')
+    assert (stopped.actuator, stopped.reason) == ('left_arm', 'ended'), stopped
+    assert any(m.state == MotionStatus.MOVING for m in typed.msgs[:typed.msgs.index(stopped)]), typed.msgs
     said = wait_for(lambda: next((k for k, m in enumerate(status.msgs)
                                   if m.data == 'holding: no hand sample for 25 ms'), None), HANG,
                     'the status to name the streamer\'s reason, not the stream\'s timeout')
@@ -291,6 +297,34 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
               and m.speed >= REST_RAD_S]
     assert not moving, 'the arm still moved after the manipulator said it held: %s rad/s' % moving
     hold.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
+def test_stop_mid_trajectory_holds_the_arm_and_says_why_typed(arm, truth, collect):
+    """The operator's stop while a trajectory runs: the arm's gate cancels it at once (the controller holds), the
+    goal ends ABORTED naming the stop, and ``<arm>/motion_status`` says STOPPED with the code ``halted``."""
+    from temoto_core.msg import MotionStatus
+    joints, states = truth
+    typed = collect('/left_arm/motion_status', MotionStatus)
+    halt = rospy.Publisher('/temoto/halt', String, queue_size=5, tcp_nodelay=True)
+    wait_for(lambda: halt.get_num_connections() > 0, HANG, 'the manipulator listening for a stop')
+    far = [q + (0.6 if k == 0 else 0.0) for k, q in enumerate(settled(joints))]
+    arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
+    wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0), None),
+             HANG, 'the left arm moving')
+    wait_for(lambda: typed.last() is not None and typed.last().state == MotionStatus.MOVING, HANG, 'said moving')
+    halted = rospy.Time.now().to_sec()
+    halt.publish(String('test stop'))
+    assert arm.wait_for_result(rospy.Duration(HANG)), 'the goal never ended'
+    assert arm.get_state() == GoalStatus.ABORTED and 'halted: test stop' in arm.get_goal_status_text()
+    said = wait_for(lambda: typed.last() if typed.last().state == MotionStatus.STOPPED else None, HANG, 'stopped')
+    assert (said.actuator, said.reason, said.text) == ('left_arm', 'halted', 'halted: test stop'), said
+    rest = wait_for(lambda: next((m for m in states.msgs[-30:] if m.arm == 'left_arm'
+                                  and m.header.stamp.to_sec() > halted and m.speed == 0.0), None), HANG, 'at rest')
+    assert abs(here(joints)[0] - far[0]) > 0.05, 'the arm stopped on its way, not at the goal'
+    assert rest.header.stamp.to_sec() - halted < 5.0
+    halt.unregister()
     state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
     assert state == GoalStatus.SUCCEEDED, text
 
