@@ -1,7 +1,8 @@
 """`temoto robots ...`: the robots the Robot Manager serves, and the files that describe them.
 
     temoto robots [--ns NS]              the running manager's robots: features, reliability, what is loaded
-    temoto robots check FILE [FILE...]   validate description files offline (problems with file:line)
+    temoto robots check FILE [FILE...] [--map MAP.yaml]   validate description files offline (problems with
+                                         file:line); with a map (map_server's YAML), each named place too
     temoto robots go PLACE | X Y YAW     load a robot's navigation, drive it there, release it
                                          (Ctrl-C cancels the goal: the robot stops)
     temoto robots gripper open | close | GAP   load a robot's gripper, open, close or set the gap
@@ -27,12 +28,14 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from std_msgs.msg import Float32
 
 from temoto_core.action_client import TrackingActionClient
+from temoto_core import map_file
 from temoto_core.errors import TemotoError
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
 from temoto_robot_manager.contract import ROBOTS, RR_NAME
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_robot_manager.place_check import places_off_map
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal
 
 TIMEOUT = 5.0
@@ -45,6 +48,8 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser('list', help='the running manager\'s robots (the default)')
     c = sub.add_parser('check', help='validate robot description files without ROS')
     c.add_argument('files', nargs='+')
+    c.add_argument('--map', default='', help='a map (map_server\'s YAML and image): every named place is checked '
+                   'against it, as the navigator checks a goal')
     g = sub.add_parser('go', help='drive a robot to a named place or to X Y YAW (m, m, rad) in --frame')
     g.add_argument('target', nargs='+', help='a place of the robot\'s description, or X Y YAW')
     g.add_argument('--robot', default='', help='the robot (default: the most reliable one with navigation)')
@@ -68,11 +73,20 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _check(files: List[str]) -> int:
+def _check(files: List[str], map_path: str = '') -> int:
+    grid = None
+    if map_path:
+        try:
+            grid = map_file.read(map_path)
+        except map_file.MapError as err:
+            print('error %s' % err)
+            return 1
     failed = False
     for path in files:
         robots, problems = load_file(path)
-        for robot in robots:
+        off_map = {r.name: places_off_map(r.navigation, grid) for r in robots if grid is not None and r.navigation}
+        problems = list(problems) + [p for found in off_map.values() for p in found]
+        for robot in (r for r in robots if not off_map.get(r.name)):
             arms = ', '.join('%s (%d joints, poses: %s)' % (a.name, len(a.joints), ', '.join(a.named_poses) or 'none')
                              for a in robot.manipulation.values())
             print('ok    %s: %s, reliability %.2f; %s' % (robot.source, robot.name, robot.reliability, '; '.join(
@@ -82,6 +96,9 @@ def _check(files: List[str]) -> int:
                               'gripper on %s' % robot.gripper.arm if robot.gripper else '']))))
         for problem in problems:
             print('error %s' % problem)
+        if grid is not None:
+            print('      %d places checked against %s' % (sum(len(r.navigation.places) for r in robots
+                                                           if r.navigation), map_path))
         failed = failed or bool(problems)
     return 1 if failed else 0
 
@@ -323,7 +340,7 @@ def _arm(opts) -> int:
 def main(argv: List[str]) -> int:
     opts = _parser().parse_args(argv)
     if opts.cmd == 'check':
-        return _check(opts.files)
+        return _check(opts.files, opts.map)
     if opts.cmd == 'go':
         return _go(opts)
     if opts.cmd == 'gripper':

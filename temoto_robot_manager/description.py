@@ -25,6 +25,14 @@ One file holds a list under ``robots``::
                                              # (or [length, width], centred): the costmap's and the monitor's
           arm_inset: 0.04                    # m the arms' axes stay inside the footprint while the base drives (the
                                              # links' thickness); an arm out holds the base (optional, default 0.04)
+          max_speed: 0.8                     # m/s and rad/s the navigator commands at most, a goal's or a stream's
+          max_turn: 1.2                      # (optional, defaults 0.8 and 1.2)
+          stop_margin: 0.05                  # m around the outline the collision monitor keeps clear: a command
+          slow_margin: 0.20                  # that would enter it is zero, one entering the slow margin slowed
+          braking: 2.0                       # m/s^2 the base brakes at: how far ahead the monitor looks
+          stale_periods: 3                   # an obstacle source silent this many of its periods: zero
+          teleop_timeout: 0.1                # s a teleop stream's command lasts (its deadman)
+          teleop_max_age: 0.1                # s old a teleop command may be on arrival; older: refused
           obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
             - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data,
                package: vaultbot_sim, executable: sick_driver}     # optional: that device, not the best of the type
@@ -36,6 +44,7 @@ One file holds a list under ``robots``::
             manipulator: {package: temoto_robot_manager, executable: manipulator}   # goals and servoing
             action: left_arm/follow_joint_trajectory
             servo_topic: left_arm/servo_command
+            servo_timeout: 0.1               # s: a servo target this old is not followed; the arm holds (optional)
             joints: [left_shoulder_pan_joint, ...]
             base_frame: left_base_link
             tool_frame: left_tool0
@@ -68,10 +77,12 @@ FEATURES = ('navigation', 'manipulation', 'gripper')
 _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_rate', 'odom_patience', 'odom_frame',
-                    'base_frame', 'footprint', 'protrusions', 'arm_inset',
+                    'base_frame', 'footprint', 'protrusions', 'arm_inset', 'max_speed', 'max_turn', 'stop_margin',
+                    'slow_margin', 'braking', 'stale_periods', 'teleop_timeout', 'teleop_max_age',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
-_ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'joints', 'base_frame', 'tool_frame', 'named_poses'}
+_ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'servo_timeout', 'joints', 'base_frame', 'tool_frame',
+             'named_poses'}
 _GRIPPER_KEYS = {'controller', 'action', 'arm', 'positions'}
 
 
@@ -127,6 +138,16 @@ class Navigation:
     odom_rate: float = 50.0               # Hz: the odometry is stale after 3 of its periods (``guards.OdometryFresh``)
     odom_patience: float = 0.5            # s of stale odometry before a goal is aborted
     arm_inset: float = 0.04               # m the arms' axes stay inside the footprint while the base drives
+    place_sources: Dict[str, str] = field(default_factory=dict)    # each place's file:line, for what is said of it
+    # the safety numbers (docs/robots.md, "Safety numbers"); the defaults are the VaultBot's
+    max_speed: float = 0.8                # m/s a command may ask at most
+    max_turn: float = 1.2                 # rad/s
+    stop_margin: float = 0.05             # m around the outline: a command that would enter it is zero
+    slow_margin: float = 0.20             # m: one entering it is slowed
+    braking: float = 2.0                  # m/s^2 the base brakes at
+    stale_periods: int = 3                # periods of an obstacle source's without a frame: stale
+    teleop_timeout: float = 0.1           # s a teleop command lasts
+    teleop_max_age: float = 0.1           # s old a teleop command may arrive
 
 
 @dataclass(frozen=True)
@@ -140,6 +161,7 @@ class Arm:
     tool_frame: str
     named_poses: Dict[str, Tuple[float, ...]]
     manipulator: Optional[Part] = None      # the node that serves the arm's goals and servoing (manipulator_node)
+    servo_timeout: float = 0.1              # s: a servo target this old is not followed (MoveIt Servo's)
 
 
 @dataclass(frozen=True)
@@ -223,6 +245,14 @@ class _Reader:
                              % (self.label(where), above, maximum, value))
         return float(value)
 
+    def count(self, parent: dict, key: str, at: Sequence, default: int, least: int, most: int) -> int:
+        """``parent[key]``, a whole number from ``least`` to ``most``, or ``default`` when it is not given."""
+        value, where = parent.get(key, default), list(at) + [key]
+        if isinstance(value, bool) or not isinstance(value, int) or not least <= value <= most:
+            raise self.error(where, '%s must be a whole number from %d to %d, got %r'
+                             % (self.label(where), least, most, value))
+        return value
+
     def numbers(self, value: Any, at: Sequence, count: int, what: str) -> Tuple[float, ...]:
         if not isinstance(value, list) or len(value) != count or \
                 not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
@@ -258,8 +288,10 @@ class _Reader:
         if not isinstance(places_raw, dict):
             raise self.error(list(at) + ['places'], '%s.places must be a mapping of names to [x, y, yaw]'
                              % self.label(at))
+        place_sources = {}
         for place, pose in places_raw.items():
             places[str(place)] = self.numbers(pose, list(at) + ['places', place], 3, '[x, y, yaw]')
+            place_sources[str(place)] = '%s:%d' % (self.path, self.lines.of(tuple(at) + ('places', place)))
         fp_at, fp_raw = list(at) + ['footprint'], raw.get('footprint', [0.99, 0.67])
         if isinstance(fp_raw, list) and len(fp_raw) == 4:
             footprint = self.numbers(fp_raw, fp_at, 4, '[x_min, x_max, y_min, y_max]')
@@ -280,6 +312,11 @@ class _Reader:
                 raise self.error(pr_at + [k], '%s.protrusions[%d]: each min must be below its max'
                                  % (self.label(at), k))
             protrusions.append(box)
+        stop = self.number(raw, 'stop_margin', at, 0.05, above=0.0, maximum=1.0)
+        slow = self.number(raw, 'slow_margin', at, 0.20, above=0.0, maximum=3.0)
+        if slow < stop:
+            raise self.error(list(at) + ['slow_margin'], '%s.slow_margin %.2f must be at least its stop_margin %.2f'
+                             % (self.label(at), slow, stop))
         return Navigation(
             self.part(raw['driver'], list(at) + ['driver']),
             self.part(raw['controller'], list(at) + ['controller']) if 'controller' in raw else None,
@@ -289,7 +326,14 @@ class _Reader:
             footprint, tuple(ranked), places, tuple(protrusions),
             self.number(raw, 'odom_rate', at, 50.0, above=0.0, maximum=1000.0),
             self.number(raw, 'odom_patience', at, 0.5, above=0.0, maximum=10.0),
-            self.number(raw, 'arm_inset', at, 0.04, above=-1e-9, maximum=1.0))
+            self.number(raw, 'arm_inset', at, 0.04, above=-1e-9, maximum=1.0), place_sources,
+            self.number(raw, 'max_speed', at, 0.8, above=0.0, maximum=5.0),
+            self.number(raw, 'max_turn', at, 1.2, above=0.0, maximum=10.0),
+            stop, slow,
+            self.number(raw, 'braking', at, 2.0, above=0.0, maximum=20.0),
+            self.count(raw, 'stale_periods', at, 3, 1, 20),
+            self.number(raw, 'teleop_timeout', at, 0.1, above=0.0, maximum=2.0),
+            self.number(raw, 'teleop_max_age', at, 0.1, above=0.0, maximum=2.0))
 
     def arm(self, name: str, value: Any, at: Sequence) -> Arm:
         raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))
@@ -310,7 +354,8 @@ class _Reader:
                    self.text(raw, 'servo_topic', at, default='%s/servo_command' % name, name=True),
                    tuple(joints), self.text(raw, 'base_frame', at, default='base_link'),
                    self.text(raw, 'tool_frame', at), poses,
-                   self.part(raw['manipulator'], list(at) + ['manipulator']) if 'manipulator' in raw else None)
+                   self.part(raw['manipulator'], list(at) + ['manipulator']) if 'manipulator' in raw else None,
+                   self.number(raw, 'servo_timeout', at, 0.1, above=0.0, maximum=2.0))
 
     def robot(self, value: Any, at: Sequence) -> RobotDescription:
         raw = self.mapping(value, at, _ROBOT_KEYS, ('name',))

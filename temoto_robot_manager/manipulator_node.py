@@ -8,11 +8,10 @@
   on (an abort says the controller's reason). A new goal preempts; a cancel holds the arm where it is;
 - ``<arm>/servo_target`` (``geometry_msgs/PoseStamped``, a stream): the tool follows it (``servo.py``),
   sent to the controller's servo input as each target arrives (its latency is one step's computation),
-  and at ``~servo_rate`` between targets. When the newest target is older than ``SERVO_TIMEOUT_S`` (or
-  the arm's joint states are) the node sends one hold (zero velocities, no positions: the motors brake
-  where the joints are) and falls silent; the controller's own deadman (0.1 s) would hold the arm too,
-  one timeout later. A
-  trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
+  and at ``~servo_rate`` between targets. When the newest target is older than the arm's ``servo_timeout``
+  (the description's; 0.1 s, MoveIt Servo's), or the arm's joint states are, the node sends one hold (zero
+  velocities, no positions: the motors brake where the joints are) and falls silent; the controller's own
+  deadman (0.1 s) would hold the arm too, one timeout later. A trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
   ``<arm>/servo_status`` (``std_msgs/String``) when it changes. A hold is said twice: ``stopping: <why>``
   as it is sent, and ``holding: <why>`` once a joint state taken after it shows the arm at rest (every joint
   under ``REST_RAD_S``): a starved controller passes a hold on late, and a streamer that hands the arm on
@@ -34,7 +33,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import actionlib
 import numpy as np
@@ -65,14 +64,16 @@ from temoto_robot_manager.obstacle_points import matrix_of_pose
 from temoto_robot_manager.self_collision import SelfCollision
 from temoto_robot_manager.servo import Servo
 
-SERVO_TIMEOUT_S = 0.1        # a target this old is not followed (MoveIt Servo's incoming_command_timeout)
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
 REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)
 LAST_WORDS_S = 1.0           # a stopped node's goal end, sent before rospy shuts down (node.py's grace: 2 s)
 COLLISION_PERIOD_S = 0.04    # between two self-collision checks of the servo (25 Hz; MoveIt Servo checks at 50 Hz)
-# An arm's gate's inputs, highest first: a trajectory goal takes the arm from a servo stream (as MoveIt's
-# trajectory execution and Servo: one at a time), and a stream is refused while a goal runs.
-ARM_INPUTS = (Input('trajectory', 20), Input('servo', 10, SERVO_TIMEOUT_S))
+
+
+def arm_inputs(servo_timeout: float) -> Tuple[Input, Input]:
+    """An arm's gate's inputs, highest first: a trajectory goal takes the arm from a servo stream (as MoveIt's
+    trajectory execution and Servo: one at a time), and a stream is refused while a goal runs."""
+    return Input('trajectory', 20), Input('servo', 10, servo_timeout)
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,7 @@ class ManipulatorNode:
         self.body = SelfCollision(urdf, self.arm.joints, reference)
         self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches)
         self.servo_rate = params.number('servo_rate', 125.0, above=0, maximum=500)
+        self.servo_timeout = self.arm.servo_timeout       # a target this old is not followed (the description's)
         self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick
@@ -138,7 +140,7 @@ class ManipulatorNode:
         self.pub_status = rospy.Publisher('%s/servo_status' % name, String, queue_size=5, latch=True)
         self.pub_motion = rospy.Publisher('%s/motion_status' % name, MotionStatus, queue_size=10, latch=True)
         # the only writer of the arm's commands (the controller's servo input and its trajectory action)
-        self.gate = CommandGate(name, ARM_INPUTS, [], self._write, None, self._report)
+        self.gate = CommandGate(name, arm_inputs(self.servo_timeout), [], self._write, None, self._report)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_hold' % name, String, self._on_servo_hold, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
@@ -192,14 +194,16 @@ class ManipulatorNode:
         if not msg.header.stamp.is_zero():
             wall = rospy.get_time()
             stamp = self.clocks.observe(sender_of(msg), msg.header.stamp.to_sec(), wall)
-            if stamp <= self._halted_at.to_sec():
-                return                  # sent before the operator's stop, and overtaken by it
             # the stream's timeout counts from when the target was sent: over a link that was cut, TCP keeps a
             # stream's targets and delivers them seconds late, once the link is back; they are not followed
             age = max(0.0, wall - stamp)
-            if age > SERVO_TIMEOUT_S:
+            why = None
+            if age > self.servo_timeout:
                 why = 'refusing servo targets sent %.0f ms ago (more than the stream\'s %.0f ms)' % (
-                    1e3 * age, 1e3 * SERVO_TIMEOUT_S)
+                    1e3 * age, 1e3 * self.servo_timeout)
+            elif stamp <= self._halted_at.to_sec():
+                why = 'refusing servo targets sent before the operator\'s stop'   # overtaken by it
+            if why is not None:
                 rospy.logwarn_throttle(1.0, 'manipulator: %s', why)
                 with self.lock:
                     self.pub_status.publish(String(why))
@@ -357,7 +361,7 @@ class ManipulatorNode:
             with self.wake:
                 wake_at = next_at
                 if self.gate.owner == 'servo':    # the stream's silence is acted on at its moment, not a tick later
-                    wake_at = min(wake_at, self.target_at + SERVO_TIMEOUT_S + 0.0005)
+                    wake_at = min(wake_at, self.target_at + self.servo_timeout + 0.0005)
                 delay = wake_at - time.monotonic()
                 if delay > 0 and not self._new_target:
                     self.wake.wait(delay)
@@ -401,7 +405,7 @@ class ManipulatorNode:
                 self._stopping, self._stop_sent_at = lapsed.text, time.monotonic()
                 self._say('stopping: %s' % lapsed.text)
             streaming = self.gate.owner == 'servo'
-            target = self.target if now - self.target_at <= SERVO_TIMEOUT_S else None
+            target = self.target if now - self.target_at <= self.servo_timeout else None
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
             stopped = self._stopping and self._still_at > self._stop_sent_at
             if told:
@@ -420,7 +424,7 @@ class ManipulatorNode:
                     # the stream fell silent, the arm's state did, or the manager went: hold now, not one more
                     # deadman later (a hold needs no state: the motors brake where the joints are)
                     if target is None:
-                        self._hold(StopReason(StopCode.DEADMAN, 'no target for %.1f s' % SERVO_TIMEOUT_S))
+                        self._hold(StopReason(StopCode.DEADMAN, 'no target for %.1f s' % self.servo_timeout))
                     elif away is not None:
                         self._hold(StopReason(StopCode.HOLDER_GONE, away))
                     else:

@@ -29,11 +29,12 @@ from typing import Callable, Optional, Sequence, Tuple
 import numpy as np
 
 from temoto_robot_manager import global_planner
-from temoto_robot_manager.collision_monitor import CollisionMonitor, Verdict, Zone
+from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Verdict, Zone
 from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.description import Navigation
 from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.guards import OdometryFresh, StopCode, StopReason
-from temoto_robot_manager.path_follower import PathFollower, Phase, wrap
+from temoto_robot_manager.path_follower import FollowerLimits, PathFollower, Phase, wrap
 
 REPLAN_PERIOD_S = 1.0
 BLOCKED_PATIENCE_S = 10.0          # stopped by an obstacle this long: the goal is aborted, not held forever
@@ -393,3 +394,12 @@ class Navigator:
         else:
             self._enter(State.DRIVING, now)
         return Tick(verdict.linear, verdict.angular, self.state, self.remaining(), verdict=verdict)
+
+
+def described(navigation: Navigation, odometry: Optional[OdometryFresh] = None, guards: Sequence = ()) -> Navigator:
+    """A navigator with the outline and the safety numbers of a robot description's ``navigation``."""
+    footprint = Footprint.of(navigation.footprint, navigation.protrusions)
+    monitor = CollisionMonitor(footprint, MonitorSettings(stop_margin=navigation.stop_margin,
+                                                          slow_margin=navigation.slow_margin, decel=navigation.braking))
+    follower = PathFollower(FollowerLimits(max_speed=navigation.max_speed, max_turn=navigation.max_turn))
+    return Navigator(footprint, Freshness(periods=navigation.stale_periods), follower, monitor, odometry, guards)

@@ -76,13 +76,12 @@ from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.command_gate import CommandGate
 from temoto_robot_manager.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
-from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.global_planner import NoPath
 from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, SourceFresh, StopCode, StopReason
-from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State, yaw_of
+from temoto_robot_manager.navigator import BadGoal, Outcome, State, described, yaw_of
 from temoto_robot_manager.obstacle_points import base_points, matrix_of
 from temoto_robot_manager.scene_markers import base_scene
-from temoto_robot_manager.teleop_drive import BASE_INPUTS, Refused, TeleopDrive
+from temoto_robot_manager.teleop_drive import Refused, TeleopDrive, base_inputs
 
 FEEDBACK_PERIOD_S = 0.2
 LAST_WORDS_S = 1.0             # a stopped navigator's goal end, sent before rospy shuts down (node.py's grace: 2 s)
@@ -101,8 +100,7 @@ class NavigatorNode:
         self.wake = threading.Condition(self.lock)
         footprint = Footprint.of(nav.footprint, nav.protrusions)
         self.arms = self._arms_guard(robot, footprint)
-        self.nav = Navigator(footprint, Freshness(), odometry=OdometryFresh(nav.odom_rate, nav.odom_patience),
-                             guards=[self.arms])
+        self.nav = described(nav, OdometryFresh(nav.odom_rate, nav.odom_patience), [self.arms])
         self.tf = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self._tf_listener = tf2_ros.TransformListener(self.tf)
         self.rate = params.number('rate', 20.0, above=0, maximum=200)
@@ -113,12 +111,12 @@ class NavigatorNode:
         self.commanded = (0.0, 0.0)
         self.source_topic = ''
         # the only writer of cmd_vel: every command and every zero goes through it, under self.lock
-        self.gate = CommandGate('base', BASE_INPUTS, [SourceFresh(self.nav.freshness, lambda: self.source_topic)]
+        self.gate = CommandGate('base', base_inputs(nav.teleop_timeout), [SourceFresh(self.nav.freshness, lambda: self.source_topic)]
                                 + self.nav.guards, send=self._send, zero=(0.0, 0.0), report=self._report)
         self._scene_at = 0.0
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
-        self.teleop = TeleopDrive(self.nav)
+        self.teleop = TeleopDrive(self.nav, nav.teleop_max_age)
         self.pub_teleop_status = rospy.Publisher('teleop/status', String, queue_size=5, latch=True)
         self._teleop_said = None
         self.active = None                      # the goal handle being driven

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Tuple
 
 from temoto_robot_manager.collision_monitor import Zone
 from temoto_robot_manager.command_gate import Input
@@ -27,9 +27,13 @@ from temoto_robot_manager.navigator import Navigator
 
 TIMEOUT_S = 0.1              # a silent stream: zero after this (MoveIt Servo's incoming command timeout)
 MAX_AGE_S = 0.1              # a command stamped this long ago is late: refused (as the manipulator's servo)
-# The base's gate's inputs, highest first. A goal above the stream: the Robot Manager gives the navigation to one
-# holder, and a stray stream must not fight a goal; a goal accepted takes the base from a stream at once.
-BASE_INPUTS = (Input('goal', 20), Input('teleop', 10, TIMEOUT_S))
+
+
+def base_inputs(timeout: float = TIMEOUT_S) -> Tuple[Input, Input]:
+    """The base's gate's inputs, highest first, with the stream's deadman ``timeout``. A goal above the stream: the
+    Robot Manager gives the navigation to one holder, and a stray stream must not fight a goal; a goal accepted
+    takes the base from a stream at once."""
+    return Input('goal', 20), Input('teleop', 10, timeout)
 
 
 class Refused(ValueError):

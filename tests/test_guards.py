@@ -12,7 +12,7 @@ from temoto_robot_manager.freshness import Freshness
 from temoto_robot_manager.guards import OdometryFresh, PublisherAlive, StopCode
 from temoto_robot_manager.navigator import Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_robot_manager.teleop_drive import BASE_INPUTS, TeleopDrive
+from temoto_robot_manager.teleop_drive import TeleopDrive, base_inputs
 from vaultbot_sim.kinematics import WORLDS, TreeModel
 from vaultbot_sim.world_map import world_map
 
@@ -100,7 +100,7 @@ def test_the_base_s_gate_holds_a_teleop_command_while_the_odometry_is_stale(lab_
     nav.cancel()
     nav.set_obstacles(np.zeros((0, 2)), 0.1)
     sent = []
-    gate = CommandGate('base', BASE_INPUTS, nav.guards, sent.append, (0.0, 0.0))
+    gate = CommandGate('base', base_inputs(), nav.guards, sent.append, (0.0, 0.0))
     decision = TeleopDrive(nav).command(10.0, 10.0, 0.0, 0.5)
     said = gate.offer('teleop', (decision.linear, decision.angular), 0.1)
     assert sent == [(0.0, 0.0)] and said.reason is StopCode.ODOMETRY_STALE and said.text.startswith('no odometry')

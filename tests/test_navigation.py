@@ -27,7 +27,7 @@ from temoto_robot_manager.guards import SourceFresh, StopCode, StopReason
 from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
 from temoto_robot_manager.scene_markers import base_scene, stop_pose
-from temoto_robot_manager.teleop_drive import BASE_INPUTS, Refused, TeleopDrive
+from temoto_robot_manager.teleop_drive import Refused, TeleopDrive, base_inputs
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import GOAL_CLIENT, aborted_goal, commanded_zero_after
 from temoto_testing.sensor_manager import set_cable
@@ -388,7 +388,7 @@ def test_a_bad_teleop_command_is_refused_naming_why(lab, stamp, linear, words):
 def base_gate(nav):
     """The navigator node's gate for ``nav``, sending into a list."""
     sent = []
-    gate = CommandGate('base', BASE_INPUTS, [SourceFresh(nav.freshness, lambda: 'sick/scan')] + nav.guards,
+    gate = CommandGate('base', base_inputs(), [SourceFresh(nav.freshness, lambda: 'sick/scan')] + nav.guards,
                        sent.append, (0.0, 0.0))
     return gate, sent
 

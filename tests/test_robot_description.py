@@ -9,14 +9,17 @@ import textwrap
 import numpy as np
 import pytest
 
+from temoto_core import map_file
 from temoto_core.errors import TemotoError
 from temoto_robot_manager.costmap import Footprint
 from temoto_robot_manager.description import load_file
+from temoto_robot_manager import navigator
 from temoto_robot_manager.selection import choose_robot
 from vaultbot_sim.gripper import STROKE
-from vaultbot_sim.kinematics import ROBOT_URDF, resolve_world
+from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world
 from vaultbot_sim.scene import Scene
 from vaultbot_sim.spec import BASE_JOINTS, HOLD_POSE
+from vaultbot_sim.world_map import world_map
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 VAULTBOT = os.path.join(ROOT, 'temoto_robot_manager', 'config', 'vaultbot.yaml')
@@ -161,6 +164,74 @@ def test_temoto_robots_check_says_what_is_wrong_and_where(tmp_path):
     listed = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'robots'], capture_output=True, text=True,
                             timeout=60, env=env)
     assert listed.returncode == 1 and 'the Robot Manager does not answer' in listed.stderr, listed.stderr
+
+
+def test_the_safety_numbers_are_read_from_the_description_and_reach_the_navigator(tmp_path):
+    numbers = ('      max_speed: 0.4\n      max_turn: 0.9\n      stop_margin: 0.08\n      slow_margin: 0.3\n'
+               '      braking: 1.5\n      stale_periods: 4\n      teleop_timeout: 0.25\n      teleop_max_age: 0.2\n')
+    path = write(tmp_path, GOOD.replace('      places:\n', numbers + '      places:\n').replace(
+        '        tool_frame: tool0\n', '        tool_frame: tool0\n        servo_timeout: 0.2\n'))
+    robots, problems = load_file(path)
+    assert not problems, problems
+    navigation = robots[0].navigation
+    nav = navigator.described(navigation)
+    assert (nav.follower.limits.max_speed, nav.follower.limits.max_turn) == (0.4, 0.9)
+    settings = nav.monitor.settings
+    assert (settings.stop_margin, settings.slow_margin, settings.decel) == (0.08, 0.3, 1.5)
+    assert nav.freshness.periods == 4
+    assert (navigation.teleop_timeout, navigation.teleop_max_age) == (0.25, 0.2)
+    assert robots[0].manipulation['arm'].servo_timeout == 0.2
+
+
+@pytest.mark.parametrize('numbers, words', [
+    ('      stop_margin: 0.3\n      slow_margin: 0.1\n', 'slow_margin 0.10 must be at least its stop_margin 0.30'),
+    ('      stale_periods: 0\n', 'stale_periods must be a whole number from 1 to 20, got 0'),
+    ('      stale_periods: 2.5\n', 'stale_periods must be a whole number'),
+    ('      teleop_timeout: 0\n', 'teleop_timeout must be a number above 0'),
+    ('      max_speed: .nan\n', 'max_speed must be a number above'),
+])
+def test_a_safety_number_out_of_its_range_is_named_at_its_line(tmp_path, numbers, words):
+    path = write(tmp_path, GOOD.replace('      places:\n', numbers + '      places:\n'))
+    robots, problems = load_file(path)
+    assert not robots and len(problems) == 1 and words in str(problems[0]), problems
+    key = words.split()[0]
+    line = next(k for k, row in enumerate(open(path).read().splitlines(), 1) if row.strip().startswith(key + ':'))
+    assert problems[0].where == '%s:%d' % (path, line), problems[0].where
+
+
+def sim_map(tmp_path):
+    out = subprocess.run([sys.executable, '-m', 'temoto_bringup.cli', 'sim', 'map', 'lab', str(tmp_path / 'lab.yaml')],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and (tmp_path / 'lab.pgm').exists(), out.stderr
+    return str(tmp_path / 'lab.yaml')
+
+
+def test_a_map_written_as_map_server_saves_one_reads_back_cell_for_cell(tmp_path):
+    grid = world_map(TreeModel(resolve_world('lab')))
+    back = map_file.read(sim_map(tmp_path))
+    assert back.origin == pytest.approx(grid.origin) and back.resolution == grid.resolution
+    assert back.cells.shape == grid.cells.shape and (back.cells == grid.cells).all()
+
+
+def test_temoto_robots_check_with_a_map_names_a_place_the_robot_cannot_stand_on(tmp_path):
+    """A place inside the drums passed the check (it read the file, not the world); with ``--map`` every place is
+    checked as the navigator checks a goal, and the error names the place's line."""
+    lab = sim_map(tmp_path)
+    good = run_cli('check', VAULTBOT, '--map', lab)
+    assert good.returncode == 0 and '4 places checked against %s' % lab in good.stdout, good.stdout
+    with open(VAULTBOT) as f:
+        text = f.read()
+    line = next(k for k, row in enumerate(text.splitlines(), 1) if row.strip().startswith('drums:'))
+    x, y, _ = load_file(VAULTBOT)[0][0].navigation.places['drums']
+    moved = text.replace(next(row for row in text.splitlines() if row.strip().startswith('drums:')),
+                         '        drums: [%.2f, %.2f, 0.0]' % (x + 0.9, y))         # into the drums themselves
+    bad = run_cli('check', write(tmp_path, moved), '--map', lab)
+    assert bad.returncode == 1, bad.stdout
+    assert 'error %s:%d: place drums: places.drums.position' % (tmp_path / 'robots.yaml', line) in bad.stdout, bad.stdout
+    assert 'ok ' not in bad.stdout, 'a robot with a place it cannot stand on is not ok'
+    broken = write(tmp_path, 'image: lab.pgm\nresolution: -1\norigin: [0, 0, 0]\n', 'broken.yaml')
+    refused = run_cli('check', VAULTBOT, '--map', broken)
+    assert refused.returncode == 1 and 'resolution must be above 0' in refused.stdout, refused.stdout
 
 
 def test_the_description_reads_without_a_master():

@@ -4,6 +4,7 @@
     temoto sim unplug DEVICE [--mode crash|stall]
     temoto sim plug DEVICE
     temoto sim sweep on|off [--speed RAD_S]
+    temoto sim map WORLD OUT.yaml       write a world's map as map_server saves one (no ROS needed)
 
 main(argv) receives the arguments after `sim`. Exit codes: 0 ok, 1 the sim
 refused or is not running, 2 bad arguments (argparse).
@@ -17,7 +18,10 @@ import sys
 import rosgraph
 import rospy
 
+from temoto_core import map_file
+from vaultbot_sim.kinematics import WORLDS, TreeModel, resolve_world
 from vaultbot_sim.spec import DEVICES, MODES
+from vaultbot_sim.world_map import world_map
 from vaultbot_sim.msg import DeviceStates
 from vaultbot_sim.srv import SetDeviceState, SetSweep
 
@@ -43,7 +47,27 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser('sweep', help='turn the Hokuyo wrist sweep on or off')
     s.add_argument('state', choices=('on', 'off'))
     s.add_argument('--speed', type=float, default=0.0, help='rad/s, 0 < speed <= pi (default: unchanged)')
+    m = sub.add_parser('map', help='write a world\'s map (a map_server YAML and a PGM beside it), as the sim '
+                       'publishes it on /map')
+    m.add_argument('world', help='%s, or a world URDF' % ' or '.join(sorted(WORLDS)))
+    m.add_argument('out', help='the YAML file to write (its image: the same name, .pgm)')
     return ap
+
+
+def _map(world: str, out: str) -> int:
+    try:
+        grid = world_map(TreeModel(resolve_world(world)))
+    except ValueError as e:
+        print(f'error: {e}', file=sys.stderr)
+        return 2
+    try:
+        image = map_file.write(out, map_file.MapGrid(grid.origin, grid.resolution, grid.cells))
+    except OSError as e:
+        print(f'error: {out}: {e}', file=sys.stderr)
+        return 1
+    width, height = grid.size
+    print(f'{out}: {width} x {height} cells of {grid.resolution} m, image {image}')
+    return 0
 
 
 def _check_master() -> None:
@@ -105,6 +129,8 @@ def _sweep(ns: str, on: bool, speed: float) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     ns = args.ns.rstrip('/')
+    if args.cmd == 'map':
+        return _map(args.world, args.out)
     try:
         _check_master()
         if args.cmd == 'status':
