@@ -21,6 +21,7 @@ PACKAGES = [
     'temoto_output_manager',
     'temoto_context_manager',
     'temoto_robot_manager',
+    'temoto_operator',
     'temoto_action_engine',
     'temoto_speech',
     'temoto_testing',

@@ -41,11 +41,11 @@ sys.path.insert(0, ROOT)
 import numpy as np  # noqa: E402
 
 from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs  # noqa: E402
-from temoto_robot_manager import global_planner  # noqa: E402
-from temoto_robot_manager.costmap import Costmap, Footprint  # noqa: E402
+from temoto_robot_manager.navigation import global_planner  # noqa: E402
+from temoto_robot_manager.navigation.costmap import Costmap, Footprint  # noqa: E402
 from temoto_robot_manager.description import load_file  # noqa: E402
-from temoto_robot_manager.freshness import Freshness  # noqa: E402
-from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome  # noqa: E402
+from temoto_robot_manager.navigation.freshness import Freshness  # noqa: E402
+from temoto_robot_manager.navigation.navigator import BadGoal, Navigator, Outcome  # noqa: E402
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402
 from vaultbot_sim.base import advance  # noqa: E402
 from vaultbot_sim.kinematics import WORLDS, TreeModel  # noqa: E402

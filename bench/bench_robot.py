@@ -6,11 +6,11 @@ The sim's motors publish the moment their commanded velocity becomes zero (``~ba
 figures are measured from there, never from a controller's or a manager's word:
 
 1. the base controller SIGKILLed while the base drives at 0.5 m/s: kill -> commanded zero
-   (the motors' own watchdog), and the braking time to rest;
+   (the motors' own command timeout), and the braking time to rest;
 2. the controller stalled (its cable pulled in stall mode: the process stays up, silent);
 3. ``cmd_vel`` falls silent (the commander died): last ``cmd_vel`` -> commanded zero
    (the controller's 0.25 s timeout);
-4. false stops: watchdog trips while the controller is alive, over a steady drive;
+4. false stops: command timeout trips while the controller is alive, over a steady drive;
 5. the left arm's controller SIGKILLed, or stalled, during a trajectory: -> the motors'
    setpoint dropped (commanded joint speed zero), then at rest;
 6. the servo stream falls silent: last servo message -> the arm told to hold (the deadman),
@@ -249,7 +249,7 @@ def arm_trial(launcher, arm, case, index, servo_pub):
 
 
 def false_stops(launcher, cmd, truth, seconds):
-    """Watchdog trips while a live controller is commanded to drive, back and forth."""
+    """Command timeout trips while a live controller is commanded to drive, back and forth."""
     controller = launcher.node('vaultbot_sim', 'base_controller', name='base_controller')
     try:
         wait_for(lambda: cmd.pub.get_num_connections() > 0, HANG, 'the controller on cmd_vel')
@@ -338,9 +338,9 @@ def main() -> int:
                      '%.1f / %.1f ms' % (pct(lat, 50) * 1e3, pct(lat, 95) * 1e3), '≤ 10 ms p95'))
     fs = results.get('false_stops')
     if fs:
-        rows.append(('false stops: motor watchdog trips with a live controller, %.0f s of driving' % fs['seconds'],
+        rows.append(('false stops: motor command timeout trips with a live controller, %.0f s of driving' % fs['seconds'],
                      str(fs['trips']), '0'))
-    print_table('Robot: the base\'s and the arms\' stops (motor watchdog %s; %d CPU hogs)'
+    print_table('Robot: the base\'s and the arms\' stops (motor command timeout %s; %d CPU hogs)'
                 % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'robot%s.json' % ('_' + args.only if args.only else '')),

@@ -49,7 +49,7 @@ from std_msgs.msg import String  # noqa: E402
 from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs, write_results  # noqa: E402
 from temoto_core.action_client import TrackingActionClient  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
-from temoto_robot_manager.arm_kinematics import ArmKinematics  # noqa: E402
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics  # noqa: E402
 from temoto_robot_manager.description import load_file  # noqa: E402
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal  # noqa: E402
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402

@@ -65,7 +65,7 @@ def stack(launcher, work):
                 'hand_tracker_driver, args: "_path:=%s", reliability: 0.8, rate: 100, stall_timeout: 0.2,\n'
                 '     output_topics: {hand_data: {topic: hand/sample, remap: hand/sample}}}\n' % path)
     start_robot_stack(launcher, os.path.join(work, 'er_logs'), extra=catalogue, hand_motion=False)
-    launcher.node('temoto_robot_manager', 'pointer', params={'temoto_namespace': NS})
+    launcher.node('temoto_operator', 'pointer', params={'temoto_namespace': NS})
     launcher.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
                   params={'temoto_namespace': NS})
     rospy.wait_for_service('/%s/action_engine/start_graph' % NS, timeout=60)

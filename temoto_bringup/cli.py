@@ -18,7 +18,7 @@ COMMANDS = {
     'ps': ('temoto_er_manager.cli:ps_main', 'list the processes the ER Manager runs'),
     'sensors': ('temoto_sensor_manager.cli:main', 'list the Sensor Manager\'s sensors, or check catalogue files'),
     'robots': ('temoto_robot_manager.cli:main', 'list the Robot Manager\'s robots, or check description files'),
-    'dial': ('temoto_robot_manager.dial_cli:main', 'the dial that scales the hand while an arm follows it'),
+    'dial': ('temoto_operator.dial_cli:main', 'the dial that scales the hand while an arm follows it'),
     'sim': ('vaultbot_sim.cli:main', 'plug or unplug a simulated device, or show their states'),
     'screenshot': ('temoto_output_manager.cli:screenshot_main', 'save a PNG of the operator\'s RViz view'),
     'displays': ('temoto_output_manager.cli:displays_main', 'list the displays shown in RViz'),

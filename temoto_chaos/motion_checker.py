@@ -39,7 +39,7 @@ DETECTION_S = {
     'client_killed': 0.3,        # a goal's client dies: its connection's end of file (servo: the stream's 0.1 s
                                  # timeout and the controller's 0.1 s deadman, within the same 0.3 s)
     'manager_killed': 0.3,       # the Robot Manager dies during a drive: the navigator's latched topic closes
-    'controller_killed': 0.05,   # a controller dies or stalls: the motors' watchdog (40 ms) and a period
+    'controller_killed': 0.05,   # a controller dies or stalls: the motors' command timeout (40 ms) and a period
     'controller_stalled': 0.05,
     # the active obstacle source goes stale: 3 of its periods + 20 ms (the SICK's here; the runner gives each
     # case its source's own, as the watch learns it: the stitched Hokuyo cloud and the D435's are slower)

@@ -33,10 +33,10 @@ from std_msgs.msg import String
 
 from temoto_core.action_client import ACK_RESEND_S, redeliver
 from temoto_core.msg import HandSample
-from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
-from temoto_robot_manager.dial import Dial
-from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
-from temoto_robot_manager.obstacle_points import matrix_of_pose
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_operator.dial import Dial
+from temoto_operator.hand_follower import HOLD, TARGET, HandFollower
+from temoto_robot_manager.navigation.obstacle_points import matrix_of_pose
 from vaultbot_sim.srv import SetSweep
 
 SERVER_WAIT_S = 30.0          # a part's action server appears within its start (its load has returned)

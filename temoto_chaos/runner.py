@@ -392,7 +392,7 @@ class Chaos:
 
     def _hit_controller(self, step: Step) -> Union[str, Callable[[], str]]:
         """SIGKILL a controller (the base's respawns; an arm's or the gripper's is the Robot Manager's part,
-        which FAILs), or SIGSTOP it for a while: either way its motors' watchdog stops the part."""
+        which FAILs), or SIGSTOP it for a while: either way its motors' command timeout stops the part."""
         moving = self._moving_parts()
         # among the controllers that run (an arm's and the gripper's run only while a client holds them): those of
         # a moving part first. A pick among all of them found none running three times in a 300-step history

@@ -451,7 +451,7 @@ def write_teleop_report(bag_path: str, out_dir: Optional[str] = None,
          '(bench_teleop) |' % _ms(f.tracking_rms_mm, 'mm'),
          '| the target\'s motion over the hand\'s, while engaged | %s | the dial: 0.10 |'
          % ('-' if f.hand_to_target_scale is None else '%.3f' % f.hand_to_target_scale),
-         '| the arm\'s controller crashed → the arm commanded zero | %s | the motors\' watchdog: 50 ms |'
+         '| the arm\'s controller crashed → the arm commanded zero | %s | the motors\' command timeout: 50 ms |'
          % _ms(f.arm_zero_ms),
          '| … follow_hand says it fails (the operator hears it) | %s | 1 s |' % _ms(f.failing_s, 's'),
          '| … follow_hand FAILED, the arm\'s processes released | %s | - |' % _ms(f.failed_s, 's'),

@@ -35,7 +35,7 @@ from temoto_core.srv import GetRegistry
 from temoto_robot_manager.contract import ROBOTS, RR_NAME
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.interface import RobotManagerInterface
-from temoto_robot_manager.place_check import places_off_map
+from temoto_robot_manager.navigation.place_check import places_off_map
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal
 
 TIMEOUT = 5.0

@@ -27,7 +27,7 @@ from typing import Callable, Dict, Iterable, Mapping, Optional, Sequence, Set, T
 
 import numpy as np
 
-from temoto_robot_manager.costmap import Footprint
+from temoto_robot_manager.navigation.costmap import Footprint
 
 STALE_PERIODS = 3          # periods of a stream's declared rate without a message: stale (as for obstacle sources)
 

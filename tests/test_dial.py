@@ -1,11 +1,11 @@
-"""The teleoperation dial (temoto_robot_manager/dial.py): logarithmic steps, bounds, bad values refused."""
+"""The teleoperation dial (temoto_operator/dial.py): logarithmic steps, bounds, bad values refused."""
 import math
 
 import numpy as np
 
 import pytest
 
-from temoto_robot_manager.dial import MAXIMUM, MINIMUM, STEPS, Dial
+from temoto_operator.dial import MAXIMUM, MINIMUM, STEPS, Dial
 
 
 def test_the_steps_run_the_1_2_5_series_from_a_hundredth_to_ten():

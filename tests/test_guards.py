@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from temoto_robot_manager.command_gate import CommandGate
-from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.navigation.costmap import Costmap, Footprint
 from temoto_robot_manager.description import load_file
-from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.navigation.freshness import Freshness
 from temoto_robot_manager.guards import OdometryFresh, PublisherAlive, StopCode
-from temoto_robot_manager.navigator import Navigator, Outcome, State
+from temoto_robot_manager.navigation.navigator import Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_robot_manager.teleop_drive import TeleopDrive, base_inputs
+from temoto_robot_manager.navigation.teleop_drive import TeleopDrive, base_inputs
 from vaultbot_sim.kinematics import WORLDS, TreeModel
 from vaultbot_sim.world_map import world_map
 
@@ -121,7 +121,7 @@ def test_a_lost_controller_aborts_the_goal_naming_it(lab_navigator_parts):
 
 @pytest.fixture(scope='module')
 def arms_guard():
-    from temoto_robot_manager.arm_kinematics import ArmKinematics
+    from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics
     from temoto_robot_manager.guards import ArmsInEnvelope
     from vaultbot_sim.kinematics import ROBOT_URDF
     with open(ROBOT_URDF) as f:

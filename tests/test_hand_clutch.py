@@ -1,12 +1,12 @@
-"""The hand clutch (temoto_robot_manager/hand_clutch.py): a deliberate grab engages, the tool follows the hand's
+"""The hand clutch (temoto_operator/hand_clutch.py): a deliberate grab engages, the tool follows the hand's
 motion relative to the grab, scaled by the dial; an open hand, a lost hand or a bad sample lets go."""
 import math
 
 import numpy as np
 import pytest
 
-from temoto_robot_manager.dial import Dial
-from temoto_robot_manager.hand_clutch import HandClutch
+from temoto_operator.dial import Dial
+from temoto_operator.hand_clutch import HandClutch
 
 TOOL = np.eye(4)
 TOOL[:3, 3] = (0.6, 0.3, 1.1)

@@ -1,14 +1,14 @@
-"""From hand samples to servo commands (temoto_robot_manager/hand_follower.py): targets while the grab holds,
+"""From hand samples to servo commands (temoto_operator/hand_follower.py): targets while the grab holds,
 one hold the moment the hand goes stale or out of view, and nothing until a new deliberate grab."""
 import math
 
 import numpy as np
 import pytest
 
-from temoto_robot_manager.dial import Dial
-from temoto_robot_manager.scene_markers import gripper_text
-from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, TURN_PER_M, velocity_of
-from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
+from temoto_operator.dial import Dial
+from temoto_robot_manager.navigation.scene_markers import gripper_text
+from temoto_operator.hand_drive import GAIN_NAVIGATION, TURN_PER_M, velocity_of
+from temoto_operator.hand_follower import HOLD, TARGET, HandFollower
 
 TOOL = np.eye(4)
 

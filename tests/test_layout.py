@@ -14,7 +14,7 @@ LAYERS = [
     ['temoto_core', 'control_msgs'],             # control_msgs: upstream's message definitions only
     ['temoto_er_manager', 'vaultbot_sim'],       # the simulated robot needs only the core
     ['temoto_sensor_manager', 'temoto_output_manager'],
-    ['temoto_context_manager', 'temoto_robot_manager'],
+    ['temoto_context_manager', 'temoto_robot_manager', 'temoto_operator'],
     ['temoto_action_engine'],
     ['temoto_speech'],
     ['temoto_testing'],                          # fixtures for stacks of the layers below; runtime never imports it

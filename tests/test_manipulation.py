@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from temoto_robot_manager import servo as servo_rules
-from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError, pose_error
-from temoto_robot_manager.arm_planner import (INVALID_GOAL, NO_SOLUTION, SELF_COLLISION, ArmPlanner, GoalRefused,
+from temoto_robot_manager.manipulation import servo as servo_rules
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError, pose_error
+from temoto_robot_manager.manipulation.arm_planner import (INVALID_GOAL, NO_SOLUTION, SELF_COLLISION, ArmPlanner, GoalRefused,
                                               ACCEL)
-from temoto_robot_manager.joint_motion import time_parameterise
-from temoto_robot_manager.self_collision import SelfCollision
-from temoto_robot_manager.servo import Servo
+from temoto_robot_manager.manipulation.joint_motion import time_parameterise
+from temoto_robot_manager.manipulation.self_collision import SelfCollision
+from temoto_robot_manager.manipulation.servo import Servo
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
 

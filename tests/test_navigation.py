@@ -16,18 +16,18 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from sensor_msgs.msg import LaserScan, PointCloud2
 from std_msgs.msg import String
 
-from temoto_robot_manager import global_planner
-from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Zone
+from temoto_robot_manager.navigation import global_planner
+from temoto_robot_manager.navigation.collision_monitor import CollisionMonitor, MonitorSettings, Zone
 from temoto_robot_manager.command_gate import CommandGate, Refused as GateRefused, State as GateState
-from temoto_robot_manager.costmap import Costmap, Footprint, distance_field
+from temoto_robot_manager.navigation.costmap import Costmap, Footprint, distance_field
 from temoto_robot_manager.description import load_file
 from temoto_core.serialized import header_stamp
-from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.navigation.freshness import Freshness
 from temoto_robot_manager.guards import SourceFresh, StopCode, StopReason
-from temoto_robot_manager.navigator import BadGoal, Navigator, Outcome, State
+from temoto_robot_manager.navigation.navigator import BadGoal, Navigator, Outcome, State
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_robot_manager.scene_markers import base_scene, stop_pose
-from temoto_robot_manager.teleop_drive import Refused, TeleopDrive, base_inputs
+from temoto_robot_manager.navigation.scene_markers import base_scene, stop_pose
+from temoto_robot_manager.navigation.teleop_drive import Refused, TeleopDrive, base_inputs
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.motion import GOAL_CLIENT, aborted_goal, commanded_zero_after
 from temoto_testing.sensor_manager import set_cable

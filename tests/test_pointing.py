@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from temoto_robot_manager.pointing import NO_HEADING, BadPointing, PointedGoal, checked
+from temoto_operator.pointing import NO_HEADING, BadPointing, PointedGoal, checked
 
 
 def test_a_nav_goal_keeps_its_heading_and_a_point_has_none():

@@ -11,9 +11,9 @@ import pytest
 
 from temoto_core import map_file
 from temoto_core.errors import TemotoError
-from temoto_robot_manager.costmap import Footprint
+from temoto_robot_manager.navigation.costmap import Footprint
 from temoto_robot_manager.description import load_file
-from temoto_robot_manager import navigator
+from temoto_robot_manager.navigation import navigator
 from temoto_robot_manager.selection import choose_robot
 from vaultbot_sim.gripper import STROKE
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world

@@ -18,10 +18,10 @@ from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from temoto_robot_manager.arm_kinematics import pose_error
+from temoto_robot_manager.manipulation.arm_kinematics import pose_error
 from temoto_robot_manager.msg import MoveArmAction, MoveArmActionResult, MoveArmGoal, MoveArmResult
 from temoto_robot_manager.interface import RobotManagerInterface
-from temoto_robot_manager.manipulator_node import REST_RAD_S
+from temoto_robot_manager.manipulation.manipulator_node import REST_RAD_S
 from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.motion import ARM_CLIENT
 from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_manager, start_robot_stack

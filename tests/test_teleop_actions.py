@@ -47,7 +47,7 @@ def stack(rospy_client, module_procs, tmp_path_factory):
     # SICK stall (a CI run had no obstacle source left, rightly, and the hand could not turn the base)
     start_robot_stack(module_procs, tmp_path_factory.mktemp('er_logs'), extra=HAND_CATALOGUE, hand_motion=False,
                       sweep=True)
-    module_procs.node('temoto_robot_manager', 'pointer', params={'temoto_namespace': NS})
+    module_procs.node('temoto_operator', 'pointer', params={'temoto_namespace': NS})
     if rospy_client.has_param('/temoto_action_engine'):
         rospy_client.delete_param('/temoto_action_engine')   # private params outlive a node on the shared master
     module_procs.node('temoto_action_engine', 'temoto_action_engine', name='temoto_action_engine',
@@ -209,7 +209,7 @@ def tool_y(buffer):
     return t.transform.translation.y
 
 
-GRAB_ENTRY = 1          # the virtual hand's menu: 1 grab, 2 open (temoto_robot_manager/virtual_hand_node.py)
+GRAB_ENTRY = 1          # the virtual hand's menu: 1 grab, 2 open (temoto_operator/virtual_hand_node.py)
 
 
 def click(pub, rospy, event, pose=None, entry=0):

@@ -204,7 +204,7 @@ def test_a_killed_controller_leaves_the_arm_holding(arms):
     killed = time.time()
     os.kill(arms['left'].pid, signal.SIGKILL)
     tripped = wait_for(lambda: next((m for m in states_since(arms['states'], 'left_arm', killed)
-                                     if m.command_stale), None), HANG, 'the motors\' watchdog')
+                                     if m.command_stale), None), HANG, 'the motors\' command timeout')
     assert tripped.commanded_speed == 0.0 and tripped.header.stamp.to_sec() - killed < 1.0
     wait_for(lambda: arm_state(arms['states'], 'left_arm').speed == 0.0, HANG, 'the arm at rest')
 
@@ -215,7 +215,7 @@ def test_a_stalled_controller_stays_up_and_the_arm_holds(arms):
     set_cable('left_arm', 'unplugged', 'stall')
     try:
         wait_for(lambda: any(m.command_stale for m in states_since(arms['states'], 'left_arm', stalled)), HANG,
-                 'the motors\' watchdog')
+                 'the motors\' command timeout')
         wait_for(lambda: arm_state(arms['states'], 'left_arm').speed == 0.0, HANG, 'the arm at rest')
         assert arms['left'].alive()
     finally:

@@ -58,7 +58,7 @@ def test_the_shaper_passes_a_stop_on_at_once_and_ramps_any_other_slowing():
     assert shaper.step(1.11) == (0.0, 0.0), 'a stop reaches the motors at once; they brake at their own limit'
 
 
-def test_the_motors_follow_their_command_and_their_watchdog_zeroes_a_stale_one():
+def test_the_motors_follow_their_command_and_their_command_timeout_zeroes_a_stale_one():
     plant = BasePlant(motor_timeout=0.04)
     plant.command(*wheel_speeds(0.5, 0.0), now=0.0)
     plant.step(0.0)
@@ -66,8 +66,8 @@ def test_the_motors_follow_their_command_and_their_watchdog_zeroes_a_stale_one()
         plant.command(*wheel_speeds(0.5, 0.0), now=i * 0.01)
         plant.step(i * 0.01)
     assert plant.velocity[0] == pytest.approx(0.03) and plant.commanded[0] == pytest.approx(0.5)
-    assert not plant.watchdog(0.0695)
-    assert plant.watchdog(0.0705) and plant.commanded == (0.0, 0.0) and plant.tripped_at == 0.0705
+    assert not plant.drop_stale(0.0695)
+    assert plant.drop_stale(0.0705) and plant.commanded == (0.0, 0.0) and plant.tripped_at == 0.0705
     plant.step(0.08)
     assert plant.velocity[0] == pytest.approx(0.0), 'braked at 2 m/s^2 from 0.03 m/s'
 
@@ -205,7 +205,7 @@ def test_a_killed_controller_leaves_the_motors_braking(base):
     killed = time.time()
     os.kill(base['controller'].pid, signal.SIGKILL)       # the commander goes on sending cmd_vel
     tripped = wait_for(lambda: next((s for s in stamps(truth, killed) if s.command_stale), None), HANG,
-                       'the motors\' watchdog to trip')
+                       'the motors\' command timeout to trip')
     assert tripped.commanded_linear == 0.0 and tripped.header.stamp.to_sec() - killed < 1.0
     wait_for(lambda: latest(truth).linear == 0.0, HANG, 'the base at rest')
     wait_for(lambda: not base['controller'].alive(), HANG, 'the controller to be gone')
@@ -217,7 +217,7 @@ def test_a_stalled_controller_stays_up_and_the_motors_stop(base):
     stalled = time.time()
     set_cable('base', 'unplugged', 'stall')
     try:
-        wait_for(lambda: any(s.command_stale for s in stamps(truth, stalled)), HANG, 'the motors\' watchdog')
+        wait_for(lambda: any(s.command_stale for s in stamps(truth, stalled)), HANG, 'the motors\' command timeout')
         wait_for(lambda: latest(truth).linear == 0.0, HANG, 'the base at rest')
         assert base['controller'].alive(), 'a stall keeps the process up'
         before, since = latest(truth).x, time.time()

@@ -77,7 +77,7 @@ def test_an_arm_tracks_its_setpoint_within_its_limits_and_holds_when_the_stream_
     assert arm.position['j1'] == pytest.approx(1.0, abs=1e-3) and arm.position['j2'] == pytest.approx(-0.5, abs=1e-3)
     arm.velocity['j1'] = SPEED
     b.command_arm('arm', {'j1': (5.0, SPEED), 'j2': (-0.5, 0.0)}, t)
-    assert b.watchdog(t + 0.041) == ['arm'] and arm.setpoint is None
+    assert b.drop_stale(t + 0.041) == ['arm'] and arm.setpoint is None
     peak = arm.velocity['j1']
     run(b, 1.0, t + 0.041)
     assert arm.at_rest and peak / ACCEL <= 0.4 + 1e-9, 'braked to a hold at its limit'

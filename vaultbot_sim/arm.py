@@ -3,7 +3,7 @@
 An arm's controller (``arm_controller.py``) streams a *setpoint* per joint, a position and the
 velocity to pass it with, at ``COMMAND_RATE_HZ``. The motors track it within the UR5's limits:
 pi rad/s per joint (the datasheet) and ``ACCEL`` rad/s^2 (ours), and never beyond a joint's range.
-They carry a watchdog as the base's motors do: a setpoint older than ``MOTOR_TIMEOUT_S`` is
+They carry a command timeout as the base's motors do: a setpoint older than ``MOTOR_TIMEOUT_S`` is
 dropped, and the joints brake to a hold where they are. A controller that dies or stalls leaves
 the arm holding, not moving.
 """
@@ -68,7 +68,7 @@ class ArmPlant:
         return True
 
     def stop(self, now: float) -> bool:
-        """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no watchdog trip either. An arm
+        """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no command timeout trip either. An arm
         nobody holds (given back to the simulation's hold pose or sweep) has nothing to hold: the stop is moot
         and takes nothing, as a command to a controller switched off does not reach the motors (a controller's
         hold that came after the give-back once took the wrist from its sweep, seed 17, step 2157). False then."""
@@ -84,7 +84,7 @@ class ArmPlant:
         self.velocity = {j: 0.0 for j in self.joints}
         self.released_at = max(self.released_at, sent)
 
-    def watchdog(self, now: float) -> bool:
+    def drop_stale(self, now: float) -> bool:
         """Drop a stale setpoint (the joints brake to a hold); True when it does so now."""
         if self.setpoint is not None and (self.command_at is None or now - self.command_at > self.motor_timeout):
             self.setpoint = None
@@ -99,7 +99,7 @@ class ArmPlant:
     def step(self, now: float) -> None:
         dt = 0.0 if self._last is None else min(max(0.0, now - self._last), 0.1)
         self._last = now
-        self.watchdog(now)
+        self.drop_stale(now)
         if dt <= 0.0:
             return
         for j in self.joints:

@@ -4,7 +4,7 @@ Two processes share these rules, as a real Husky's computer and its motor driver
 - the **base controller** (``base_controller.py``) turns ``cmd_vel`` into wheel speeds within the
   limits below, and streams them to the motors at ``COMMAND_RATE_HZ``;
 - the **motors** (:class:`BasePlant`, inside the sim) follow the last wheel command within the same
-  physical limits. They carry their own watchdog: a command older than ``MOTOR_TIMEOUT_S`` is
+  physical limits. They carry their own command timeout: a command older than ``MOTOR_TIMEOUT_S`` is
   replaced by zero, so a controller that dies or stalls leaves the base braking, not driving.
 
 Limits, chosen and documented (docs/robots.md): the Husky A200's top speed is 1.0 m/s (datasheet);
@@ -24,7 +24,7 @@ from typing import Callable, Optional, Tuple
 WHEEL_RADIUS = 0.165
 TRACK = 0.571                 # the distance between the left and the right wheels' contact lines
 COMMAND_RATE_HZ = 100.0       # the controller's wheel command stream
-MOTOR_TIMEOUT_S = 0.04        # the motors' own watchdog: four command periods
+MOTOR_TIMEOUT_S = 0.04        # the motors' own command timeout: four command periods
 CMD_VEL_TIMEOUT_S = 0.25      # the controller's: no cmd_vel for this long, and it commands zero
 BISECTIONS = 6                # a touching step is cut to its last free 64th
 
@@ -136,7 +136,7 @@ class BasePlant:
 
     ``command(left, right, now)`` is the motors' input. ``step(now, touching)`` moves the body: the actual
     velocity follows the command within the physical limits; a command older than ``motor_timeout`` counts as
-    zero (the watchdog); a pose where ``touching(pose)`` names a contact is not entered: the base stops at the
+    zero (the command timeout); a pose where ``touching(pose)`` names a contact is not entered: the base stops at the
     last free pose on its way (a kinematic simulation's collision: blocked, never through).
     """
 
@@ -148,7 +148,7 @@ class BasePlant:
         self.commanded = (0.0, 0.0)          # what the motors are told now
         self.wheels = [0.0, 0.0]             # left and right wheel angles (rad): the encoders
         self.command_at: Optional[float] = None
-        self.tripped_at: Optional[float] = None   # when the watchdog last replaced a command by zero
+        self.tripped_at: Optional[float] = None   # when the command timeout last replaced a command by zero
         self._last: Optional[float] = None
 
     def command(self, left: float, right: float, now: float) -> None:
@@ -158,7 +158,7 @@ class BasePlant:
         self.command_at = now
         self.tripped_at = None
 
-    def watchdog(self, now: float) -> bool:
+    def drop_stale(self, now: float) -> bool:
         """Replace a stale command by zero; True when it does so now (the moment is ``tripped_at``)."""
         stale = self.command_at is None or now - self.command_at > self.motor_timeout
         if stale and self.commanded != (0.0, 0.0):
@@ -176,7 +176,7 @@ class BasePlant:
         """Advance to ``now``; the contact that stopped the base, if any."""
         dt = 0.0 if self._last is None else min(max(0.0, now - self._last), 0.1)
         self._last = now
-        self.watchdog(now)
+        self.drop_stale(now)
         lim = self.limits
         linear = ramp(self.velocity[0], self.commanded[0], lim.accel, lim.decel, dt)
         angular = ramp(self.velocity[1], self.commanded[1], lim.turn_accel, lim.turn_decel, dt)

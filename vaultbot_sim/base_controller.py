@@ -7,7 +7,7 @@ As a real base driver does (husky_base with diff_drive_controller):
 - no ``cmd_vel`` for ``~cmd_vel_timeout`` (0.25 s): it commands zero at once, and the motors brake
   at their limit. A dead commander never leaves the robot moving;
 - it streams the wheel speeds to the motors (``wheel_command``) at ``base.COMMAND_RATE_HZ`` while
-  they are not zero, and a zero once a second at rest. The motors have a watchdog of their own
+  they are not zero, and a zero once a second at rest. The motors have a command timeout of their own
   (``base.MOTOR_TIMEOUT_S``), so a controller that dies or stalls leaves the base braking;
 - it publishes ``odom`` (``nav_msgs/Odometry``) and ``/tf`` ``odom -> base_link`` from the wheels'
   joint states, at their rate (50 Hz);
@@ -103,7 +103,7 @@ class BaseController:
         return cmd
 
     def _stop_motors(self) -> None:
-        """A clean stop tells the motors zero at once, rather than leaving it to their watchdog."""
+        """A clean stop tells the motors zero at once, rather than leaving it to their command timeout."""
         if self.running:
             self.pub_wheels.publish(self._wheel_command(0.0, 0.0))
 

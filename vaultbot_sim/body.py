@@ -41,7 +41,7 @@ class Body:
         self.arms = dict(arms)              # 'left_arm', 'right_arm'
         self.gripper = gripper if gripper is not None else GripperPlant()
         self._finger_links = {j.replace('_joint', '_link') for j in GRIPPER_JOINTS}
-        self.lock = threading.Condition()   # held by every call; notified by every command (the watchdog waits)
+        self.lock = threading.Condition()   # held by every call; notified by every command (the command timeout's thread waits)
         self.contacts = 0
         self.touching: set = set()          # (robot link, world link) pairs within CONTACT_MARGIN now
         self._checks = 0                    # collision checks in the step under way
@@ -84,13 +84,13 @@ class Body:
             self.gripper.stop(now)
             self.lock.notify()
 
-    # --- the motors' watchdog (its own thread) -----------------------------------------------------
-    def watchdog(self, now: float) -> List[str]:
+    # --- the motors' command timeout (its own thread) -----------------------------------------------------
+    def drop_stale(self, now: float) -> List[str]:
         """The parts whose stale command was dropped now: 'base', arm names and 'gripper'."""
         with self.lock:
-            tripped = ['base'] if self.base.watchdog(now) else []
-            tripped += [name for name, arm in self.arms.items() if arm.watchdog(now)]
-            return tripped + (['gripper'] if self.gripper.watchdog(now) else [])
+            tripped = ['base'] if self.base.drop_stale(now) else []
+            tripped += [name for name, arm in self.arms.items() if arm.drop_stale(now)]
+            return tripped + (['gripper'] if self.gripper.drop_stale(now) else [])
 
     def wait_for_deadline(self, now: float) -> None:
         """Sleep until the earliest command could go stale, or until a command arrives."""

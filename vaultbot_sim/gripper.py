@@ -6,7 +6,7 @@ towards it at that speed, at most ``SPEED`` (a Robotiq 2F-85's 150 mm/s), never 
 A finger that meets an object stops there, as a real finger's motor stalls against it: the
 simulation asks ``blocked(gap)`` before it enters a gap, and keeps the last free one.
 
-Like the arms' motors, it carries a watchdog: a setpoint older than ``MOTOR_TIMEOUT_S`` is dropped,
+Like the arms' motors, it carries a command timeout: a setpoint older than ``MOTOR_TIMEOUT_S`` is dropped,
 and the fingers stop where they are. A controller that dies or stalls leaves the gripper holding what
 it holds, not closing on.
 """
@@ -48,10 +48,10 @@ class GripperPlant:
         self.command_at, self.tripped_at = now, None
 
     def stop(self, now: float) -> None:
-        """Stop where the fingers are (and keep squeezing what they hold): no setpoint, no watchdog trip."""
+        """Stop where the fingers are (and keep squeezing what they hold): no setpoint, no command timeout trip."""
         self.setpoint, self.command_at, self.tripped_at, self.velocity = None, now, None, 0.0
 
-    def watchdog(self, now: float) -> bool:
+    def drop_stale(self, now: float) -> bool:
         """Drop a stale setpoint (the fingers stop); True when it does so now."""
         if self.setpoint is not None and (self.command_at is None or now - self.command_at > self.motor_timeout):
             self.setpoint, self.tripped_at, self.velocity = None, now, 0.0
@@ -65,7 +65,7 @@ class GripperPlant:
     def step(self, now: float, blocked: Blocked) -> None:
         dt = 0.0 if self._last is None else min(max(0.0, now - self._last), 0.1)
         self._last = now
-        self.watchdog(now)
+        self.drop_stale(now)
         if dt <= 0.0:
             return
         if self.setpoint is None:

@@ -18,7 +18,7 @@
   naming the reason; a goal stamped before the last stop is refused when it arrives after it (it was on its
   way when the operator said stop);
 - between goals it sends nothing: the motor holds the fingers where the last setpoint left them (its
-  watchdog, ``gripper.py``, stops them if the controller dies mid-motion);
+  command timeout, ``gripper.py``, stops them if the controller dies mid-motion);
 - its cable is the sim's ``gripper`` device: crash exits 1, stall silences it, action included.
 """
 from __future__ import annotations

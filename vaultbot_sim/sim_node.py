@@ -157,7 +157,7 @@ class SimNode:
                              tcp_nodelay=True)
         rospy.Subscriber('gripper/joint_command', JointState, self._on_gripper_command, queue_size=10,
                          tcp_nodelay=True)
-        threading.Thread(target=self._watch_motors, name='motor watchdog', daemon=True).start()
+        threading.Thread(target=self._watch_motors, name='motor command timeout', daemon=True).start()
         rospy.loginfo('vaultbot_sim: world %s, joint states at %.0f Hz', self.world_urdf, self.rate)
 
     def _frames(self, transforms: list) -> list:
@@ -300,10 +300,10 @@ class SimNode:
             rospy.logerr_throttle(1.0, 'vaultbot_sim: gripper command refused: %s' % e)
 
     def _watch_motors(self) -> None:
-        """The motors' own watchdog, on its own thread: a stale command is dropped within the timeout, whatever
+        """The motors' own command timeout, on its own thread: a stale command is dropped within the timeout, whatever
         the sim's step rate, and the moment is published at once (the ground truth of the stop)."""
         while ok():
-            for part in self.body.watchdog(time.monotonic()):
+            for part in self.body.drop_stale(time.monotonic()):
                 stamp = rospy.Time.now()
                 if part == 'base':
                     self._publish_base(stamp)

@@ -1,6 +1,6 @@
 """dial: turn the dial of a running follow_hand by words ("finer", "coarser", "scale a tenth", "scale 0.5").
 
-The dial is follow_hand's (``temoto_robot_manager/dial.py``): this action only says what to turn it to, on the
+The dial is follow_hand's (``temoto_operator/dial.py``): this action only says what to turn it to, on the
 dial's topics, and waits for follow_hand to say the scale it took. With nothing following a hand there is
 no dial to turn: the action fails, naming that. A scale out of range is refused before anything is sent.
 """
@@ -11,8 +11,8 @@ from std_msgs.msg import Float32, Int8
 
 from temoto_action_engine.action_base import ActionBase, ActionError
 from temoto_core.wait import wait_for
-from temoto_robot_manager import dial
-from temoto_robot_manager.dial import Dial
+from temoto_operator import dial
+from temoto_operator.dial import Dial
 
 LISTENER_WAIT_S = 1.0        # a running follow_hand is subscribed already; this only bounds the connection
 ANSWER_WAIT_S = 2.0

@@ -1,7 +1,7 @@
 """follow_hand: an arm's tool follows the operator's hand through a clutch, scaled by a dial.
 
 What it holds: the robot's manipulation (Robot Manager) and a hand source (the station's Sensor Manager,
-type ``hand``). What it runs: ``HandFollower`` (``temoto_robot_manager/hand_follower.py``), fed from the
+type ``hand``). What it runs: ``HandFollower`` (``temoto_operator/hand_follower.py``), fed from the
 hand source's subscriber thread, so a sample becomes a servo target with no queue between them:
 
 - a grab after an open hand engages; the tool then follows the hand's motion relative to the grab, times
@@ -15,7 +15,7 @@ hand source's subscriber thread, so a sample becomes a servo target with no queu
 - the robot's manipulation failing (a controller crashed) ends it FAILED, the arm held.
 
 In navigation mode (``mode`` base: "drive with my hand", "follow my hand with the base") it holds the
-robot's navigation instead, and the same clutch drives the base (``temoto_robot_manager/hand_drive.py``): the
+robot's navigation instead, and the same clutch drives the base (``temoto_operator/hand_drive.py``): the
 hand's motion since the grab becomes a ``TwistStamped`` on the navigator's ``teleop/cmd_vel``, and a lost
 hand a zero there. The navigator keeps its guards on the stream (``teleop_drive.py``) and says what it does on
 ``teleop/status``; a hold or a refusal is passed to the operator as feedback.
@@ -43,12 +43,12 @@ from temoto_action_engine.scene import SceneDisplay
 from temoto_core.errors import TemotoError
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import HandSample
-from temoto_robot_manager import dial
-from temoto_robot_manager.dial import Dial
-from temoto_robot_manager.hand_drive import GAIN_NAVIGATION, velocity_of
-from temoto_robot_manager.hand_follower import HOLD, TARGET, HandFollower
-from temoto_robot_manager.obstacle_points import matrix_of
-from temoto_robot_manager.scene_markers import gripper_text, hand_scene
+from temoto_operator import dial
+from temoto_operator.dial import Dial
+from temoto_operator.hand_drive import GAIN_NAVIGATION, velocity_of
+from temoto_operator.hand_follower import HOLD, TARGET, HandFollower
+from temoto_robot_manager.navigation.obstacle_points import matrix_of
+from temoto_robot_manager.navigation.scene_markers import gripper_text, hand_scene
 
 HAND_TYPE = 'hand'
 HAND_TOPIC_KEY = 'hand_data'

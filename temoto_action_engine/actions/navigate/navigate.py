@@ -3,7 +3,7 @@
 The action holds the robot's navigation for the drive (``RobotAction``) and sends one move_base goal to the
 navigator. A place said by name is looked up in the description the Robot Manager serves; "go" or "go
 there" takes the goal pointed with RViz's "2D Nav Goal" or "Publish Point" (the pointer node,
-``temoto_robot_manager/pointer_node.py``), which then leaves the scene. A pointed point has no heading: the
+``temoto_operator/pointer_node.py``), which then leaves the scene. A pointed point has no heading: the
 robot faces it from where it stands.
 
 It says how far is left every 2 s, and the obstacle source's failovers as they come. It ends FINISHED on
@@ -23,8 +23,8 @@ from temoto_action_engine.action_base import ActionError
 from temoto_action_engine.robot_action import RobotAction
 from temoto_action_engine.scene import SceneDisplay
 from temoto_core.latched import NoPublisher, latched_message
-from temoto_robot_manager.pointer_node import pointed_of
-from temoto_robot_manager.pointing import BadPointing
+from temoto_operator.pointer_node import pointed_of
+from temoto_operator.pointing import BadPointing
 
 POINTED_WAIT_S = 10.0         # the pointer's latched goal reaches a new subscriber within this, even when busy
 TF_WAIT_S = 5.0               # where the robot stands, from a new TF listener

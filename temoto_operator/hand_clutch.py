@@ -24,7 +24,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from temoto_robot_manager.dial import Dial
+from temoto_operator.dial import Dial
 
 ENGAGE = 0.8          # grab strength (0 open .. 1 fist) that engages
 RELEASE = 0.5         # below this the hand is open: the clutch lets go, and is armed for the next grab

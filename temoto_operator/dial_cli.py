@@ -18,8 +18,8 @@ import rospy
 from std_msgs.msg import Float32, Int8
 
 from temoto_core.wait import wait_for
-from temoto_robot_manager import dial
-from temoto_robot_manager.dial import Dial
+from temoto_operator import dial
+from temoto_operator.dial import Dial
 
 WAIT_S = 3.0
 

@@ -11,9 +11,9 @@ import math
 from typing import List
 
 from temoto_core.map_file import MapGrid
-from temoto_robot_manager.costmap import Costmap
+from temoto_robot_manager.navigation.costmap import Costmap
 from temoto_robot_manager.description import Navigation
-from temoto_robot_manager.navigator import BadGoal, described
+from temoto_robot_manager.navigation.navigator import BadGoal, described
 
 
 def places_off_map(navigation: Navigation, grid: MapGrid) -> List[str]:

@@ -11,7 +11,7 @@ import numpy as np
 from geometry_msgs.msg import Transform
 from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
-from temoto_robot_manager.costmap import Footprint
+from temoto_robot_manager.navigation.costmap import Footprint
 
 BAND = (0.05, 2.0)             # m above the base's origin: above the floor, below the arms' reach
 SELF_MARGIN = 0.05             # m around the footprint counted as the robot itself

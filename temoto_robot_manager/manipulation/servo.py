@@ -24,7 +24,7 @@ from typing import Callable, List, Optional, Sequence
 
 import numpy as np
 
-from temoto_robot_manager.arm_kinematics import ArmKinematics
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics
 
 GAIN = 8.0                  # 1/s: the twist per metre (and per radian) of error
 MAX_LINEAR = 0.5            # m/s of the tool

@@ -18,7 +18,7 @@ from typing import Tuple
 import numpy as np
 import pyastar2d
 
-from temoto_robot_manager.costmap import Costmap
+from temoto_robot_manager.navigation.costmap import Costmap
 
 SPACING = 0.10                 # m between the plan's points
 

@@ -20,8 +20,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from temoto_robot_manager.dial import Dial
-from temoto_robot_manager.hand_clutch import GAIN_MANIPULATION, HandClutch
+from temoto_operator.dial import Dial
+from temoto_operator.hand_clutch import GAIN_MANIPULATION, HandClutch
 
 TARGET, HOLD = 'target', 'hold'
 

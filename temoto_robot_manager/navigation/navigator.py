@@ -28,13 +28,13 @@ from typing import Callable, Optional, Sequence, Tuple
 
 import numpy as np
 
-from temoto_robot_manager import global_planner
-from temoto_robot_manager.collision_monitor import CollisionMonitor, MonitorSettings, Verdict, Zone
-from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.navigation import global_planner
+from temoto_robot_manager.navigation.collision_monitor import CollisionMonitor, MonitorSettings, Verdict, Zone
+from temoto_robot_manager.navigation.costmap import Costmap, Footprint
 from temoto_robot_manager.description import Navigation
-from temoto_robot_manager.freshness import Freshness
+from temoto_robot_manager.navigation.freshness import Freshness
 from temoto_robot_manager.guards import OdometryFresh, StopCode, StopReason
-from temoto_robot_manager.path_follower import FollowerLimits, PathFollower, Phase, wrap
+from temoto_robot_manager.navigation.path_follower import FollowerLimits, PathFollower, Phase, wrap
 
 REPLAN_PERIOD_S = 1.0
 BLOCKED_PATIENCE_S = 10.0          # stopped by an obstacle this long: the goal is aborted, not held forever

@@ -17,8 +17,8 @@ from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from temoto_robot_manager.collision_monitor import MonitorSettings
-from temoto_robot_manager.costmap import Footprint
+from temoto_robot_manager.navigation.collision_monitor import MonitorSettings
+from temoto_robot_manager.navigation.costmap import Footprint
 
 FOOTPRINT_COLOUR = (0.1, 0.8, 0.2, 0.9)
 STOP_ZONE_COLOUR = (0.9, 0.1, 0.1, 0.9)

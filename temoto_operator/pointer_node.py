@@ -28,7 +28,7 @@ from visualization_msgs.msg import Marker
 
 from temoto_core import params
 from temoto_core.node import init_node, spin
-from temoto_robot_manager.pointing import NO_HEADING, BadPointing, Pointed, PointedGoal, checked
+from temoto_operator.pointing import NO_HEADING, BadPointing, Pointed, PointedGoal, checked
 
 NODE = 'pointer'
 

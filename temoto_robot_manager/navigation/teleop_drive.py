@@ -20,10 +20,10 @@ import math
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
-from temoto_robot_manager.collision_monitor import Zone
+from temoto_robot_manager.navigation.collision_monitor import Zone
 from temoto_robot_manager.command_gate import Input
 from temoto_robot_manager.guards import StopCode, StopReason
-from temoto_robot_manager.navigator import Navigator
+from temoto_robot_manager.navigation.navigator import Navigator
 
 TIMEOUT_S = 0.1              # a silent stream: zero after this (MoveIt Servo's incoming command timeout)
 MAX_AGE_S = 0.1              # a command stamped this long ago is late: refused (as the manipulator's servo)

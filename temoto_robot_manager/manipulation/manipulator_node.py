@@ -53,16 +53,16 @@ from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
 from temoto_core.node import init_node, ok, stop_requested
 from temoto_core.rospy_internals import sender_of, wait_sent
-from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager import command_gate
-from temoto_robot_manager.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
+from temoto_robot_manager.manipulation.arm_planner import INVALID_GOAL, ArmPlanner, GoalRefused
 from temoto_robot_manager.command_gate import CommandGate, Input
 from temoto_robot_manager.description import described_robot
 from temoto_robot_manager.guards import StopCode, StopReason
 from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
-from temoto_robot_manager.obstacle_points import matrix_of_pose
-from temoto_robot_manager.self_collision import SelfCollision
-from temoto_robot_manager.servo import Servo
+from temoto_robot_manager.navigation.obstacle_points import matrix_of_pose
+from temoto_robot_manager.manipulation.self_collision import SelfCollision
+from temoto_robot_manager.manipulation.servo import Servo
 
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
 REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)

@@ -21,7 +21,7 @@ from typing import Tuple
 
 import numpy as np
 
-from temoto_robot_manager.costmap import Footprint
+from temoto_robot_manager.navigation.costmap import Footprint
 
 
 class Zone(enum.Enum):

@@ -72,16 +72,16 @@ from temoto_core.rospy_internals import connection_header, live_publisher_nodes,
 from temoto_core.serialized import header_stamp
 from temoto_core.wait import wait_for
 from temoto_robot_manager import command_gate
-from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.command_gate import CommandGate
-from temoto_robot_manager.costmap import Costmap, Footprint
+from temoto_robot_manager.navigation.costmap import Costmap, Footprint
 from temoto_robot_manager.description import described_robot
-from temoto_robot_manager.global_planner import NoPath
+from temoto_robot_manager.navigation.global_planner import NoPath
 from temoto_robot_manager.guards import ArmsInEnvelope, OdometryFresh, PublisherAlive, SourceFresh, StopCode, StopReason
-from temoto_robot_manager.navigator import BadGoal, Outcome, State, described, yaw_of
-from temoto_robot_manager.obstacle_points import base_points, matrix_of
-from temoto_robot_manager.scene_markers import base_scene
-from temoto_robot_manager.teleop_drive import Refused, TeleopDrive, base_inputs
+from temoto_robot_manager.navigation.navigator import BadGoal, Outcome, State, described, yaw_of
+from temoto_robot_manager.navigation.obstacle_points import base_points, matrix_of
+from temoto_robot_manager.navigation.scene_markers import base_scene
+from temoto_robot_manager.navigation.teleop_drive import Refused, TeleopDrive, base_inputs
 
 FEEDBACK_PERIOD_S = 0.2
 LAST_WORDS_S = 1.0             # a stopped navigator's goal end, sent before rospy shuts down (node.py's grace: 2 s)

@@ -13,8 +13,8 @@ from typing import Callable, List, Mapping, Optional, Sequence
 
 import numpy as np
 
-from temoto_robot_manager.arm_kinematics import ArmKinematics, KinematicsError
-from temoto_robot_manager.joint_motion import Point, time_parameterise
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.manipulation.joint_motion import Point, time_parameterise
 
 ACCEL = 4.0                   # rad/s^2 per joint: half what the UR5's motors give, for smooth goals
 DEFAULT_SPEED_SCALE = 0.5     # of each joint's speed limit
