@@ -190,6 +190,14 @@ class ChaosClient:
             topic = self.hand_topics[answer['id']] = answer['topic']
         return self.motion.servo_hand(rid, info, arm, topic, scale, seconds)
 
+    def arm_goal(self, arm: str, offsets: List[float], speed: float) -> dict:
+        rid, info = self._robot('manipulation')
+        if rid is None:
+            return info
+        if arm not in info.get('arm_frames', {}):
+            return {'ok': False, 'error': '%s has no arm %r' % (info['name'], arm)}
+        return self.motion.arm_goal(rid, info, arm, offsets, speed)
+
     def cancel_motion(self, pick: int) -> dict:
         return self.motion.cancel(pick)
 
@@ -260,7 +268,7 @@ class ChaosClient:
             return self.show_display(str(cmd['type']), str(cmd['topic']))
         if op == 'unload':
             return self.unload(int(cmd['id']))
-        if op in ('navigate', 'grip', 'servo', 'cancel_motion') and self.motion is None:
+        if op in ('navigate', 'grip', 'servo', 'arm_goal', 'cancel_motion') and self.motion is None:
             return {'ok': False, 'error': 'this client has no motion journal (~motion_journal)'}
         if op == 'navigate':
             return self.navigate(float(cmd['x']), float(cmd['y']), float(cmd['yaw']), str(cmd['frame']))
@@ -269,12 +277,14 @@ class ChaosClient:
         if op == 'servo':
             return self.servo(str(cmd['arm']), str(cmd['source']), [float(v) for v in cmd['offset']],
                               float(cmd['scale']), float(cmd['seconds']))
+        if op == 'arm_goal':
+            return self.arm_goal(str(cmd['arm']), [float(v) for v in cmd['offsets']], float(cmd['speed']))
         if op == 'cancel_motion':
             return self.cancel_motion(int(cmd['pick']))
         if op == 'state':
             return self.state()
         return {'ok': False, 'error': 'unknown op %r: load_sensor, load_process, track_object, show_display, '
-                                      'navigate, grip, servo, cancel_motion, unload or state' % (op,)}
+                                      'navigate, grip, servo, arm_goal, cancel_motion, unload or state' % (op,)}
 
 
 def main() -> None:

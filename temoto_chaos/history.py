@@ -39,6 +39,13 @@ CLIENT_OPS[5] = [(k, 6 if k == 'unload' else w) for k, w in CLIENT_OPS[3]] + [
 NEMESIS[5] = [(k, 3 if k == 'replug' else w) for k, w in NEMESIS[2]] + [
     ('kill_controller', 1), ('stop_controller', 1), ('unplug_obstacle', 0.75), ('unplug_hand', 0.5)]
 # (a replug is as frequent as the three ways of pulling a cable: a device does not stay unplugged for good)
+# version 6 (issue 51): the clients also send arm trajectory goals (the camera's arm), and the nemesis hits what
+# holds motion: the operator's stop under whatever moves (the gripper's included), and a manipulator SIGKILLed
+# (the client of its arm's trajectory). The motors keep their command timeout here: a controller killed is a
+# stop only hardware makes (``bench_safety.py`` measures the stack's side of it, the motors' timeout off); every
+# other stop case is the stack's own, since a live commander's stream keeps the motors' timeout from firing.
+CLIENT_OPS[6] = CLIENT_OPS[5] + [('arm_goal', 1.5)]
+NEMESIS[6] = NEMESIS[5] + [('halt', 0.75), ('kill_manipulator', 0.75)]
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
@@ -59,9 +66,10 @@ MANAGERS: Dict[int, Tuple[str, ...]] = {
 MANAGERS[2] = MANAGERS[1]
 MANAGERS[4] = MANAGERS[3]
 MANAGERS[5] = MANAGERS[3] + ('/temoto_robot_manager',)
+MANAGERS[6] = MANAGERS[5]
 # how many clients a history has unless told (``step`` draws the client from them); from version 4 the
 # clients work concurrently (runner.py), and the draws are version 3's over twice as many clients
-CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6, 5: 6}
+CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6, 5: 6, 6: 6}
 CONCURRENT_FROM = 4
 MOTION_FROM = 5
 DEVICES = ('d435', 'hokuyo', 'sick')
@@ -74,6 +82,7 @@ PLACES = ((0.0, 0.0, 0.0), (1.7, 1.06, 1.571), (0.5, 2.1, 1.571), (2.3, 0.0, -0.
 BAD_GOALS = (('world', 25.0, 0.0), ('nowhere', 1.0, 0.0), ('world', float('nan'), 0.0))
 ARMS = ('left_arm', 'left_arm', 'right_arm')          # the camera's arm carries the gripper: servoed more
 SCALES = (0.1, 0.25, 0.5, 1.0)                        # the dial, for a servo that follows the hand
+ARM_GOAL_ARMS = ('left_arm',)     # trajectory goals: the camera's arm (the Hokuyo's sweeps between its holds)
 GRIPPER_STROKE = 0.085
 
 
@@ -115,6 +124,9 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
             args.update(_goal(rng))
         elif kind == 'servo':
             args.update(_servo(rng))
+        elif kind == 'arm_goal':
+            args.update(arm=rng.choice(ARM_GOAL_ARMS), speed=rng.choice((0.2, 0.5, 1.0)),
+                        offsets=[round(rng.uniform(-0.3, 0.3), 3) if rng.random() < 0.5 else 0.0 for _ in range(6)])
         elif kind == 'grip':
             draw = rng.random()
             gap = GRIPPER_STROKE if draw < 0.35 else 0.0 if draw < 0.7 else 0.2 if draw < 0.8 else \
@@ -141,6 +153,10 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
         return Step(index, kind, {'pick': rng.randrange(1 << 30)})
     if kind == 'stop_controller':
         return Step(index, kind, {'pick': rng.randrange(1 << 30), 'seconds': round(rng.uniform(0.2, 1.5), 2)})
+    if kind == 'halt':
+        return Step(index, kind, {})
+    if kind == 'kill_manipulator':
+        return Step(index, kind, {'pick': rng.randrange(1 << 30)})
     if kind in ('unplug_obstacle', 'unplug_hand'):
         return Step(index, kind, {'mode': rng.choice(MODES)})
     devices = DEVICES_WITH_HAND if version >= MOTION_FROM else DEVICES

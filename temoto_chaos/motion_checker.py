@@ -45,6 +45,10 @@ DETECTION_S = {
     # case its source's own, as the watch learns it: the stitched Hokuyo cloud and the D435's are slower)
     'obstacle_unplugged': 0.14,
     'hand_unplugged': 0.04,      # the hand source goes stale while an arm follows it: 2 periods + 20 ms
+    'halted': 0.05,              # the operator's stop: every motion node commands zero (docs/robots.md: 50 ms)
+    # an arm's manipulator killed: its controller sees its trajectory's client gone (its connection's end of
+    # file), or a servo stream's commands stop and the controller's 0.1 s deadman holds the arm
+    'manipulator_killed': 0.15,
     'link_cut': 0.2,             # the servo stream is cut: the stream's 0.1 s timeout, the controller's deadman
     # a drive's client is cut off: the kernel drops the navigator's unacknowledged status after 0.4 s
     # (goal_holders.py), at its retransmission timer's next firing (up to 0.4 s more), then the next tick
@@ -55,7 +59,7 @@ DETECTION_S = {
 }
 # a goal's end: the longest a goal of each kind may run before it ends by itself (a drive across the lab at
 # the navigator's speed, with replanning; a gripper's stroke and its 1 s; a stream's own length is its end)
-GOAL_BOUND_S = {'goal': 120.0, 'grip': 10.0, 'servo': 30.0}
+GOAL_BOUND_S = {'goal': 120.0, 'grip': 10.0, 'servo': 30.0, 'arm_goal': 30.0}
 # s after a span's end before it is judged: the journals' lines that bear on it have been written by then
 JUDGE_AFTER_S = 2.0
 MAX_JUDGED = 5000        # judged spans kept for the stop cases still open (a few minutes of motion)
@@ -63,7 +67,8 @@ TOLERANCE_S = 0.03       # an uncovered sliver shorter than this is the samples'
 
 
 # the stop cases whose fault stays in force after it is done: a new goal cannot excuse motion through them
-PERSISTENT = frozenset(('obstacle_unplugged', 'controller_killed', 'controller_stalled', 'hand_unplugged'))
+PERSISTENT = frozenset(('obstacle_unplugged', 'controller_killed', 'controller_stalled', 'hand_unplugged',
+                        'manipulator_killed'))
 # s from a client's end of a hold (it heard the goal end, or sent its cancel) to the robot's knowing it, at most,
 # on a loaded machine: the cancel's message on its way and the motion node's next look
 END_LATENCY_S = 0.3

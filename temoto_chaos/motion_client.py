@@ -34,6 +34,7 @@ from std_msgs.msg import String
 from temoto_core.action_client import ACK_RESEND_S, redeliver
 from temoto_core.msg import HandSample
 from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
+from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal
 from temoto_operator.dial import Dial
 from temoto_operator.hand_follower import HOLD, TARGET, HandFollower
 from temoto_robot_manager.navigation.obstacle_points import matrix_of_pose
@@ -142,6 +143,19 @@ class MotionClient:
         goal.command.position, goal.command.max_effort = gap, effort
         return self._goal(robot, 'gripper', 'grip', self._topic(info, info['gripper']['action']),
                           GripperCommandAction, goal, 'gap %.3f m, %.0f N' % (gap, effort))
+
+    def arm_goal(self, robot: int, info: dict, arm: str, offsets, speed: float) -> dict:
+        """A trajectory goal of ``arm`` (its manipulator's ``move_arm``): from where its joints are, by ``offsets``
+        (rad, one per joint), at ``speed`` of each joint's limit."""
+        joints = ['%s_%s' % (arm.split('_')[0], j) for j in UR5_JOINTS]
+        try:
+            msg = rospy.wait_for_message(self._topic(info, 'joint_states'), JointState, JOINTS_WAIT_S)
+        except rospy.ROSException as err:
+            return {'ok': False, 'error': 'where the %s is is not known: %s' % (arm, err)}
+        here = dict(zip(msg.name, msg.position))
+        goal = MoveArmGoal(joint_positions=[here[j] + d for j, d in zip(joints, offsets)], speed_scale=speed)
+        return self._goal(robot, arm, 'arm_goal', self._topic(info, '%s/move_arm' % arm), MoveArmAction, goal,
+                          'joints by %s at %.1f' % (list(offsets), speed))
 
     def _goal(self, robot: int, part: str, kind: str, topic: str, spec, goal, what: str) -> dict:
         client = self._client(topic, spec)

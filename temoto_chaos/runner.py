@@ -41,6 +41,7 @@ from std_msgs.msg import String
 
 from temoto_demo.stack import Stack
 from temoto_core import control_socket, rospy_internals
+from temoto_core.halt import HALT_TYPE, halt_topic
 from temoto_core.hosts import TwoHosts
 from temoto_core.latched import NoPublisher, latched_message
 from temoto_core.master import RosMaster
@@ -67,7 +68,7 @@ STATION_ARGS = ['temoto_namespace:=' + STATION, 'robot:=' + ROBOT]
 # history 5: the hand sources too, on the robot's Sensor Manager (the simulated tracker has a cable of the sim's)
 HANDS_CATALOGUE = os.path.join(os.path.dirname(HERE), 'temoto_sensor_manager', 'config', 'hands.yaml')
 CLIENT_STEPS = ('load_sensor', 'load_process', 'track_object', 'show_display', 'unload', 'navigate', 'servo', 'grip',
-                'cancel_motion')
+                'arm_goal', 'cancel_motion')
 MOTION_WATCH_START_S = 20.0
 # which part each controller moves, and the devices the obstacle sources come from (the navigator's topic)
 CONTROLLED = {'base_controller': BASE, 'left_arm_controller': LEFT_ARM, 'right_arm_controller': RIGHT_ARM,
@@ -94,7 +95,7 @@ LASTING_FAULT_SLACK_S = 10.0
 # without the robot's simulation (the cables), and the cut's own check asks the clients it knew at the cut
 # (not a client killed meanwhile). A manager stopped or killed (until it is back) takes none of them away.
 _BESIDE_A_MANAGER_DOWN = ('kill_driver', 'kill_consumer', 'kill_client', 'unplug', 'replug', 'unplug_obstacle',
-                          'unplug_hand', 'kill_controller')
+                          'unplug_hand', 'kill_controller', 'halt', 'kill_manipulator')
 OVERLAPPING = {
     'partition': ('kill_driver', 'kill_consumer'),
     'stop_manager': _BESIDE_A_MANAGER_DOWN,
@@ -259,6 +260,9 @@ class Chaos:
             self._start_watch()
         rospy_internals.install_shutdown_guard()     # another master's bump of a dead node on this port
         rospy.init_node('temoto_chaos', disable_signals=True)
+        # the operator's "stop" (history 6), as the action engine publishes it: made now, so that the motion nodes
+        # are connected to it by the time a halt is drawn
+        self._halt_pub = rospy.Publisher(halt_topic(ROBOT), HALT_TYPE, queue_size=5, tcp_nodelay=True)
         self._wait_managers()
         for i in range(self.opts.clients):
             self._start_client(i)
@@ -378,6 +382,10 @@ class Chaos:
             return self._kill_robot()
         if kind in ('kill_controller', 'stop_controller'):
             return self._hit_controller(step)
+        if kind == 'halt':
+            return self._halt(step)
+        if kind == 'kill_manipulator':
+            return self._kill_manipulator(step)
         if kind == 'unplug_obstacle':
             return self._unplug_obstacle(step)
         if kind == 'unplug_hand':
@@ -417,6 +425,33 @@ class Chaos:
         if self.opts.concurrent:
             return lambda: self._resume(name, pid, step.args['seconds'])
         return self._resume(name, pid, step.args['seconds'])
+
+    def _halt(self, step: Step) -> str:
+        """The operator's "stop" on the robot's halt topic, as the action engine publishes it: every part moving
+        then is held to the halt's bound (a goal sent after it may move the part again)."""
+        moving = self._moving_parts()
+        self._stop_cases('halted', step, moving)
+        self._halt_pub.publish(String('chaos step %d' % step.index))
+        return 'halt (moving: %s)' % (', '.join(moving) or 'nothing')
+
+    def _kill_manipulator(self, step: Step) -> str:
+        """SIGKILL an arm's manipulator (the client of its controller's trajectory, and the servo stream's writer):
+        that arm's controller must hold it. One whose arm moves first."""
+        moving = self._moving_parts()
+        running = {}
+        for arm in (LEFT_ARM, RIGHT_ARM):
+            uri = lookup_node(self.master.uri, '/%s/%s_manipulator' % (ROBOT, arm))
+            pid = node_pid(uri) if uri else None
+            if pid is not None:
+                running[arm] = pid
+        if not running:
+            return 'no manipulator runs'
+        candidates = [a for a in sorted(running) if a in moving] or sorted(running)
+        arm = candidates[step.args['pick'] % len(candidates)]
+        self._stop_cases('manipulator_killed', step, [arm])
+        os.kill(running[arm], signal.SIGKILL)
+        return 'SIGKILL /%s/%s_manipulator (%d)%s' % (ROBOT, arm, running[arm], ', its arm moving' if arm in moving
+                                                        else '')
 
     def _moving_parts(self) -> List[str]:
         """The parts moving now, as the ground truth says (the ledger reads it on)."""
@@ -468,7 +503,7 @@ class Chaos:
     def _client_op(self, step: Step, client: ClientHandle) -> str:
         """A client's step, done by ``client``: what it answered."""
         kind, a = step.kind, step.args
-        if kind in ('navigate', 'servo', 'grip', 'cancel_motion'):
+        if kind in ('navigate', 'servo', 'grip', 'arm_goal', 'cancel_motion'):
             answer = client.ask(op=kind, **{k: v for k, v in a.items() if k != 'client'})
             if not answer.get('ok'):
                 return 'client %d: refused: %s' % (a['client'], answer.get('error', '')[:200])

@@ -203,6 +203,17 @@ def test_every_fault_kind_is_drawn_and_an_older_history_version_still_replays_it
                                                                          'kill_robot'})
 
 
+def test_history_6_draws_arm_goals_halts_and_manipulator_kills_and_leaves_history_5_as_it_was():
+    sixth = list(history(7, 3000, 6, version=6))
+    kinds = {s.kind for s in sixth}
+    assert kinds >= {kind for kind, _ in NEMESIS[6]} | {'arm_goal'}
+    goal = next(s for s in sixth if s.kind == 'arm_goal')
+    assert goal.args['arm'] == 'left_arm' and len(goal.args['offsets']) == 6 and 0 < goal.args['speed'] <= 1.0
+    assert all(abs(v) <= 0.3 for s in sixth if s.kind == 'arm_goal' for v in s.args['offsets'])
+    fifth = [s.describe() for s in history(7, 300, 6, version=5)]
+    assert not any(k in line for line in fifth for k in ('arm_goal', ' halt', 'kill_manipulator'))
+
+
 def test_a_call_that_raised_no_temoto_error_is_a_violation():
     snap = clean()
     snap.clients[0]['unexpected'] = ["b'load_process' raised TransportTerminated: 32Broken pipe"]

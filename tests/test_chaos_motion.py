@@ -226,6 +226,44 @@ def test_a_controller_fault_holds_the_part_to_its_bound_whoever_holds_it_and_a_n
         assert any('still moving' in v for v in ledger.check(20.0)), case
 
 
+def arm_moves(truth, t0, t1, arm=LEFT_ARM, speed=0.5, dt=0.02):
+    t = t0
+    while t < t1:
+        truth.arm(t, arm, True, speed)
+        t += dt
+    truth.arm(t1, arm, True, 0.0)
+
+
+def test_a_halt_holds_every_moving_part_to_its_bound_and_a_goal_sent_after_it_may_move_again():
+    """Mutation (history 6): an arm still running its trajectory past the halt's bound is caught; one at rest within
+    it is not; a goal sent after the halt moves the arm again, which the halt does not forbid."""
+    bound = stop_bound('halted', LEFT_ARM)
+    for late, caught in ((-0.1, False), (0.3, True)):
+        truth = GroundTruth({})
+        arm_moves(truth, 1.0, 2.0 + bound + late)
+        ledger = ledger_with(truth, *goal('/c_0#1', 0.9, LEFT_ARM, 'arm_goal'))
+        ledger.fault('halted', 2.0, LEFT_ARM, step=5)
+        out = ledger.check(20.0)
+        assert any('still moving' in v and '(halted' in v for v in out) == caught, (late, out)
+    truth = GroundTruth({})
+    arm_moves(truth, 1.0, 4.0)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9, LEFT_ARM, 'arm_goal'), *goal('/c_1#1', 2.05, LEFT_ARM, 'arm_goal'))
+    ledger.fault('halted', 2.0, LEFT_ARM, step=5)
+    assert ledger.check(20.0) == []
+    assert ledger.figures()['stop_cases']['halted/left_arm']['restarted'] == 1
+
+
+def test_a_killed_manipulator_holds_its_arm_to_its_bound_and_a_new_goal_excuses_nothing():
+    """Mutation (history 6): the manipulator SIGKILLed mid-trajectory once left the arm running the trajectory to its
+    end; a new goal cannot excuse it (the dead manipulator serves none)."""
+    truth = GroundTruth({})
+    arm_moves(truth, 1.0, 3.5)
+    ledger = ledger_with(truth, *goal('/c_0#1', 0.9, LEFT_ARM, 'arm_goal'), *goal('/c_1#1', 2.05, LEFT_ARM, 'arm_goal'))
+    ledger.fault('manipulator_killed', 2.0, LEFT_ARM, step=9)
+    [v] = ledger.check(20.0)
+    assert 'still moving 1.500 s after step 9 (manipulator killed' in v, v
+
+
 def test_a_client_killed_while_another_sends_a_goal_is_a_restart():
     """A killed client's fault ends with it: a new goal of another client may move the part at once."""
     truth = GroundTruth({SICK: 0.04})

@@ -233,16 +233,21 @@ def test_a_burst_of_goals_each_preempting_the_last_ends_every_one(arm, truth):
     assert state == GoalStatus.SUCCEEDED, text
 
 
-def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(arm, truth):
+def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(arm, truth, collect):
+    from trajectory_msgs.msg import JointTrajectory
     joints, states = truth
+    commands = collect('/left_arm/servo_command', JointTrajectory)
     start = tool_in_base(settled(joints))
     pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=5)
     wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator to subscribe to the servo targets')
     target = start.copy()
     period, sent = 0.02, 0
+    stamps = set()
     for k in range(150):                          # 3 s: the target moves 10 cm along y at 5 cm/s, then waits
         target[1, 3] = start[1, 3] + min(0.10, 0.05 * k * period)
-        pub.publish(target_message(target))
+        msg = target_message(target)
+        stamps.add(msg.header.stamp)
+        pub.publish(msg)
         sent += 1
         time.sleep(period)                        # the stream's own pace, as a hand tracker sends
     silent = rospy.Time.now().to_sec()
@@ -252,6 +257,9 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
                                   and m.header.stamp.to_sec() > silent and m.speed == 0.0), None), HANG,
                     'the arm at rest after the stream')
     assert held.header.stamp.to_sec() - silent < 5.0
+    steps = [m for m in commands.msgs if m.points and m.points[0].positions]
+    assert len(steps) > 100, 'the servo commands made from the stream'
+    assert all(m.header.stamp in stamps for m in steps), 'each servo command carries the stamp of its target'
     pub.unregister()
     state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
     assert state == GoalStatus.SUCCEEDED, text

@@ -78,9 +78,10 @@ def arm_inputs(servo_timeout: float) -> Tuple[Input, Input]:
 
 @dataclass(frozen=True)
 class ServoPoint:
-    """One servo step for the controller's servo input."""
+    """One servo step for the controller's servo input, stamped with the target it was computed from."""
     positions: Sequence[float]
     velocities: Sequence[float]
+    stamp: rospy.Time
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,7 @@ class ManipulatorNode:
         self._stop_sent_at = 0.0
         self.target: Optional[np.ndarray] = None
         self.target_at = 0.0
+        self.target_stamp = rospy.Time(0)        # the target's own stamp: its servo commands carry it
         self.active = None                       # the goal handle being run
         # its id, read once as it comes: a handle's accessors take the action server's lock, which the server
         # holds while it calls _on_goal (that then takes self.lock); asked under self.lock they would deadlock
@@ -216,6 +218,7 @@ class ManipulatorNode:
             return
         with self.lock:
             self.target, self.target_at = target, time.monotonic() - age
+            self.target_stamp = msg.header.stamp if not msg.header.stamp.is_zero() else rospy.Time.now()
             self._new_target = True
             self.wake.notify()
 
@@ -406,6 +409,7 @@ class ManipulatorNode:
                 self._say('stopping: %s' % lapsed.text)
             streaming = self.gate.owner == 'servo'
             target = self.target if now - self.target_at <= self.servo_timeout else None
+            stamp = self.target_stamp
             q = list(self.q) if self.q is not None and now - self.q_at <= STATE_TIMEOUT_S else None
             stopped = self._stopping and self._still_at > self._stop_sent_at
             if told:
@@ -441,7 +445,7 @@ class ManipulatorNode:
         step = self.servo.step(q, target)                 # outside the lock: the IK takes its time
         with self.lock:
             try:
-                self.gate.offer('servo', ServoPoint(step.positions, step.velocities), now,
+                self.gate.offer('servo', ServoPoint(step.positions, step.velocities, stamp), now,
                                 why=step.why or 'following the servo target')
             except command_gate.Refused:
                 return          # a stop, a hold or a trajectory came while the step was computed: not sent
@@ -460,19 +464,22 @@ class ManipulatorNode:
             self._moved_by = 'trajectory'
             return
         if isinstance(command, ServoPoint):
-            self._publish(command.positions, command.velocities)
+            self._publish(command.positions, command.velocities, command.stamp)
             self._moved_by = 'servo'
             return
         if self._moved_by == 'trajectory':
             self.controller.cancel_goal()
         elif self._moved_by == 'servo':
-            self._publish([], [0.0] * len(self.arm.joints))
+            self._publish([], [0.0] * len(self.arm.joints), rospy.Time.now())
         self._moved_by = None
 
-    def _publish(self, positions, velocities) -> None:
+    def _publish(self, positions, velocities, stamp: rospy.Time) -> None:
+        """A servo command; ``stamp``: its target's (a step's), or now (a hold). A command's age from its target is
+        then read end to end, by the controller or by a benchmark, and a step between targets is told from the step
+        made from a new one."""
         point = JointTrajectoryPoint(positions=list(positions), velocities=list(velocities))
         msg = JointTrajectory(joint_names=list(self.arm.joints), points=[point])
-        msg.header.stamp = rospy.Time.now()
+        msg.header.stamp = stamp
         self.pub_servo.publish(msg)
 
     def _hold(self, reason: StopReason) -> None:
