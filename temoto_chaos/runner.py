@@ -404,12 +404,7 @@ class Chaos:
         moving = self._moving_parts()
         # among the controllers that run (an arm's and the gripper's run only while a client holds them): those of
         # a moving part first. A pick among all of them found none running three times in a 300-step history
-        running = {}
-        for controller in sorted(CONTROLLED):
-            uri = lookup_node(self.master.uri, '/%s/%s' % (ROBOT, controller))
-            pid = node_pid(uri) if uri else None
-            if pid is not None:
-                running[controller] = pid
+        running = self._running({c: '/%s/%s' % (ROBOT, c) for c in CONTROLLED})
         if not running:
             return 'no controller runs'
         candidates = [c for c in running if CONTROLLED[c] in moving] or list(running)
@@ -438,12 +433,7 @@ class Chaos:
         """SIGKILL an arm's manipulator (the client of its controller's trajectory, and the servo stream's writer):
         that arm's controller must hold it. One whose arm moves first."""
         moving = self._moving_parts()
-        running = {}
-        for arm in (LEFT_ARM, RIGHT_ARM):
-            uri = lookup_node(self.master.uri, '/%s/%s_manipulator' % (ROBOT, arm))
-            pid = node_pid(uri) if uri else None
-            if pid is not None:
-                running[arm] = pid
+        running = self._running({arm: '/%s/%s_manipulator' % (ROBOT, arm) for arm in (LEFT_ARM, RIGHT_ARM)})
         if not running:
             return 'no manipulator runs'
         candidates = [a for a in sorted(running) if a in moving] or sorted(running)
@@ -452,6 +442,16 @@ class Chaos:
         os.kill(running[arm], signal.SIGKILL)
         return 'SIGKILL /%s/%s_manipulator (%d)%s' % (ROBOT, arm, running[arm], ', its arm moving' if arm in moving
                                                         else '')
+
+    def _running(self, nodes: Dict[str, str]) -> Dict[str, int]:
+        """Of ``nodes`` (a key -> a node's name), those registered now: the key -> the node's pid."""
+        running = {}
+        for key, name in sorted(nodes.items()):
+            uri = lookup_node(self.master.uri, name)
+            pid = node_pid(uri) if uri else None
+            if pid is not None:
+                running[key] = pid
+        return running
 
     def _moving_parts(self) -> List[str]:
         """The parts moving now, as the ground truth says (the ledger reads it on)."""

@@ -45,6 +45,7 @@ One file holds a list under ``robots``::
             action: left_arm/follow_joint_trajectory
             servo_topic: left_arm/servo_command
             servo_timeout: 0.1               # s: a servo target this old is not followed; the arm holds (optional)
+            world_margin: 0.05               # m the arm's axes keep from the map's obstacles (optional)
             joints: [left_shoulder_pan_joint, ...]
             base_frame: left_base_link
             tool_frame: left_tool0
@@ -81,8 +82,8 @@ _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom
                     'slow_margin', 'braking', 'stale_periods', 'teleop_timeout', 'teleop_max_age',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
-_ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'servo_timeout', 'joints', 'base_frame', 'tool_frame',
-             'named_poses'}
+_ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'servo_timeout', 'world_margin', 'joints',
+             'base_frame', 'tool_frame', 'named_poses'}
 _GRIPPER_KEYS = {'controller', 'action', 'arm', 'positions'}
 
 
@@ -162,6 +163,7 @@ class Arm:
     named_poses: Dict[str, Tuple[float, ...]]
     manipulator: Optional[Part] = None      # the node that serves the arm's goals and servoing (manipulator_node)
     servo_timeout: float = 0.1              # s: a servo target this old is not followed (MoveIt Servo's)
+    world_margin: float = 0.05              # m each arm's axes keep from the map's obstacles (the links' thickness)
 
 
 @dataclass(frozen=True)
@@ -355,7 +357,8 @@ class _Reader:
                    tuple(joints), self.text(raw, 'base_frame', at, default='base_link'),
                    self.text(raw, 'tool_frame', at), poses,
                    self.part(raw['manipulator'], list(at) + ['manipulator']) if 'manipulator' in raw else None,
-                   self.number(raw, 'servo_timeout', at, 0.1, above=0.0, maximum=2.0))
+                   self.number(raw, 'servo_timeout', at, 0.1, above=0.0, maximum=2.0),
+                   self.number(raw, 'world_margin', at, 0.05, above=0.0, maximum=1.0))
 
     def robot(self, value: Any, at: Sequence) -> RobotDescription:
         raw = self.mapping(value, at, _ROBOT_KEYS, ('name',))

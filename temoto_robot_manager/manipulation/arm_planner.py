@@ -3,8 +3,8 @@
 A goal names exactly one target: a pose of the tool (in the arm's base frame by now: the node transforms
 it), a named pose of the description, or one position per joint. A pose is solved by inverse kinematics
 from where the arm is, so the arm takes the nearest way there. The joint-space line from the start to
-the goal is checked against the robot's own body every ``CHECK_STEP_RAD`` of the joint that moves most,
-and only then time-parameterised (``joint_motion.py``). Nothing moves before all of this has passed.
+the goal is checked against the robot's own body and against the world (the map: ``world_clearance.py``)
+every ``CHECK_STEP_RAD`` of the joint that moves most, and only then time-parameterised (``joint_motion.py``). Nothing moves before all of this has passed.
 """
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import numpy as np
 
 from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager.manipulation.joint_motion import Point, time_parameterise
+from temoto_robot_manager.manipulation.world_clearance import way_touch
 
 ACCEL = 4.0                   # rad/s^2 per joint: half what the UR5's motors give, for smooth goals
 DEFAULT_SPEED_SCALE = 0.5     # of each joint's speed limit
@@ -24,7 +25,7 @@ GOAL_MARGIN = 0.05            # rad: a goal keeps this far inside each joint's r
 # the joint the arm would touch its own body with at q, named with the link it touches; None when clear
 Touches = Callable[[Sequence[float]], Optional[str]]
 
-INVALID_GOAL, NO_SOLUTION, SELF_COLLISION = -1, -2, -3     # MoveArm's result codes
+INVALID_GOAL, NO_SOLUTION, SELF_COLLISION, WORLD_COLLISION = -1, -2, -3, -7     # MoveArm's result codes
 
 
 class GoalRefused(ValueError):
@@ -35,10 +36,12 @@ class GoalRefused(ValueError):
 
 class ArmPlanner:
     def __init__(self, kinematics: ArmKinematics, named: Mapping[str, Sequence[float]],
-                 touches: Optional[Touches] = None) -> None:
+                 touches: Optional[Touches] = None, world: Optional[Touches] = None) -> None:
+        """``touches``: the robot's own body at q; ``world``: the world at q (both: why, or None)."""
         self.kin = kinematics
         self.named = {k: list(v) for k, v in named.items()}
         self.touches = touches
+        self.world = world
 
     def target(self, start: Sequence[float], pose: Optional[np.ndarray], named_pose: str,
                joint_positions: Sequence[float]) -> List[float]:
@@ -74,18 +77,18 @@ class ArmPlanner:
         return goal
 
     def check_way(self, start: Sequence[float], goal: Sequence[float]) -> None:
-        """Raises GoalRefused (SELF_COLLISION) where the straight joint-space way touches the robot's own body."""
-        if self.touches is None:
-            return
-        span = max((abs(g - s) for s, g in zip(start, goal)), default=0.0)
-        steps = max(1, int(math.ceil(span / CHECK_STEP_RAD)))
-        for k in range(1, steps + 1):
-            f = k / steps
-            q = [s + (g - s) * f for s, g in zip(start, goal)]
-            touch = self.touches(q)
-            if touch:
+        """Raises GoalRefused where the straight joint-space way touches the robot's own body (SELF_COLLISION) or
+        the world (WORLD_COLLISION)."""
+        if self.touches is not None:
+            found = way_touch(self.touches, start, goal, CHECK_STEP_RAD)
+            if found:
                 raise GoalRefused(SELF_COLLISION, 'the way there touches the robot\'s own body %.0f%% of the way: %s'
-                                  % (100 * f, touch))
+                                  % (100 * found[0], found[1]))
+        if self.world is not None:
+            found = way_touch(self.world, start, goal, CHECK_STEP_RAD)
+            if found:
+                raise GoalRefused(WORLD_COLLISION, 'the way there touches the world %.0f%% of the way: %s'
+                                  % (100 * found[0], found[1]))
 
     def plan(self, start: Sequence[float], pose: Optional[np.ndarray] = None, named_pose: str = '',
              joint_positions: Sequence[float] = (), speed_scale: float = 0.0) -> List[Point]:

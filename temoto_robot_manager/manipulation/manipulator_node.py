@@ -42,6 +42,7 @@ import tf2_ros
 from actionlib_msgs.msg import GoalStatus, GoalStatusArray
 from control_msgs.msg import FollowJointTrajectoryAction, FollowJointTrajectoryGoal
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -62,6 +63,7 @@ from temoto_robot_manager.guards import StopCode, StopReason
 from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResult
 from temoto_robot_manager.navigation.obstacle_points import matrix_of_pose
 from temoto_robot_manager.manipulation.self_collision import SelfCollision
+from temoto_robot_manager.manipulation.world_clearance import WorldClearance
 from temoto_robot_manager.manipulation.servo import Servo
 
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
@@ -108,7 +110,9 @@ class ManipulatorNode:
             raise ValueError('arm %s: %s' % (name, err)) from None
         reference = dict(zip(self.arm.joints, self.arm.named_poses.get('hold', [0.0] * self.kin.n)))
         self.body = SelfCollision(urdf, self.arm.joints, reference)
-        self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches)
+        self.world = WorldClearance(self.arm.world_margin)     # the map's obstacles, once the map comes
+        self.map_frame = ''
+        self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches, self._world_touch)
         self.servo_rate = params.number('servo_rate', 125.0, above=0, maximum=500)
         self.servo_timeout = self.arm.servo_timeout       # a target this old is not followed (the description's)
         self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
@@ -144,6 +148,7 @@ class ManipulatorNode:
         # the only writer of the arm's commands (the controller's servo input and its trajectory action)
         self.gate = CommandGate(name, arm_inputs(self.servo_timeout), [], self._write, None, self._report)
         rospy.Subscriber('joint_states', JointState, self._on_joint_states, queue_size=20, tcp_nodelay=True)
+        rospy.Subscriber('map', OccupancyGrid, self._on_map, queue_size=1)
         rospy.Subscriber('%s/servo_hold' % name, String, self._on_servo_hold, queue_size=5, tcp_nodelay=True)
         rospy.Subscriber('%s/servo_target' % name, PoseStamped, self._on_servo_target, queue_size=5,
                          tcp_nodelay=True)
@@ -254,6 +259,26 @@ class ManipulatorNode:
     def _touches(self, q) -> Optional[str]:
         near = self.body.nearest(dict(zip(self.arm.joints, q)), 0.0)
         return '%s touches %s' % (near.link, near.other) if near else None
+
+    def _on_map(self, msg: OccupancyGrid) -> None:
+        info = msg.info
+        self.world.set_map((info.origin.position.x, info.origin.position.y), info.resolution, info.width,
+                           info.height, msg.data)
+        self.map_frame = msg.header.frame_id
+        rospy.loginfo('manipulator: the map (%dx%d in %s) keeps %s off the world', info.width, info.height,
+                      msg.header.frame_id, self.arm.name)
+
+    def _world_touch(self, q) -> Optional[str]:
+        """Why the arm at ``q`` would touch the map's obstacles, or None (no map: nothing to check against)."""
+        if not self.world.known:
+            return None
+        try:
+            t = self.tf.lookup_transform(self.map_frame, self.arm.base_frame, rospy.Time(0)).transform
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as err:
+            rospy.logwarn_throttle(5.0, 'manipulator: no transform from %s to the map\'s %s: the world is not '
+                                   'checked: %s', self.arm.base_frame, self.map_frame, err)
+            return None
+        return self.world.touch(self.kin.skeleton(q), matrix_of_pose(t.translation, t.rotation))
 
     def _body_distance(self, q, margin: float) -> Optional[float]:
         near = self.body.nearest(dict(zip(self.arm.joints, q)), margin)
@@ -442,6 +467,7 @@ class ManipulatorNode:
         if check:
             self._checked_at = now
         self.servo.body_distance = self._body_distance if check else None
+        self.servo.world = self._world_touch if check else None
         step = self.servo.step(q, target)                 # outside the lock: the IK takes its time
         with self.lock:
             try:

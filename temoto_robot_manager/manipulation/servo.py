@@ -39,6 +39,8 @@ LOOKAHEAD_S = 0.05          # s ahead: where the self-collision check looks
 # the distance (m) from the arm to the robot's own body with the arm's joints at q, within a margin; None if
 # farther (self_collision.SelfCollision.nearest, adapted)
 BodyDistance = Callable[[Sequence[float], float], Optional[float]]
+# why the arm at q would touch the world (``world_clearance.WorldClearance``), or None
+WorldTouch = Callable[[Sequence[float]], Optional[str]]
 
 
 @dataclass
@@ -70,10 +72,12 @@ def rotation_error(current: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 class Servo:
-    def __init__(self, kinematics: ArmKinematics, period: float, body_distance: Optional[BodyDistance] = None) -> None:
+    def __init__(self, kinematics: ArmKinematics, period: float, body_distance: Optional[BodyDistance] = None,
+                 world: Optional[WorldTouch] = None) -> None:
         self.kin = kinematics
         self.period = period
         self.body_distance = body_distance
+        self.world = world
 
     def twist(self, q: Sequence[float], target: np.ndarray) -> np.ndarray:
         here = self.kin.fk(q)
@@ -119,6 +123,11 @@ class Servo:
                     return self._halt(q, condition, 'the arm would touch the robot\'s own body')
                 scale *= distance / COLLISION_SLOW
                 why = why or 'slowed %.1f mm from the robot\'s own body' % (1000 * distance)
+        # 7. the world, where the step leads
+        if self.world is not None and np.any(dq):
+            touch = self.world(q + dq * scale * LOOKAHEAD_S)
+            if touch:
+                return self._halt(q, condition, 'the arm would touch the world: %s' % touch)
         velocities = list(dq * scale)
         return Step(velocities, list(q + dq * scale * self.period), scale, condition, why)
 
