@@ -15,7 +15,9 @@ Manager starts it) and the gripper's controller run as processes on a loopback m
    commanded to hold (``arm_states``), p99;
 5. an arm goal's client SIGKILLed mid-motion: kill -> the arm commanded to hold, p50 and max;
 6. the gripper's controller SIGKILLed mid-stroke: kill -> the motor's setpoint dropped (``gripper_state``),
-   p99.
+   p99;
+7. in process: one check of the arm against the world (its skeleton through KDL, then the lab's map), as the
+   servo makes it every 40 ms and a goal's way every 0.05 rad, p50 and p95.
 
 Prints a markdown table and writes bench/results/manipulation.json.
 Usage: python bench/bench_manipulation.py [--trials N]
@@ -42,12 +44,16 @@ from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from common import loopback_master, pct, print_table  # noqa: E402
 from temoto_core.action_client import TrackingActionClient  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics  # noqa: E402
+from temoto_robot_manager.manipulation.world_clearance import WorldClearance  # noqa: E402
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal  # noqa: E402
 from temoto_testing.motion import ARM_CLIENT  # noqa: E402
 from vaultbot_sim.gripper import STROKE  # noqa: E402
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix  # noqa: E402
 from vaultbot_sim.msg import ArmState, GripperState  # noqa: E402
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
+from vaultbot_sim.kinematics import WORLDS  # noqa: E402
+from vaultbot_sim.world_map import world_map  # noqa: E402
 
 HANG = 30.0
 VAULTBOT = os.path.join(ROOT, 'temoto_robot_manager', 'config', 'vaultbot.yaml')
@@ -103,10 +109,29 @@ def home(client):
     client.wait_for_result(rospy.Duration(HANG))
 
 
+def world_check_times(n: int = 2000):
+    """Seconds each of ``n`` world checks takes: the left arm's skeleton at a pose near its hold, against the lab's
+    map, the base at the lab's origin."""
+    with open(ROBOT_URDF) as f:
+        kin = ArmKinematics(f.read(), 'base_link', 'left_tool0', LEFT)
+    grid = world_map(TreeModel(WORLDS['lab']))
+    world = WorldClearance(0.05)
+    world.set_map(grid.origin, grid.resolution, grid.size[0], grid.size[1], grid.cells.ravel())
+    rng = np.random.default_rng(3)
+    times = []
+    for _ in range(n):
+        q = np.array(HOLD) + rng.uniform(-0.5, 0.5, 6)
+        t = time.perf_counter()
+        world.touch(kin.skeleton(q), np.eye(4))
+        times.append(time.perf_counter() - t)
+    return times
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--trials', type=int, default=20)
     args = p.parse_args()
+    world_times = world_check_times()
     master, launcher = loopback_master('bench_manipulation')
     out = {}
     try:
@@ -214,6 +239,7 @@ def main() -> int:
             'servo_commands_per_s': {'min': min(rates), 'p50': pct(rates, 50)},
             'client_killed_hold_ms': {'p50': ms(orphaned, 50), 'max': 1000 * max(orphaned), 'n': len(orphaned)},
             'gripper_killed_stop_ms': {'p50': ms(dropped, 50), 'p99': ms(dropped, 99), 'n': len(dropped)},
+            'world_check_ms': {'p50': ms(world_times, 50), 'p95': ms(world_times, 95), 'n': len(world_times)},
         }
         print_table('Manipulation (ground truth from the sim)', [
             ('bad arm goal -> REJECTED, p99 (n=%d)' % len(rejected), '%.1f ms' % out['rejected_ms']['p99'], '<= 20 ms'),
@@ -233,6 +259,9 @@ def main() -> int:
             ('gripper controller SIGKILLed -> fingers stopped, p50 / p99 (n=%d)' % len(dropped),
              '%.0f / %.0f ms' % (out['gripper_killed_stop_ms']['p50'], out['gripper_killed_stop_ms']['p99']),
              '<= 50 ms'),
+            ('one world check of the arm (skeleton + the lab\'s map), in process, p50 / p95 (n=%d)' % len(world_times),
+             '%.2f / %.2f ms' % (out['world_check_ms']['p50'], out['world_check_ms']['p95']),
+             '<= 1 ms p95 (a servo step\'s budget at 125 Hz: 8 ms)'),
         ])
     finally:
         launcher.stop_all()

@@ -18,7 +18,7 @@ DEFAULT_STEPS = 300
 def chaos_options(argv: Optional[List[str]] = None) -> ChaosOptions:
     """The run that ``argv`` asks for; a bad argument exits with argparse's error, naming it."""
     p = argparse.ArgumentParser(prog='temoto chaos', description='Run a seeded history of client operations and '
-                                'faults against the robot\'s managers, checking the invariants after every step.')
+                                'faults against the robot\'s managers, checking the invariants as it goes.')
     p.add_argument('--seed', type=int, required=True)
     p.add_argument('--steps', type=int, default=None,
                    help='how many steps (default: %d, or all those before --until)' % DEFAULT_STEPS)

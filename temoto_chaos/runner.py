@@ -1,4 +1,4 @@
-"""``temoto chaos``: run a seeded history against the robot's real managers and check it after every step.
+"""``temoto chaos``: run a seeded history against the robot's real managers and check it as it goes.
 
 The robot's stack is ``robot.launch`` with journals and respawn (``recovery:=true``): the simulated
 VaultBot, its ER Manager, its Sensor Manager and (history 3 and later) its Context Manager, under their own
