@@ -17,7 +17,9 @@ every zero through :meth:`CommandGate.stop` or a guard; adding a safety rule is 
 - **Stops**: :meth:`stop` (the operator's halt, a dead controller, a goal that ended) sends zero, ends every input,
   and says STOPPED with the reason. Nothing moves again until an input's next command, and a command *decided*
   before the stop (its ``now``) is refused: a servo step computed while the stop came, or a goal planned then,
-  must not follow the stop's zero.
+  must not follow the stop's zero. A stream (an input with a timeout) that goes on after a stop is not taken up
+  again: it must fall silent for its timeout first, so that a stop ends a stream whose sender did not hear it
+  (a hand that drives on), and only a new stream moves the actuator.
 
 What it says is a :class:`Status` (the typed ``temoto_core/MotionStatus``), given to ``report`` when the state or
 its reason changes. The gate is not thread-safe by itself: its owner calls it under the one lock that also guards
@@ -82,6 +84,7 @@ class CommandGate(Generic[Command]):
         self._send, self._zero, self._report = send, zero, report
         self._until: Dict[str, float] = {}        # each live input: when it lapses (inf: until released)
         self._stopped_at = float('-inf')          # the last stop: a command decided before it is refused
+        self._latched: Dict[str, float] = {}      # a stream stopped and going on: its last command, refused
         self.owner: Optional[str] = None          # the input whose command the actuator has now
         self.moving = False                       # the last command sent was not zero
         self.status = Status(State.IDLE, None, 'nothing commands the %s' % actuator)
@@ -98,6 +101,12 @@ class CommandGate(Generic[Command]):
         if now <= self._stopped_at:
             raise Refused('decided %.0f ms before the %s was stopped' % ((self._stopped_at - now) * 1e3,
                                                                         self.actuator))
+        if name in self._latched:
+            if now - self._latched[name] < source.timeout:
+                self._latched[name] = now
+                raise Refused('the %s was stopped: this stream must pause %.0f ms before it moves it again'
+                              % (self.actuator, source.timeout * 1e3))
+            del self._latched[name]                # silent for its timeout: a new stream
         self._lapse(now)
         higher = [i for i in self._until if self.inputs[i].priority > source.priority]
         if higher:
@@ -127,6 +136,8 @@ class CommandGate(Generic[Command]):
         """Zero now, whoever commands, and every input ended: the operator's halt, a dead controller. A command
         decided at ``now`` or before is refused after it."""
         self._stopped_at = max(self._stopped_at, now)
+        # every stream is latched off until it pauses for its timeout, from now
+        self._latched = {i.name: now for i in self.inputs.values() if i.timeout is not None}
         self._until.clear()
         self.owner = None
         self._put(self._zero, False)

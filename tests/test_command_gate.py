@@ -80,6 +80,21 @@ def test_a_stop_zeroes_whoever_commands_and_ends_every_input():
     assert sent[-2:] == [0.0, 0.0], 'a stop sends zero whatever was sent before'
 
 
+def test_a_stream_that_goes_on_after_a_stop_must_pause_before_it_moves_again():
+    """Chaos, history 6: a servo stream whose sender did not hear the operator's stop went on, and its next targets
+    moved the arm again 0.1 s after the halt. A stopped stream must fall silent for its timeout first."""
+    gate, sent, said = gate_with()
+    gate.offer('teleop', 0.3, 0.0)
+    gate.stop(StopReason(StopCode.HALTED, 'halted'), 0.01)
+    for k in range(1, 6):                                   # the stream goes on at 50 Hz: each refused
+        with pytest.raises(Refused, match='must pause 100 ms'):
+            gate.offer('teleop', 0.3, 0.01 + 0.02 * k)
+    assert sent == [0.3, 0.0] and said[-1].reason is StopCode.HALTED
+    assert gate.offer('teleop', 0.3, 0.11 + 0.1).state is State.MOVING, 'after a pause: a new stream'
+    gate.stop(StopReason(StopCode.HALTED, 'halted'), 0.3)
+    assert gate.offer('goal', 0.4, 0.31).state is State.MOVING, 'a goal sent after the stop is a new command'
+
+
 def test_a_command_decided_before_a_stop_is_refused_after_it():
     gate, sent, said = gate_with()
     gate.offer('teleop', 0.3, 0.0)

@@ -337,6 +337,44 @@ def test_stop_mid_trajectory_holds_the_arm_and_says_why_typed(arm, truth, collec
     assert state == GoalStatus.SUCCEEDED, text
 
 
+def test_a_servo_stream_that_goes_on_after_a_stop_does_not_move_the_arm_until_it_pauses(arm, truth, collect):
+    """Chaos, history 6, seed 17, step 127: a stream whose sender did not hear the operator's stop went on, and its
+    targets, stamped after the stop, moved the arm again 0.1 s later. A stopped stream must pause first."""
+    from temoto_core.msg import MotionStatus
+    joints, states = truth
+    typed = collect('/left_arm/motion_status', MotionStatus)
+    halt = rospy.Publisher('/temoto/halt', String, queue_size=5, tcp_nodelay=True)
+    wait_for(lambda: halt.get_num_connections() > 0, HANG, 'the manipulator listening for a stop')
+    stop = threading.Event()
+    stream = stream_targets('left_arm', tool_in_base(settled(joints)), stop)
+    try:
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0),
+                              None), HANG, 'the left arm following the stream')
+        halt.publish(String('test stop'))
+        wait_for(lambda: typed.last() is not None and typed.last().reason == 'halted', HANG, 'the stop heard')
+        stopped = rospy.Time.now().to_sec()
+        # the stream goes on for a second, stamped after the stop
+        wait_for(lambda: states.last().header.stamp.to_sec() > stopped + 1.0, HANG, 'a second of the stream')
+    finally:
+        stop.set()
+        stream.join(HANG)
+    moved = [m.commanded_speed for m in list(states.msgs) if m.arm == 'left_arm'
+             and m.header.stamp.to_sec() > stopped + 0.05 and m.commanded_speed > 0.0]
+    assert not moved, 'the stream moved the arm after the stop: %s rad/s' % moved[:5]
+    # a new stream, after a pause, follows again
+    stop = threading.Event()
+    stream = stream_targets('left_arm', tool_in_base(settled(joints)), stop)
+    try:
+        wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0),
+                              None), HANG, 'a new stream followed')
+    finally:
+        stop.set()
+        stream.join(HANG)
+    halt.unregister()
+    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    assert state == GoalStatus.SUCCEEDED, text
+
+
 def test_a_streamer_s_hold_brakes_the_arm_where_it_is_and_never_pulls_it_back(arm, truth):
     """A hold is a brake, not a position: sent as the joints' positions last seen, it pulled an arm back to
     them, and an arm already given back to its sweep was pulled back at the sweep's speed (seed 17, steps

@@ -462,7 +462,6 @@ class ManipulatorNode:
                     self._say('holding: %s' % self._stopping)
                     self._stopping = ''
                 return
-            self._stopping = ''
         check = now - self._checked_at >= COLLISION_PERIOD_S
         if check:
             self._checked_at = now
@@ -474,7 +473,13 @@ class ManipulatorNode:
                 self.gate.offer('servo', ServoPoint(step.positions, step.velocities, stamp), now,
                                 why=step.why or 'following the servo target')
             except command_gate.Refused:
-                return          # a stop, a hold or a trajectory came while the step was computed: not sent
+                # a stop, a hold or a trajectory came while the step was computed, or a stream stopped goes on
+                # (it must pause first): not sent. The hold it got is said once the arm rests
+                if self._stopping and self._still_at > self._stop_sent_at:
+                    self._say('holding: %s' % self._stopping)
+                    self._stopping = ''
+                return
+            self._stopping = ''
             self._say(step.why)
 
     def _write(self, command) -> None:
