@@ -46,7 +46,7 @@ from temoto_core.hosts import TwoHosts
 from temoto_core.latched import NoPublisher, latched_message
 from temoto_core.master import RosMaster
 from temoto_core.master_lookup import lookup_node, node_pid
-from temoto_core import process_group
+from temoto_core import master_rejoin, process_group
 from temoto_core.processes import ProcessGroupLauncher, dump_stacks, kill_leftovers, leftover_processes
 from temoto_core.wait import wait_for
 from vaultbot_sim.srv import SetDeviceState
@@ -178,6 +178,7 @@ class Chaos:
         # history 5: the ground truth of motion (the watch, on the robot's host), the clients' journals of
         # their motions (path -> bytes read), and the ledger that holds one against the other
         self.watch = None
+        self._rejoin: Optional[master_rejoin.MasterRejoin] = None   # this runner's registrations, after a reboot
         self._watch_launcher: Optional[ProcessGroupLauncher] = None
         self._journals: Dict[str, int] = {}
         self.motion = MotionLedger()
@@ -263,6 +264,9 @@ class Chaos:
         # the operator's "stop" (history 6), as the action engine publishes it: made now, so that the motion nodes
         # are connected to it by the time a halt is drawn
         self._halt_pub = rospy.Publisher(halt_topic(ROBOT), HALT_TYPE, queue_size=5, tcp_nodelay=True)
+        # the robot's power loss takes its master (two hosts): a new one knows nothing of this node, and a halt
+        # would reach nobody (history 6, seed 17: every halt after step 213's power loss). Register again
+        self._rejoin = master_rejoin.MasterRejoin().start()
         self._wait_managers()
         for i in range(self.opts.clients):
             self._start_client(i)
@@ -315,6 +319,8 @@ class Chaos:
             worker.shutdown(wait=False, cancel_futures=True)   # a call under way ends when its client is stopped
         self._asking.shutdown(wait=False, cancel_futures=True)
         self.reader.close()
+        if self._rejoin is not None:
+            self._rejoin.stop()
         if self._lasting is not None:        # a run interrupted during a lasting fault: it ends on its clock
             fault, self._lasting = self._lasting, None
             try:
@@ -734,6 +740,8 @@ class Chaos:
             kill_leftovers(self.token, exclude=_with_descendants(roots))
         self.stack = self._new_stack()
         self.stack.start(STACK_START_S)
+        if self._rejoin is not None:
+            self._rejoin.check()                  # at once, not at the watch's next period
         self._wait_managers()
         return 'the robot lost power and booted again in %.1f s%s' % (
             time.monotonic() - t0, ' (its master too; %d client call(s) queued or under way met it)' % under_way
