@@ -30,7 +30,8 @@ import numpy as np  # noqa: E402
 import PyKDL  # noqa: E402
 
 from common import pct, print_table  # noqa: E402
-from temoto_robot_manager.manipulation.arm_kinematics import IK_TOLERANCE_M, IK_TOLERANCE_RAD, ArmKinematics, KinematicsError  # noqa: E402
+from temoto_robot_manager.manipulation.arm_kinematics import (  # noqa: E402
+    IK_TOLERANCE_M, IK_TOLERANCE_RAD, ArmKinematics, KinematicsError)
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel  # noqa: E402
 from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
 

@@ -338,7 +338,8 @@ def main() -> int:
                      '%.1f / %.1f ms' % (pct(lat, 50) * 1e3, pct(lat, 95) * 1e3), '≤ 10 ms p95'))
     fs = results.get('false_stops')
     if fs:
-        rows.append(('false stops: motor command timeout trips with a live controller, %.0f s of driving' % fs['seconds'],
+        rows.append(('false stops: motor command timeout trips with a live controller, %.0f s of driving'
+                     % fs['seconds'],
                      str(fs['trips']), '0'))
     print_table('Robot: the base\'s and the arms\' stops (motor command timeout %s; %d CPU hogs)'
                 % (ms(MOTOR_TIMEOUT_S), args.hogs), rows)

@@ -418,7 +418,8 @@ def main() -> int:
     if 'halt' in results:
         r = results['halt']
         for part, who in (('base', 'the base\'s command gate (the navigator)'),
-                          ('arm', 'the arm\'s command gate (the manipulator)'), ('gripper', 'the gripper\'s controller')):
+                          ('arm', 'the arm\'s command gate (the manipulator)'),
+                          ('gripper', 'the gripper\'s controller')):
             rows.append(('halt → the %s commanded zero, p50 / p99 (n=%d); stopped by %s' % (part, n, who),
                          dist(r[part]), '≤ 50 ms p99'))
     if 'holders' in results:
@@ -430,14 +431,16 @@ def main() -> int:
                          '≤ 100 ms p99'))
     if 'stream' in results:
         rows.append(('teleop stream silent → zero, from its last command, p50 / p99 (n=%d); stopped by the '
-                     'base\'s command gate (the stream\'s deadman)' % n, dist(results['stream']), '≤ 100 + 20 = 120 ms p99'))
+                     'base\'s command gate (the stream\'s deadman)' % n, dist(results['stream']),
+                     '≤ 100 + 20 = 120 ms p99'))
     if 'obstacles' in results:
         rows.append(('active obstacle source stale (SICK 25 Hz) → zero, from its last scan, p50 / p99 (n=%d); '
                      'stopped by the base\'s command gate (its source guard)' % n, dist(results['obstacles']),
                      '≤ 3 × 40 + 20 = 140 ms p99'))
     if 'odometry' in results:
         rows.append(('odometry stale (50 Hz) → zero, from the last odometry, p50 / p99 (n=%d); stopped by the '
-                     'base\'s command gate (its odometry guard)' % n, dist(results['odometry']), '≤ 3 × 20 + 20 = 80 ms p99'))
+                     'base\'s command gate (its odometry guard)' % n, dist(results['odometry']),
+                     '≤ 3 × 20 + 20 = 80 ms p99'))
     if 'controller' in results:
         r = results['controller']
         named = sum('/base_controller is gone' in text for text in r['reasons'])

@@ -8,8 +8,8 @@ import pytest
 
 from temoto_robot_manager.manipulation import servo as servo_rules
 from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError, pose_error
-from temoto_robot_manager.manipulation.arm_planner import (INVALID_GOAL, NO_SOLUTION, SELF_COLLISION, ArmPlanner, GoalRefused,
-                                              ACCEL)
+from temoto_robot_manager.manipulation.arm_planner import (INVALID_GOAL, NO_SOLUTION, SELF_COLLISION, ArmPlanner,
+                                                           GoalRefused, ACCEL)
 from temoto_robot_manager.manipulation.joint_motion import time_parameterise
 from temoto_robot_manager.manipulation.self_collision import SelfCollision
 from temoto_robot_manager.manipulation.servo import Servo

@@ -313,12 +313,12 @@ def test_a_bad_robot_name_stops_the_host_naming_it(procs, rospy_client):
 
 
 def test_the_motion_scene_s_markers_are_drawn(host, events, rospy_client):
-    """The footprint, the stop zone (temoto_robot_manager/navigation/scene_markers.py) and the hand with its target, as the
-    navigator and follow_hand publish them, drawn by real RViz (the host's fixed frame is base_link)."""
+    """The footprint, the stop zone (temoto_robot_manager/navigation/scene_markers.py) and the hand with its target,
+    as the navigator and follow_hand publish them, drawn by real RViz (the host's fixed frame is base_link)."""
     from visualization_msgs.msg import MarkerArray
     from temoto_robot_manager.navigation.costmap import Footprint
-    from temoto_robot_manager.navigation.scene_markers import (FOOTPRINT_COLOUR, HAND_COLOUR, STOP_ZONE_COLOUR, TARGET_COLOUR,
-                                                    TEXT_COLOUR, base_scene, hand_scene)
+    from temoto_robot_manager.navigation.scene_markers import (FOOTPRINT_COLOUR, HAND_COLOUR, STOP_ZONE_COLOUR,
+                                                               TARGET_COLOUR, TEXT_COLOUR, base_scene, hand_scene)
     _, client = host
     base = rospy_client.Publisher('/om_test/base_scene', MarkerArray, queue_size=1, latch=True)
     hand = rospy_client.Publisher('/om_test/hand_scene', MarkerArray, queue_size=1, latch=True)

@@ -227,7 +227,8 @@ def test_temoto_robots_check_with_a_map_names_a_place_the_robot_cannot_stand_on(
                          '        drums: [%.2f, %.2f, 0.0]' % (x + 0.9, y))         # into the drums themselves
     bad = run_cli('check', write(tmp_path, moved), '--map', lab)
     assert bad.returncode == 1, bad.stdout
-    assert 'error %s:%d: place drums: places.drums.position' % (tmp_path / 'robots.yaml', line) in bad.stdout, bad.stdout
+    where = '%s:%d' % (tmp_path / 'robots.yaml', line)
+    assert 'error %s: place drums: places.drums.position' % where in bad.stdout, bad.stdout
     assert 'ok ' not in bad.stdout, 'a robot with a place it cannot stand on is not ok'
     broken = write(tmp_path, 'image: lab.pgm\nresolution: -1\norigin: [0, 0, 0]\n', 'broken.yaml')
     refused = run_cli('check', VAULTBOT, '--map', broken)

@@ -41,7 +41,8 @@ class Body:
         self.arms = dict(arms)              # 'left_arm', 'right_arm'
         self.gripper = gripper if gripper is not None else GripperPlant()
         self._finger_links = {j.replace('_joint', '_link') for j in GRIPPER_JOINTS}
-        self.lock = threading.Condition()   # held by every call; notified by every command (the command timeout's thread waits)
+        # held by every call; notified by every command (the command timeout's thread waits)
+        self.lock = threading.Condition()
         self.contacts = 0
         self.touching: set = set()          # (robot link, world link) pairs within CONTACT_MARGIN now
         self._checks = 0                    # collision checks in the step under way

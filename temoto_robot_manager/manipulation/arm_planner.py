@@ -4,7 +4,8 @@ A goal names exactly one target: a pose of the tool (in the arm's base frame by 
 it), a named pose of the description, or one position per joint. A pose is solved by inverse kinematics
 from where the arm is, so the arm takes the nearest way there. The joint-space line from the start to
 the goal is checked against the robot's own body and against the world (the map: ``world_clearance.py``)
-every ``CHECK_STEP_RAD`` of the joint that moves most, and only then time-parameterised (``joint_motion.py``). Nothing moves before all of this has passed.
+every ``CHECK_STEP_RAD`` of the joint that moves most, and only then time-parameterised (``joint_motion.py``).
+Nothing moves before all of this has passed.
 """
 from __future__ import annotations
 

@@ -11,8 +11,8 @@
   and at ``~servo_rate`` between targets. When the newest target is older than the arm's ``servo_timeout``
   (the description's; 0.1 s, MoveIt Servo's), or the arm's joint states are, the node sends one hold (zero
   velocities, no positions: the motors brake where the joints are) and falls silent; the controller's own
-  deadman (0.1 s) would hold the arm too, one timeout later. A trajectory goal takes the arm from the stream. What slowed or halted the servo is said on
-  ``<arm>/servo_status`` (``std_msgs/String``) when it changes. A hold is said twice: ``stopping: <why>``
+  deadman (0.1 s) would hold the arm too, one timeout later. A trajectory goal takes the arm from the stream.
+  What slowed or halted the servo is said on ``<arm>/servo_status`` (``std_msgs/String``) when it changes. A hold is said twice: ``stopping: <why>``
   as it is sent, and ``holding: <why>`` once a joint state taken after it shows the arm at rest (every joint
   under ``REST_RAD_S``): a starved controller passes a hold on late, and a streamer that hands the arm on
   when it hears "holding" must not hand on an arm still braking (chaos, seed 17, step 2157);

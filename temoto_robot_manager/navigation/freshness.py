@@ -23,8 +23,8 @@ that was *used* (``heard``). An interval is the shorter of the arrivals' and the
 a consumer starved on a loaded host receives a frame late, and the interval before it is longer than the
 source's (a navigator restarted 6 s before learnt 0.42 s of a D435 the watch heard at 0.34 s, and trusted
 it 0.24 s longer: chaos, seed 17, step 2299); a driver's stamps may be wrong, but its arrivals then bound
-them. Each clock errs long, so the shorter is the nearer the source's own pace. A consumer that turns frames into obstacles more slowly than they come uses
-only some of them; learnt from those alone, the period was that of the consumer, not of the source, and a
+them. Each clock errs long, so the shorter is the nearer the source's own pace. A consumer that turns frames into
+obstacles more slowly than they come uses only some of them; learnt from those alone, the period was that of the consumer, not of the source, and a
 D435 that stalled under a loaded navigator stopped the base 2.2 s later, not 3 source periods (chaos, seed
 17, step 2301).
 """

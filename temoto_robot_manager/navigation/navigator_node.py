@@ -111,8 +111,9 @@ class NavigatorNode:
         self.commanded = (0.0, 0.0)
         self.source_topic = ''
         # the only writer of cmd_vel: every command and every zero goes through it, under self.lock
-        self.gate = CommandGate('base', base_inputs(nav.teleop_timeout), [SourceFresh(self.nav.freshness, lambda: self.source_topic)]
-                                + self.nav.guards, send=self._send, zero=(0.0, 0.0), report=self._report)
+        guards = [SourceFresh(self.nav.freshness, lambda: self.source_topic)] + self.nav.guards
+        self.gate = CommandGate('base', base_inputs(nav.teleop_timeout), guards, send=self._send, zero=(0.0, 0.0),
+                                report=self._report)
         self._scene_at = 0.0
         self.pub_left = rospy.Publisher('move_base/distance_remaining', Float32, queue_size=5)
         self.pub_goal = rospy.Publisher('move_base/goal', MoveBaseActionGoal, queue_size=5)
