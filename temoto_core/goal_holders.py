@@ -37,6 +37,7 @@ import rospy
 
 from temoto_core.master_lookup import lookup_node, node_refuses
 from temoto_core.rospy_internals import live_publishers, live_subscribers
+from temoto_core.wait import wait_for
 
 OWNER_LOOK_S = 0.05            # how often the manager's connection is looked for until it is first seen
 # s a goal's client may acknowledge nothing, while the status is retransmitted, before it counts as gone: under
@@ -76,6 +77,20 @@ class GoalHolders:
         if self._owner_connected():
             self._owner_seen = True
             self._looking.shutdown()
+
+    def wait_for_owner(self, timeout: float) -> bool:
+        """Wait until the Robot Manager's connection has been seen (True), or ``timeout`` passes (False). A node
+        calls it before it serves goals: a manager that dies before its connection is first seen would leave the
+        next goal taken for one with no manager, and accepted (a CI run: the goal ran until the ER Manager
+        stopped the navigator). A node started by nobody (no owner topic) does not wait."""
+        if self._owner is None or self._owner_seen:
+            return True
+        try:
+            wait_for(self._owner_connected, timeout, 'the Robot Manager\'s connection')
+        except TimeoutError:
+            return False
+        self._owner_seen = True
+        return True
 
     def new_goal(self) -> None:
         """A new goal: its client has not been seen yet."""

@@ -164,6 +164,9 @@ class ManipulatorNode:
         self.server = actionlib.ActionServer('%s/move_arm' % name, MoveArmAction, self._on_goal, self._on_cancel,
                                              auto_start=False)
         self.holders = GoalHolders('manipulator', self._owner, self.server)
+        if not self.holders.wait_for_owner(params.number('startup_timeout', 30.0, above=0)):
+            rospy.logwarn('manipulator: the Robot Manager\'s topic %s never reached this node: its goals are taken '
+                          'as no manager\'s', self._owner.resolved_name)
         self.server.start()
         rospy.loginfo('manipulator: %s of %s, goals on %s, servo targets on %s', name, robot.name,
                       rospy.resolve_name('%s/move_arm' % name), rospy.resolve_name('%s/servo_target' % name))

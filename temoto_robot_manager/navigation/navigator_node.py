@@ -159,6 +159,11 @@ class NavigatorNode:
                           'map' if self.nav.costmap is None else 'odometry', params.number('startup_timeout', 30.0))
         self.holders = GoalHolders('navigator', self._owner, self.server,
                                    fire_and_forget='move_base_simple-')
+        # started by a Robot Manager (it names the topic): its connection is seen before any goal is served
+        managed = rospy.has_param('~obstacle_source_topic')
+        if managed and not self.holders.wait_for_owner(params.number('startup_timeout', 30.0, above=0)):
+            rospy.logwarn('navigator: the Robot Manager\'s topic %s never reached this node: its goals are taken as '
+                          'no manager\'s', self._owner.resolved_name)
         self.server.start()
         threading.Thread(target=self._watch_deadlines, name='deadline watch', daemon=True).start()
         rospy.loginfo('navigator: %s, footprint %s m, %s -> %s', robot.name, list(nav.footprint),
