@@ -13,6 +13,9 @@ from std_msgs.msg import String
 
 from temoto_core.action_client import TrackingActionClient
 from temoto_robot_manager.interface import RobotManagerInterface
+from temoto_robot_manager.manipulation import servo as servo_rules
+from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics
+from temoto_robot_manager.manipulation.servo import Servo
 from temoto_robot_manager.manipulation.world_clearance import WorldClearance
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal, MoveArmResult
 from temoto_testing import made_interfaces, wait_for, wait_receiving
@@ -58,6 +61,42 @@ def test_a_point_within_the_margin_of_an_obstacle_touches_and_one_above_the_band
     assert WorldClearance(0.05).touch(np.array([[0.5, 0.0, 1.0]]), here) is None, 'no map: nothing to check'
     with pytest.raises(ValueError, match='margin'):
         WorldClearance(0.0)
+
+
+def test_the_servo_nears_the_world_slowly_and_halts_with_its_margin_kept_between_checks():
+    """The tool servoed at the box, the world checked one step in five (as the node does): within 2 cm of the margin
+    the arm moves at a fifth of its speed or less, so that a hold passed on late stops it short, and once halted no
+    step between two checks moves it on (before, four steps in five went on at full speed: CI at ed0d926)."""
+    with open(ROBOT_URDF) as f:
+        kin = ArmKinematics(f.read(), 'left_base_link', 'left_tool0', LEFT)
+    box = tool(REACH)[:3, 3]
+    resolution, size = 0.02, 200                                 # a 4 m map around base_link
+    data = np.zeros((size, size), dtype=np.int8)
+    lo = np.floor((box[:2] - BOX / 2 + 2.0) / resolution).astype(int)
+    hi = np.ceil((box[:2] + BOX / 2 + 2.0) / resolution).astype(int)
+    data[lo[1]:hi[1], lo[0]:hi[0]] = 100
+    world = WorldClearance(0.05, reach=0.05 + servo_rules.WORLD_SLOW)
+    world.set_map((-2.0, -2.0), resolution, size, size, data.ravel())
+    base = MODEL.link_pose('left_base_link', HOLD_POSE)
+    servo = Servo(kin, 0.008, world=lambda q: world.free(kin.skeleton(q), base))
+    q, target, halts = list(HOLD), tool(REACH), 0
+    near = []                                                    # (free distance, fastest point's speed)
+    for k in range(1500):                                        # 12 s of steps at most
+        step = servo.step(q, np.linalg.inv(base) @ target, check=k % 5 == 0)
+        free = world.free(kin.skeleton(q), base)
+        if free is not None and free[0] < 0.02 and not step.halted:
+            ahead = kin.skeleton(np.array(q) + np.array(step.velocities) * 0.01)
+            near.append((free[0], np.max(np.linalg.norm(ahead - kin.skeleton(q), axis=1)) / 0.01))
+        if step.halted:
+            assert 'would touch the world' in step.why, step.why
+            halts += 1
+            if halts >= 10:
+                break
+        q = step.positions
+    assert halts >= 10, 'the servo never halted for the world'
+    assert world.touch(kin.skeleton(q), base) is None, 'the arm came within its margin'
+    fastest = max((v for _, v in near), default=0.0)
+    assert fastest <= 0.02 / servo_rules.WORLD_SLOW * servo_rules.MAX_LINEAR * 1.5, 'within 2 cm of the margin at %.3f m/s' % fastest
 
 
 # -------------------------------------------------------------------------------------------- across processes
@@ -145,6 +184,10 @@ def test_a_servo_stream_toward_the_world_halts_before_contact(left_arm, collect)
     pub.unregister()
     halted = [m.data for m in status.msgs if 'would touch the world' in m.data]
     assert halted, 'the servo never halted for the world: %s' % [m.data for m in status.msgs][-5:]
+    # judged once the arm rests: a contact comes after the halt, if the arm brakes into the box
+    first = next(k for k, m in enumerate(status.msgs) if 'would touch the world' in m.data)
+    wait_for(lambda: any(m.data.startswith('holding:') for m in list(status.msgs)[first:]), HANG,
+             'the arm at rest after the halt')
     touched = [c for c in contacts.msgs if c.object_link == 'box']
     assert not touched, 'the arm touched the box: %s' % touched[0]
     here = dict(zip(joints.last().name, joints.last().position))

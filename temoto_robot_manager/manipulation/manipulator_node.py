@@ -64,7 +64,7 @@ from temoto_robot_manager.msg import MoveArmAction, MoveArmFeedback, MoveArmResu
 from temoto_robot_manager.navigation.obstacle_points import matrix_of_pose
 from temoto_robot_manager.manipulation.self_collision import SelfCollision
 from temoto_robot_manager.manipulation.world_clearance import WorldClearance
-from temoto_robot_manager.manipulation.servo import Servo
+from temoto_robot_manager.manipulation.servo import WORLD_SLOW, Servo
 
 STATE_TIMEOUT_S = 0.1        # joint states this old: where the arm is is not known, nothing is sent
 REST_RAD_S = 0.01            # every joint slower than this: the arm is at rest (a braked UR5 reads about 1e-4)
@@ -110,12 +110,13 @@ class ManipulatorNode:
             raise ValueError('arm %s: %s' % (name, err)) from None
         reference = dict(zip(self.arm.joints, self.arm.named_poses.get('hold', [0.0] * self.kin.n)))
         self.body = SelfCollision(urdf, self.arm.joints, reference)
-        self.world = WorldClearance(self.arm.world_margin)     # the map's obstacles, once the map comes
+        # the map's obstacles, once the map comes; seen from as far as the servo slows down before them
+        self.world = WorldClearance(self.arm.world_margin, reach=self.arm.world_margin + WORLD_SLOW)
         self.map_frame = ''
         self.planner = ArmPlanner(self.kin, self.arm.named_poses, self._touches, self._world_touch)
         self.servo_rate = params.number('servo_rate', 125.0, above=0, maximum=500)
         self.servo_timeout = self.arm.servo_timeout       # a target this old is not followed (the description's)
-        self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance)
+        self.servo = Servo(self.kin, 1.0 / self.servo_rate, self._body_distance, self._world_free)
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)     # a new servo target: step at once, not at the next tick
         self._new_target = False
@@ -273,6 +274,16 @@ class ManipulatorNode:
 
     def _world_touch(self, q) -> Optional[str]:
         """Why the arm at ``q`` would touch the map's obstacles, or None (no map: nothing to check against)."""
+        base = self._base_in_map()
+        return None if base is None else self.world.touch(self.kin.skeleton(q), base)
+
+    def _world_free(self, q) -> Optional[Tuple[float, str]]:
+        """How far the arm at ``q`` is beyond its margin from the map's obstacles, and where, when near them."""
+        base = self._base_in_map()
+        return None if base is None else self.world.free(self.kin.skeleton(q), base)
+
+    def _base_in_map(self) -> Optional[np.ndarray]:
+        """The arm's base in the map's frame, or None: no map yet (nothing to check against), or no transform."""
         if not self.world.known:
             return None
         try:
@@ -281,7 +292,7 @@ class ManipulatorNode:
             rospy.logwarn_throttle(5.0, 'manipulator: no transform from %s to the map\'s %s: the world is not '
                                    'checked: %s', self.arm.base_frame, self.map_frame, err)
             return None
-        return self.world.touch(self.kin.skeleton(q), matrix_of_pose(t.translation, t.rotation))
+        return matrix_of_pose(t.translation, t.rotation)
 
     def _body_distance(self, q, margin: float) -> Optional[float]:
         near = self.body.nearest(dict(zip(self.arm.joints, q)), margin)
@@ -468,9 +479,7 @@ class ManipulatorNode:
         check = now - self._checked_at >= COLLISION_PERIOD_S
         if check:
             self._checked_at = now
-        self.servo.body_distance = self._body_distance if check else None
-        self.servo.world = self._world_touch if check else None
-        step = self.servo.step(q, target)                 # outside the lock: the IK takes its time
+        step = self.servo.step(q, target, check)          # outside the lock: the IK takes its time
         with self.lock:
             try:
                 self.gate.offer('servo', ServoPoint(step.positions, step.velocities, stamp), now,

@@ -12,7 +12,14 @@ The tool follows a stream of target poses (a hand, a marker) as MoveIt Servo fol
    the step;
 5. the whole step is scaled down so no joint exceeds its speed limit (the direction is kept);
 6. the arm where the step leads (``LOOKAHEAD_S`` ahead) is checked against the robot's own body
-   (``self_collision.py``): slowed within ``COLLISION_SLOW`` of it, halted at contact.
+   (``self_collision.py``): slowed within ``COLLISION_SLOW`` of it, halted at contact;
+7. and against the world (``world_clearance.py``): moving towards it, slowed within ``WORLD_SLOW`` of its margin,
+   halted ``WORLD_HALT`` short of the margin. A halt at full speed would leave the arm's braking, and every delay between here and the
+   motors (a starved controller, a late joint state), to the margin: on a loaded machine an arm servoed at the
+   box touched it (CI at ed0d926). Slowed, the arm nears the margin at a speed that stops in no distance.
+
+The checks of 6 and 7 cost more than a step (the node runs them at 25 Hz, the steps at 125 Hz): a step that does
+not run them keeps the slowing of the last one that did, so that it is not lost four steps in five.
 
 A halted step commands zero and says why; the next step may move again (a target that leads away).
 """
@@ -20,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Sequence
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -35,12 +42,15 @@ SINGULARITY_STOP = 30.0     # and halt here
 JOINT_MARGIN = 0.1          # rad from a range's end
 COLLISION_SLOW = 0.01       # m from the robot's own body: slow within, halt at contact
 LOOKAHEAD_S = 0.05          # s ahead: where the self-collision check looks
+WORLD_SLOW = 0.10           # m beyond the world margin: slow from here, towards it (MoveIt Servo slows from 0.3 m)
+WORLD_HALT = 0.005          # m: and halt here, where the slowing would otherwise creep on without end
 
 # the distance (m) from the arm to the robot's own body with the arm's joints at q, within a margin; None if
 # farther (self_collision.SelfCollision.nearest, adapted)
 BodyDistance = Callable[[Sequence[float], float], Optional[float]]
-# why the arm at q would touch the world (``world_clearance.WorldClearance``), or None
-WorldTouch = Callable[[Sequence[float]], Optional[str]]
+# how far the arm at q is beyond its margin from the world (m; at or below 0 it touches) and a text naming where,
+# when within WORLD_SLOW; None if farther (``world_clearance.WorldClearance.free``, adapted)
+WorldFree = Callable[[Sequence[float]], Optional[Tuple[float, str]]]
 
 
 @dataclass
@@ -73,11 +83,12 @@ def rotation_error(current: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 class Servo:
     def __init__(self, kinematics: ArmKinematics, period: float, body_distance: Optional[BodyDistance] = None,
-                 world: Optional[WorldTouch] = None) -> None:
+                 world: Optional[WorldFree] = None) -> None:
         self.kin = kinematics
         self.period = period
         self.body_distance = body_distance
         self.world = world
+        self._slowed = (1.0, '')          # the last check's slowing (6, 7): kept by the steps that do not check
 
     def twist(self, q: Sequence[float], target: np.ndarray) -> np.ndarray:
         here = self.kin.fk(q)
@@ -91,7 +102,9 @@ class Servo:
             angular *= MAX_ANGULAR / n
         return np.concatenate([linear, angular])
 
-    def step(self, q: Sequence[float], target: np.ndarray) -> Step:
+    def step(self, q: Sequence[float], target: np.ndarray, check: bool = True) -> Step:
+        """One step from ``q`` towards ``target``; ``check``: run the body's and the world's checks (6, 7), else
+        keep the last check's slowing."""
         q = np.asarray(q, dtype=float)
         jac = self.kin.jacobian(q)
         dq = jac.T @ np.linalg.solve(jac @ jac.T + DAMPING ** 2 * np.eye(6), self.twist(q, target))
@@ -115,21 +128,45 @@ class Servo:
         worst = max((abs(dv * scale) / lim.velocity for dv, lim in zip(dq, self.kin.limits)), default=0.0)
         if worst > 1.0:
             scale /= worst
-        # 6. the robot's own body, where the step leads
-        if self.body_distance is not None and np.any(dq):
-            distance = self.body_distance(q + dq * scale * LOOKAHEAD_S, COLLISION_SLOW)
-            if distance is not None:
-                if distance <= 0.0:
-                    return self._halt(q, condition, 'the arm would touch the robot\'s own body')
-                scale *= distance / COLLISION_SLOW
-                why = why or 'slowed %.1f mm from the robot\'s own body' % (1000 * distance)
-        # 7. the world, where the step leads
-        if self.world is not None and np.any(dq):
-            touch = self.world(q + dq * scale * LOOKAHEAD_S)
-            if touch:
-                return self._halt(q, condition, 'the arm would touch the world: %s' % touch)
+        if check:
+            slowed = self._checks(q, dq * scale)
+            if isinstance(slowed, str):
+                # the steps until the next check halt too: before, four steps in five went on at full speed
+                # towards what the fifth had halted for
+                self._slowed = (0.0, slowed)
+                return self._halt(q, condition, slowed)
+            self._slowed = slowed
+        if self._slowed[0] == 0.0:
+            return self._halt(q, condition, self._slowed[1])
+        scale *= self._slowed[0]
+        why = why or self._slowed[1]
         velocities = list(dq * scale)
         return Step(velocities, list(q + dq * scale * self.period), scale, condition, why)
+
+    def _checks(self, q: np.ndarray, dq: np.ndarray):
+        """6 and 7 for the step ``dq``: (the factor it is slowed by, why) or, to halt, why (a str)."""
+        factor, why = 1.0, ''
+        if not np.any(dq):
+            return factor, why
+        ahead = q + dq * LOOKAHEAD_S
+        if self.body_distance is not None:
+            distance = self.body_distance(ahead, COLLISION_SLOW)
+            if distance is not None:
+                if distance <= 0.0:
+                    return 'the arm would touch the robot\'s own body'
+                factor *= distance / COLLISION_SLOW
+                why = 'slowed %.1f mm from the robot\'s own body' % (1000 * distance)
+        if self.world is not None:
+            near = self.world(ahead)
+            if near is not None:
+                free, where = near
+                if free <= WORLD_HALT:
+                    return 'the arm would touch the world: it would come %s' % where
+                now = self.world(q)
+                if now is None or free < now[0]:          # towards it; moving away is never slowed
+                    factor *= free / WORLD_SLOW
+                    why = why or 'slowed within %.2f m of the world\'s margin' % WORLD_SLOW
+        return factor, why
 
     def _halt(self, q: np.ndarray, condition: float, why: str) -> Step:
         return Step([0.0] * len(q), list(q), 0.0, condition, why)

@@ -23,14 +23,17 @@ BAND = (0.02, 2.0)          # m above the floor: the heights a map marks (the si
 
 
 class WorldClearance:
-    def __init__(self, margin: float, band: Tuple[float, float] = BAND) -> None:
+    def __init__(self, margin: float, reach: float = 0.0, band: Tuple[float, float] = BAND) -> None:
+        """``margin``: the clearance every point keeps; ``reach``: how far (m, at least ``margin``) ``nearest`` looks,
+        so that a servo can slow down before the margin, not only halt at it."""
         if not margin > 0:
             raise ValueError('margin %r must be above 0' % margin)
         self.margin, self.band = margin, band
+        self.reach = max(margin, reach)
         self._occupied: Optional[np.ndarray] = None       # rows = y from the origin
         self._origin = (0.0, 0.0)
         self._resolution = 1.0
-        self._window = np.zeros((0, 2), dtype=int)         # the cells around a point's that the margin can reach
+        self._window = np.zeros((0, 2), dtype=int)         # the cells around a point's that the reach can touch
 
     @property
     def known(self) -> bool:
@@ -39,15 +42,16 @@ class WorldClearance:
 
     def set_map(self, origin: Tuple[float, float], resolution: float, width: int, height: int, data) -> None:
         """A ``nav_msgs/OccupancyGrid``'s fields."""
-        reach = int(math.ceil(self.margin / resolution))
-        span = np.arange(-reach, reach + 1)
+        cells = int(math.ceil(self.reach / resolution))
+        span = np.arange(-cells, cells + 1)
         self._window = np.stack(np.meshgrid(span, span, indexing='ij'), axis=-1).reshape(-1, 2)
         self._origin, self._resolution = origin, resolution
         self._occupied = np.asarray(data, dtype=np.int16).reshape(height, width) >= OCCUPIED_THRESHOLD
 
-    def touch(self, points_base: np.ndarray, base_in_map: np.ndarray) -> Optional[str]:
-        """Where the arm's points (K x 3, in its base frame, whose pose in the map is ``base_in_map``, 4 x 4) come
-        within the margin of the map's obstacles, or None (also when no map has come)."""
+    def nearest(self, points_base: np.ndarray, base_in_map: np.ndarray) -> Optional[Tuple[float, np.ndarray]]:
+        """The arm's points (K x 3, in its base frame, whose pose in the map is ``base_in_map``, 4 x 4) nearest the
+        map's obstacles: (its distance to them in plan view, the point in the map), when within ``reach``; None
+        when farther, or when no map has come."""
         if self._occupied is None or not len(points_base):
             return None
         pts = (base_in_map[:3, :3] @ points_base.T).T + base_in_map[:3, 3]
@@ -69,11 +73,25 @@ class WorldClearance:
         dy = np.maximum(np.maximum(lo_y - pts[:, None, 1], pts[:, None, 1] - (lo_y + res)), 0.0)
         distance = np.where(hit, np.hypot(dx, dy), np.inf)
         k, c = np.unravel_index(int(np.argmin(distance)), distance.shape)
-        if distance[k, c] >= self.margin:
+        if distance[k, c] > self.reach:
             return None
-        x, y, z = pts[k]
-        return ('it would come within %.2f m of the map\'s obstacle at (%.2f, %.2f), %.2f m up (it keeps %.2f m clear)'
-                % (distance[k, c], x, y, z, self.margin))
+        return float(distance[k, c]), pts[k]
+
+    def free(self, points_base: np.ndarray, base_in_map: np.ndarray) -> Optional[Tuple[float, str]]:
+        """(how far the arm is beyond its margin, m: at or below 0 it touches; a text naming where), when the arm is
+        within ``reach`` of an obstacle."""
+        near = self.nearest(points_base, base_in_map)
+        if near is None:
+            return None
+        distance, (x, y, z) = near
+        return distance - self.margin, ('%.2f m from the map\'s obstacle at (%.2f, %.2f), %.2f m up (it keeps %.2f m '
+                                        'clear)' % (distance, x, y, z, self.margin))
+
+    def touch(self, points_base: np.ndarray, base_in_map: np.ndarray) -> Optional[str]:
+        """Why the arm's points come within the margin of the map's obstacles, or None (also when no map has
+        come)."""
+        near = self.free(points_base, base_in_map)
+        return 'it would come %s' % near[1] if near is not None and near[0] < 0 else None
 
 
 def way_touch(touch, start: Sequence[float], goal: Sequence[float], step_rad: float) -> Optional[Tuple[float, str]]:
