@@ -4,7 +4,7 @@
 The chain is the left UR5's, from ``left_base_link`` to ``left_tool0``, read from the robot's URDF
 (yourdfpy) and built joint by joint in each library. Targets are the forward kinematics of seeded
 joint configurations within the joints' ranges, so every target is reachable; each solve starts
-from the hold pose, as a servo step or a pose goal would start from where the arm is.
+from the stowed pose, as a servo step or a pose goal would start from where the arm is.
 
 - KDL: ``ChainIkSolverPos_LMA`` (Levenberg-Marquardt), its own solver, from C++;
 - Pinocchio: no packaged IK; the closed-loop IK of its documentation (damped least squares on
@@ -33,7 +33,7 @@ from common import pct, print_table  # noqa: E402
 from temoto_robot_manager.manipulation.arm_kinematics import (  # noqa: E402
     IK_TOLERANCE_M, IK_TOLERANCE_RAD, ArmKinematics, KinematicsError)
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel  # noqa: E402
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE  # noqa: E402
 
 BASE, TIP = 'left_base_link', 'left_tool0'
 JOINTS = ['left_%s_joint' % n for n in ARM_JOINTS]
@@ -149,8 +149,8 @@ def main() -> int:
     args = p.parse_args()
     model = TreeModel(ROBOT_URDF)
     rng = np.random.default_rng(41)
-    start = np.array([HOLD_POSE[n] for n in JOINTS])
-    # near the hold pose, as a servo step or a pose goal nearby would be: within 0.6 rad of it on each joint
+    start = np.array([STOW_POSE[n] for n in JOINTS])
+    # near the stowed pose, as a servo step or a pose goal nearby would be: within 0.6 rad of it on each joint
     targets = [fk(model, start + rng.uniform(-0.6, 0.6, 6)) for _ in range(args.targets)]
     results, rows = {}, []
     for name, run in (('kdl', bench_kdl), ('pinocchio', bench_pinocchio), ('production', bench_production)):
@@ -165,7 +165,7 @@ def main() -> int:
         rows.append(('%s: solve p50 / p95; solved (%s)' % (name, tolerance),
                      '%.3f / %.3f ms; %d / %d' % (pct(times, 50) * 1e3, pct(times, 95) * 1e3, solved, len(targets)),
                      '≤ 1 ms p95'))
-    print_table('IK on the left UR5 (from the hold pose to targets within 0.6 rad a joint)', rows)
+    print_table('IK on the left UR5 (from the stowed pose to targets within 0.6 rad a joint)', rows)
     os.makedirs(os.path.join(ROOT, 'bench', 'results'), exist_ok=True)
     with open(os.path.join(ROOT, 'bench', 'results', 'ik.json'), 'w') as f:
         json.dump(results, f, indent=1)

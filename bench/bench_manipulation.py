@@ -51,14 +51,14 @@ from temoto_testing.motion import ARM_CLIENT  # noqa: E402
 from vaultbot_sim.gripper import STROKE  # noqa: E402
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix  # noqa: E402
 from vaultbot_sim.msg import ArmState, GripperState  # noqa: E402
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE  # noqa: E402
 from vaultbot_sim.kinematics import WORLDS  # noqa: E402
 from vaultbot_sim.world_map import world_map  # noqa: E402
 
 HANG = 30.0
 VAULTBOT = os.path.join(ROOT, 'temoto_robot_manager', 'config', 'vaultbot.yaml')
 LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
-HOLD = [HOLD_POSE[j] for j in LEFT]
+STOW = [STOW_POSE[j] for j in LEFT]
 
 
 class Log:
@@ -105,7 +105,7 @@ def arm_held_after(states, t0):
 
 
 def home(client):
-    client.send_goal(MoveArmGoal(named_pose='hold', speed_scale=1.0))
+    client.send_goal(MoveArmGoal(named_pose='stow', speed_scale=1.0))
     client.wait_for_result(rospy.Duration(HANG))
 
 
@@ -120,7 +120,7 @@ def world_check_times(n: int = 2000):
     rng = np.random.default_rng(3)
     times = []
     for _ in range(n):
-        q = np.array(HOLD) + rng.uniform(-0.5, 0.5, 6)
+        q = np.array(STOW) + rng.uniform(-0.5, 0.5, 6)
         t = time.perf_counter()
         world.touch(kin.skeleton(q), np.eye(4))
         times.append(time.perf_counter() - t)
@@ -162,8 +162,8 @@ def main() -> int:
         accepted = []
         rng = np.random.default_rng(5)
         for i in range(args.trials):
-            q = np.array(HOLD) + rng.uniform(-0.3, 0.3, 6)
-            cfg = dict(HOLD_POSE, **dict(zip(LEFT, q)))
+            q = np.array(STOW) + rng.uniform(-0.3, 0.3, 6)
+            cfg = dict(STOW_POSE, **dict(zip(LEFT, q)))
             accepted_at = []
             t = time.monotonic()
             client.send_goal(MoveArmGoal(pose=pose_msg(model.link_pose('left_tool0', cfg)), speed_scale=1.0),
@@ -176,7 +176,7 @@ def main() -> int:
         pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=5, tcp_nodelay=True)
         wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator subscribed')
         latency, silent_hold, missing_hold, rates = [], [], [], []
-        start = model.link_pose('left_tool0', HOLD_POSE)
+        start = model.link_pose('left_tool0', STOW_POSE)
         for trial in range(max(3, args.trials // 4)):
             sign = 1 if trial % 2 == 0 else -1
             began = time.monotonic()
@@ -203,7 +203,7 @@ def main() -> int:
         # 5. an arm goal's client killed mid-motion
         orphaned = []
         for trial in range(max(3, args.trials // 2)):
-            far = list(HOLD)
+            far = list(STOW)
             far[0] += 1.2 if trial % 2 == 0 else -1.2
             child = launcher.command(ARM_CLIENT + ['left_arm'] + [str(v) for v in far] + ['0.3'], 'arm_client')
             wait_for(lambda: next((m for _, m in states.since(time.monotonic() - 0.1) if m.arm == 'left_arm'

@@ -48,7 +48,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 import actionlib  # noqa: E402
 from control_msgs.msg import FollowJointTrajectoryAction, FollowJointTrajectoryGoal  # noqa: E402
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE  # noqa: E402
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE  # noqa: E402
 
 HANG = 20.0
 SPEED = 0.5
@@ -166,7 +166,7 @@ class ArmTruth:
         rospy.Subscriber('/vaultbot_sim/arm_states', ArmState, self._on_state, queue_size=500, tcp_nodelay=True)
         rospy.Subscriber('/left_arm/joint_command', JointState, self._on_setpoint, queue_size=500, tcp_nodelay=True)
         rospy.Subscriber('/joint_states', JointState, self._on_joints, queue_size=5, tcp_nodelay=True)
-        self.pan = HOLD_POSE[LEFT[0]]
+        self.pan = STOW_POSE[LEFT[0]]
 
     def _on_joints(self, msg):
         if LEFT[0] in msg.name:
@@ -200,13 +200,13 @@ def arm_trial(launcher, arm, case, index, servo_pub):
     direction = 1 if index % 2 == 0 else -1
     latencies = []
     try:
-        start = HOLD_POSE[LEFT[0]]
+        start = STOW_POSE[LEFT[0]]
         if case == 'servo':
             wait_for(lambda: servo_pub.get_num_connections() > 0, HANG, 'the controller on servo_command')
             t1 = time.monotonic()
             sent = []
             for k in range(int(1.0 * 125)):          # one second at 125 Hz, as MoveIt Servo streams
-                q = [start + direction * 0.5 * (time.monotonic() - t1)] + [HOLD_POSE[j] for j in LEFT[1:]]
+                q = [start + direction * 0.5 * (time.monotonic() - t1)] + [STOW_POSE[j] for j in LEFT[1:]]
                 stamp = time.time()
                 servo_pub.publish(JointTrajectory(joint_names=LEFT, points=[JointTrajectoryPoint(
                     positions=q, velocities=[direction * 0.5] + [0.0] * 5)]))
@@ -222,10 +222,10 @@ def arm_trial(launcher, arm, case, index, servo_pub):
                 raise RuntimeError('the left arm\'s action server did not come up')
             goal = FollowJointTrajectoryGoal()
             goal.trajectory.joint_names = LEFT
-            # 1.5 rad from where the shoulder is, back toward the hold pose: every trial moves as far
+            # 1.5 rad from where the shoulder is, back toward the stowed pose: every trial moves as far
             here = arm.pan
             point = JointTrajectoryPoint(positions=[here + (-1.5 if here > start else 1.5)] +
-                                         [HOLD_POSE[j] for j in LEFT[1:]])
+                                         [STOW_POSE[j] for j in LEFT[1:]])
             point.time_from_start = rospy.Duration(3.0)
             goal.trajectory.points = [point]
             client.send_goal(goal)

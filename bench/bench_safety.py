@@ -50,7 +50,7 @@ from common import cpu_hogs, loopback_master, pct, print_table, stop_hogs, write
 from temoto_core.action_client import TrackingActionClient  # noqa: E402
 from temoto_core.wait import wait_for  # noqa: E402
 from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics  # noqa: E402
-from temoto_robot_manager.description import load_file  # noqa: E402
+from temoto_robot_manager.description import GRIPPER_GATE_ACTION, load_file  # noqa: E402
 from temoto_robot_manager.msg import MoveArmAction, MoveArmGoal  # noqa: E402
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION  # noqa: E402
 from temoto_testing.motion import ARM_CLIENT, GOAL_CLIENT  # noqa: E402
@@ -122,7 +122,9 @@ class Bench:
         self.navigator = self._navigator()
         launcher.node('vaultbot_sim', 'arm_controller', params={'arm': 'left_arm'}, name='left_arm_controller')
         self.manipulator = self._manipulator()
-        launcher.node('vaultbot_sim', 'gripper_controller', params={'halt_topic': HALT})
+        launcher.node('vaultbot_sim', 'gripper_controller')           # its stops are the gate's
+        launcher.node('temoto_robot_manager', 'gripper', params={'description': DEFAULT_DESCRIPTION,
+                                                                 'robot': 'vaultbot', 'halt_topic': HALT})
         rospy.init_node('bench_safety', anonymous=True, disable_signals=True)
         self.truth = Truth()
         self.scans = []
@@ -131,7 +133,7 @@ class Bench:
         self.teleop = rospy.Publisher('/teleop/cmd_vel', TwistStamped, queue_size=5, tcp_nodelay=True)
         self.drive = TrackingActionClient('/move_base', MoveBaseAction)
         self.arm = TrackingActionClient('/left_arm/move_arm', MoveArmAction)
-        self.grip = TrackingActionClient('/gripper/gripper_command', GripperCommandAction)
+        self.grip = TrackingActionClient('/' + GRIPPER_GATE_ACTION, GripperCommandAction)
         for client in (self.drive, self.arm, self.grip):
             assert client.wait_for_server(rospy.Duration(HANG)), 'a server did not come'
         wait_for(lambda: self.truth.last(self.truth.base) and self.truth.last(self.truth.gripper), HANG, 'the truth')
@@ -179,7 +181,7 @@ class Bench:
         self.at_rest()
 
     def arm_far(self, k):
-        q = list(LEFT.named_poses['hold'])
+        q = list(LEFT.named_poses['stow'])
         q[0] += 0.8 if k % 2 == 0 else -0.8
         return q
 
@@ -189,7 +191,7 @@ class Bench:
                                and m.speed > 0.2), None), HANG, 'the left arm moving')
 
     def arm_home(self):
-        self.arm.send_goal(MoveArmGoal(named_pose='hold', speed_scale=0.5))
+        self.arm.send_goal(MoveArmGoal(named_pose='stow', speed_scale=0.5))
         wait_for(lambda: self.arm.get_state() not in (GoalStatus.PENDING, GoalStatus.ACTIVE), HANG, 'the arm home')
 
     def start_grip(self):
@@ -327,13 +329,13 @@ class Bench:
         self.arm_home()
         stop = threading.Event()
 
-        with open(ROBOT_URDF) as f:                       # the tool at the hold pose, in the arm's base frame
-            hold = ArmKinematics(f.read(), LEFT.base_frame, LEFT.tool_frame, LEFT.joints).fk(LEFT.named_poses['hold'])
+        with open(ROBOT_URDF) as f:                       # the tool at the stowed pose, in the arm's base frame
+            hold = ArmKinematics(f.read(), LEFT.base_frame, LEFT.tool_frame, LEFT.joints).fk(LEFT.named_poses['stow'])
         qx, qy, qz, qw = quat_from_matrix(hold)
 
         def stream():
             tool = PoseStamped()
-            tool.header.frame_id = LEFT.base_frame           # 2 cm up and down about the hold pose (in plan view
+            tool.header.frame_id = LEFT.base_frame           # 2 cm up and down about the stowed pose (in plan view
             # the arm stays inside the driving outline), a 4 s period
             tool.pose.orientation.x, tool.pose.orientation.y, tool.pose.orientation.z = qx, qy, qz
             tool.pose.orientation.w = qw

@@ -1,6 +1,6 @@
 """RobotAction: the base of the actions that move the robot (navigate, gripper, follow_hand).
 
-A motion action holds the robot's feature through the Robot Manager for exactly as long as it runs: the
+A motion action claims the robot's feature through the Robot Manager for exactly as long as it runs: the
 robot moves for a holder, and when the holder goes (the action stops, its worker dies) the motion nodes see
 its goal's client go and stop (``temoto_core/goal_holders.py``). Its own failure policy is to
 stop, never to reload silently under a moving robot: a part that fails reaches it as FAILED, the goal is
@@ -37,7 +37,7 @@ class RobotAction(ActionBase):
     loaded = None
     _scene = None
 
-    def hold_robot(self, feature: str) -> dict:
+    def claim_robot(self, feature: str) -> dict:
         """Load the robot's ``feature`` (the ``robot`` input names one, else the manager's first with it)."""
         robot_name = ''
         if 'robot' in self.context.descriptor.inputs:

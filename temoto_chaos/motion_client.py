@@ -1,6 +1,6 @@
 """A chaos client's motion: navigation goals, servo streams and gripper goals, each held as a motion goal.
 
-The client holds the robot's feature through the Robot Manager (a resource like any other: shared, released,
+The client claims the robot's feature through the Robot Manager (a resource like any other: shared, released,
 FAILED) and, while it holds it, moves the robot the way an operator's action would: a move_base goal to a
 point of the lab, a servo stream along a short seeded path (or after the simulated hand tracker, through
 the clutch that ``follow_hand`` uses), a gripper goal. Its failure policy is a motion action's: the FAILED

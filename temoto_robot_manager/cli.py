@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     h.add_argument('--timeout', type=float, default=30.0, help='seconds before the goal is cancelled (30)')
     a = sub.add_parser('arm', help='move an arm to a named pose, joint positions, or a pose of its tool')
     a.add_argument('arm', help='an arm of the robot\'s manipulation (left_arm, right_arm for the VaultBot)')
-    a.add_argument('pose', nargs='?', default='', help='a named pose of the arm (hold)')
+    a.add_argument('pose', nargs='?', default='', help='a named pose of the arm (stow)')
     a.add_argument('--joints', nargs='+', type=float, metavar='Q', help='one position per joint, rad')
     a.add_argument('--pose', dest='tool', nargs='+', type=float, metavar='V',
                    help='the tool\'s X Y Z (m), and optionally ROLL PITCH YAW (rad; default 0 0 0)')
@@ -149,7 +149,7 @@ def _robot_with(ns: str, feature: str, name: str) -> Optional[dict]:
     return robot
 
 
-def _hold(ns: str, robot: dict, feature: str, node: str):
+def _claim(ns: str, robot: dict, feature: str, node: str):
     """Load ``robot`` with ``feature`` through the Robot Manager, as an action would: the robot moves for a
     holder. Returns (interface, loaded) or None, having printed why."""
     rospy.init_node(node, anonymous=True, disable_signals=True)
@@ -205,7 +205,7 @@ def _go(opts) -> int:
                                                                        ', '.join(robot['places']) or 'none'),
               file=sys.stderr)
         return 2
-    held = _hold(opts.ns, robot, 'navigation', 'temoto_robots_go')
+    held = _claim(opts.ns, robot, 'navigation', 'temoto_robots_go')
     if held is None:
         return 1
     client = TrackingActionClient('/move_base', MoveBaseAction)
@@ -271,7 +271,7 @@ def _gripper(opts) -> int:
         print('error: gripper target %r: give a position of %s (%s) or a gap in m'
               % (opts.target, robot['name'], ', '.join(sorted(gripper['positions'])) or 'none'), file=sys.stderr)
         return 2
-    held = _hold(opts.ns, robot, 'gripper', 'temoto_robots_gripper')
+    held = _claim(opts.ns, robot, 'gripper', 'temoto_robots_gripper')
     if held is None:
         return 1
     client = TrackingActionClient('/' + gripper['action'].lstrip('/'), GripperCommandAction)
@@ -324,7 +324,7 @@ def _arm(opts) -> int:
     goal = _arm_goal(opts)
     if goal is None:
         return 2
-    held = _hold(opts.ns, robot, 'manipulation', 'temoto_robots_arm')
+    held = _claim(opts.ns, robot, 'manipulation', 'temoto_robots_arm')
     if held is None:
         return 1
     client = TrackingActionClient('/%s/move_arm' % opts.arm, MoveArmAction)

@@ -50,10 +50,11 @@ One file holds a list under ``robots``::
             base_frame: left_base_link
             tool_frame: left_tool0
             named_poses:                     # one position per joint, in the order of joints
-              hold: [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
+              stow: [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
         gripper:
           controller: {package: vaultbot_sim, executable: gripper_controller}
-          action: gripper/gripper_command
+          node: {package: temoto_robot_manager, executable: gripper}   # its command gate: goals on gripper/command
+          action: gripper/gripper_command    # the controller's
           arm: left_arm                      # the arm that carries it
           positions: {open: 0.085, closed: 0.0}   # named gaps between the pads (m)
 
@@ -75,6 +76,7 @@ from temoto_core import yaml_lines
 from temoto_core.reliability import DEFAULT_PRIOR
 
 FEATURES = ('navigation', 'manipulation', 'gripper')
+GRIPPER_GATE_ACTION = 'gripper/command'     # where a gripper node serves its goals
 _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(FEATURES)
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_rate', 'odom_patience', 'odom_frame',
@@ -84,7 +86,7 @@ _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'servo_timeout', 'world_margin', 'joints',
              'base_frame', 'tool_frame', 'named_poses'}
-_GRIPPER_KEYS = {'controller', 'action', 'arm', 'positions'}
+_GRIPPER_KEYS = {'controller', 'node', 'action', 'arm', 'positions'}
 
 
 class DescriptionError(ValueError):
@@ -172,6 +174,12 @@ class Gripper:
     action: str
     arm: str
     positions: Dict[str, float] = field(default_factory=dict)   # named gaps between the pads (m): open, closed
+    node: Optional[Part] = None             # its command gate (gripper_node), whose goals clients send
+
+    @property
+    def command_action(self) -> str:
+        """The action clients send goals to: the gate's when one is described, else the controller's."""
+        return GRIPPER_GATE_ACTION if self.node is not None else self.action
 
 
 @dataclass(frozen=True)
@@ -397,7 +405,8 @@ class _Reader:
                     raise self.error(p_at, 'gripper.positions.%s must be a gap from 0 to 1 m, got %r' % (label, gap))
                 positions[str(label)] = float(gap)
             gripper = Gripper(self.part(g_raw['controller'], g_at + ['controller']),
-                              self.text(g_raw, 'action', g_at, name=True), carrier, positions)
+                              self.text(g_raw, 'action', g_at, name=True), carrier, positions,
+                              self.part(g_raw['node'], g_at + ['node']) if 'node' in g_raw else None)
         return RobotDescription(
             name, str(raw.get('description', '')), float(reliability),
             self.text(raw, 'temoto_namespace', at, default=''),

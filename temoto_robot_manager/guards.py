@@ -16,7 +16,7 @@ Guards here:
 - :class:`SourceFresh`: the active obstacle source heard within 3 of its periods (``freshness.py``). A base that
   drives on obstacles it no longer sees drives blind;
 - :class:`ArmsInEnvelope`: every arm inside the outline that navigation keeps clear. The footprint assumes the arms
-  at their hold pose; an arm servoed out past it while the base drives is a part of the robot that nothing
+  at their stowed pose; an arm servoed out past it while the base drives is a part of the robot that nothing
   checks against the world.
 """
 from __future__ import annotations
@@ -150,7 +150,7 @@ class ArmsInEnvelope:
     """Every arm's skeleton (``ArmKinematics.skeleton``: the chain's axes) inside the driving outline shrunk by
     ``inset``, in plan view.
 
-    The outline holds the arms at their hold pose with their links' thickness; their axes then lie ``inset`` or
+    The outline holds the arms at their stowed pose with their links' thickness; their axes then lie ``inset`` or
     more inside it (the VaultBot's: 4 cm). An axis nearer the outline than that puts the link's surface outside
     it, where the costmap and the collision monitor do not look. Joint states older than ``state_timeout``: where
     the arms are is not known, and that stops the base too."""
@@ -200,4 +200,4 @@ class ArmsInEnvelope:
         # the point furthest out: from the outline shrunk by the inset
         worst = points[out][int(np.argmax(self.footprint.grown(-self.inset).distance(points[out])))]
         return ('%s reaches outside the driving outline at (%.2f, %.2f) in the base frame (its axes must stay %.2f m '
-                'inside it): bring it to its hold pose before driving' % (name, worst[0], worst[1], self.inset))
+                'inside it): bring it to its stowed pose before driving' % (name, worst[0], worst[1], self.inset))

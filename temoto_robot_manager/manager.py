@@ -94,6 +94,20 @@ class RobotManager:
     def choose(self, robot_name: str, features: List[str]) -> RobotDescription:
         return choose_robot(self.robots, lambda name: self.reliability[name].value, robot_name, features)
 
+    def _gripper(self, robot: RobotDescription, held: List[int]) -> List[KeyValue]:
+        """The gripper's controller and, when described, its command gate. The operator's stop goes to the gate (the
+        stack's own stop), else to the controller, as it reaches the base and the arms."""
+        gripper, halt = robot.gripper, '_halt_topic:=%s' % halt_topic(self.namespace)
+        if gripper.node is None:
+            args = ' '.join(a for a in (gripper.controller.args, halt) if a)
+            return [self._part(robot, 'gripper.controller', dataclasses.replace(gripper.controller, args=args),
+                               gripper.action + '/status', held)]
+        args = ' '.join(a for a in (gripper.node.args, '_description:=%s' % robot.path, '_robot:=%s' % robot.name,
+                                    '_owner_topic:=%s' % self.owner_topic(robot.name), halt) if a)
+        return [self._part(robot, 'gripper.controller', gripper.controller, gripper.action + '/status', held),
+                self._part(robot, 'gripper.node', dataclasses.replace(gripper.node, args=args),
+                           gripper.command_action + '/status', held)]
+
     def _load(self, req, res) -> None:
         features = [f.strip() for f in req.features if f.strip()]
         robot = self.choose(req.robot_name.strip(), features)
@@ -117,12 +131,7 @@ class RobotManager:
                                                 dataclasses.replace(arm.manipulator, args=args),
                                                 '%s/move_arm/status' % arm.name, held))
             if 'gripper' in features:
-                # the operator's stop reaches the gripper as it reaches the base and the arms
-                args = ' '.join(a for a in (robot.gripper.controller.args,
-                                            '_halt_topic:=%s' % halt_topic(self.namespace)) if a)
-                parts.append(self._part(robot, 'gripper.controller',
-                                        dataclasses.replace(robot.gripper.controller, args=args),
-                                        robot.gripper.action + '/status', held))
+                parts += self._gripper(robot, held)
         except TemotoError:
             self.obstacles.release(load_id)       # held on this manager's account: the registrar's rollback skips it
             self.reliability[robot.name].failure()
@@ -321,7 +330,7 @@ class RobotManager:
             'arms': {a.name: sorted(a.named_poses) for a in r.manipulation.values()},
             'arm_frames': {a.name: {'base_frame': a.base_frame, 'tool_frame': a.tool_frame}
                            for a in r.manipulation.values()},
-            'gripper': {'action': r.gripper.action, 'arm': r.gripper.arm, 'positions': r.gripper.positions}
+            'gripper': {'action': r.gripper.command_action, 'arm': r.gripper.arm, 'positions': r.gripper.positions}
             if r.gripper else None,
             # where the robot's relative topic names live (move_base, <arm>/servo_target): the manager's own
             # ROS namespace, as its parts are started by the ER Manager next to it

@@ -9,6 +9,7 @@ from temoto_core.wait import wait_for
 
 GOAL_CLIENT = [sys.executable, '-m', 'temoto_testing.goal_client']     # + X Y YAW: one goal, then waits
 ARM_CLIENT = [sys.executable, '-m', 'temoto_testing.arm_client']       # + ARM Q1..Q6 [SCALE]: one goal, then waits
+GRIPPER_CLIENT = [sys.executable, '-m', 'temoto_testing.gripper_client']   # + ACTION GAP: one goal, then waits
 
 
 def commanded_zero_after(states: List, t0: float, timeout: float):

@@ -162,16 +162,17 @@ def _answers(rr):
         return False
 
 
-def start_robot_stack(launcher, er_logs, extra='', **sim):
+def start_robot_stack(launcher, er_logs, extra='', descriptions='', **sim):
     """The sim (``sim`` overrides its parameters) with its base controller, and the ER, Sensor and Robot
     Managers, as a module of tests shares them; returns the Robot Manager's process. The Sensor Manager has
-    the VaultBot's sensors and the catalogues in ``extra`` (``HAND_CATALOGUE``, say)."""
+    the VaultBot's sensors and the catalogues in ``extra`` (``HAND_CATALOGUE``, say); the Robot Manager the
+    VaultBot's description unless ``descriptions`` names others."""
     start_sim(launcher, **sim)
     launcher.node('vaultbot_sim', 'base_controller')
     start_er_manager(launcher, er_logs)
     start_sensor_manager(launcher, first_data_timeout=20.0, extra=extra,
                          first_data_allowance=GENEROUS_ALLOWANCE)
-    return start_robot_manager(launcher)
+    return start_robot_manager(launcher, descriptions)
 
 
 def robot_info():

@@ -22,19 +22,19 @@ from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.sensor_manager import managers_idle, start_robot_stack
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix
 from vaultbot_sim.msg import ArmState, Contact
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE
 
 HANG = 60.0
 LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
-HOLD = [HOLD_POSE[j] for j in LEFT]
+STOW = [STOW_POSE[j] for j in LEFT]
 MODEL = TreeModel(ROBOT_URDF)
 # the left arm turned out to its side: the tool 0.27 m beyond the driving outline's side (y 0.67 m)
-REACH = [q + d for q, d in zip(HOLD, (1.2, 0.0, 0.6, 0.0, 0.0, 0.0))]
+REACH = [q + d for q, d in zip(STOW, (1.2, 0.0, 0.6, 0.0, 0.0, 0.0))]
 BOX = 0.16                       # m: the box's side, around where REACH puts the tool
 
 
 def tool(q):
-    return MODEL.link_pose('left_tool0', dict(HOLD_POSE, **dict(zip(LEFT, q))))
+    return MODEL.link_pose('left_tool0', dict(STOW_POSE, **dict(zip(LEFT, q))))
 
 
 # -------------------------------------------------------------------------------------------------- the rule
@@ -77,9 +77,9 @@ def test_the_servo_nears_the_world_slowly_and_halts_with_its_margin_kept_between
     data[lo[1]:hi[1], lo[0]:hi[0]] = 100
     world = WorldClearance(0.05, reach=0.05 + servo_rules.WORLD_SLOW)
     world.set_map((-2.0, -2.0), resolution, size, size, data.ravel())
-    base = MODEL.link_pose('left_base_link', HOLD_POSE)
+    base = MODEL.link_pose('left_base_link', STOW_POSE)
     servo = Servo(kin, 0.008, world=lambda q: world.free(kin.skeleton(q), base))
-    q, target, halts = list(HOLD), tool(REACH), 0
+    q, target, halts = list(STOW), tool(REACH), 0
     near = []                                                    # (free distance, fastest point's speed)
     for k in range(1500):                                        # 12 s of steps at most
         step = servo.step(q, np.linalg.inv(base) @ target, check=k % 5 == 0)
@@ -150,10 +150,10 @@ def test_an_arm_goal_into_the_world_is_refused_naming_it_and_nothing_moves(left_
              and m.commanded_speed > 0.0]
     assert not moved, 'the refused goal moved the arm'
     # a goal that keeps clear of the box runs: the check refuses the world, not every reach
-    clear = [q + (0.3 if k == 0 else 0.0) for k, q in enumerate(HOLD)]
+    clear = [q + (0.3 if k == 0 else 0.0) for k, q in enumerate(STOW)]
     state, _, text = run(left_arm, MoveArmGoal(joint_positions=clear, speed_scale=0.5))
     assert state == GoalStatus.SUCCEEDED, text
-    state, _, text = run(left_arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(left_arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -167,8 +167,8 @@ def test_a_servo_stream_toward_the_world_halts_before_contact(left_arm, collect)
     wait_for(lambda: joints.last(), HANG, 'the joint states')
     pub = rospy.Publisher('/left_arm/servo_target', PoseStamped, queue_size=5)
     wait_for(lambda: pub.get_num_connections() > 0, HANG, 'the manipulator to subscribe to the servo targets')
-    start, goal = tool(HOLD), tool(REACH)
-    for k in range(250):                                  # 5 s at 50 Hz: from the hold pose into the box
+    start, goal = tool(STOW), tool(REACH)
+    for k in range(250):                                  # 5 s at 50 Hz: from the stowed pose into the box
         f = min(1.0, k / 200.0)
         target = goal.copy()
         target[:3, 3] = start[:3, 3] + f * (goal[:3, 3] - start[:3, 3])
@@ -193,5 +193,5 @@ def test_a_servo_stream_toward_the_world_halts_before_contact(left_arm, collect)
     here = dict(zip(joints.last().name, joints.last().position))
     gap = np.linalg.norm(tool([here[j] for j in LEFT])[:2, 3] - goal[:2, 3])
     assert gap > BOX / 2, 'the tool stopped %.3f m from the box\'s centre: inside it' % gap
-    state, _, text = run(left_arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(left_arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text

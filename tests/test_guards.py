@@ -132,10 +132,10 @@ def arms_guard():
 
 
 def held_positions(**moved):
-    """Every arm joint at the VaultBot's hold pose, but for ``moved`` (joint: radians added)."""
+    """Every arm joint at the VaultBot's stowed pose, but for ``moved`` (joint: radians added)."""
     out = {}
     for arm in VAULTBOT.manipulation.values():
-        out.update(zip(arm.joints, arm.named_poses['hold']))
+        out.update(zip(arm.joints, arm.named_poses['stow']))
     for joint, delta in moved.items():
         out[joint] += delta
     return out
@@ -149,7 +149,7 @@ def test_arms_at_their_hold_pose_pass_and_an_elbow_swung_out_holds_the_base_nami
     guard.update(held_positions(left_elbow_joint=1.0), 0.2)
     out = guard.check(0.2)
     assert out.code is StopCode.ARM_OUTSIDE and not out.final
-    assert out.text.startswith('left_arm reaches outside the driving outline at (') and 'hold pose' in out.text
+    assert out.text.startswith('left_arm reaches outside the driving outline at (') and 'stowed pose' in out.text
     guard.update(held_positions(right_shoulder_pan_joint=-1.5), 0.3)
     assert guard.check(0.3).text.startswith('right_arm reaches outside'), guard.check(0.3).text
     guard.update(held_positions(), 0.4)

@@ -14,10 +14,10 @@ from temoto_robot_manager.manipulation.joint_motion import time_parameterise
 from temoto_robot_manager.manipulation.self_collision import SelfCollision
 from temoto_robot_manager.manipulation.servo import Servo
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE
 
 JOINTS = ['left_%s_joint' % j for j in ARM_JOINTS]
-HOLD = [HOLD_POSE[j] for j in JOINTS]
+STOW = [STOW_POSE[j] for j in JOINTS]
 WRIST_2 = JOINTS.index('left_wrist_2_joint')
 
 
@@ -34,7 +34,7 @@ def kin(urdf):
 
 @pytest.fixture(scope='module')
 def body(urdf):
-    checker = SelfCollision(urdf, JOINTS, HOLD_POSE)
+    checker = SelfCollision(urdf, JOINTS, STOW_POSE)
     yield checker
     checker.close()
 
@@ -50,11 +50,11 @@ def test_kdl_forward_kinematics_matches_the_urdf_and_ik_comes_back(kin):
     model = TreeModel(ROBOT_URDF)
     rng = np.random.default_rng(3)
     for _ in range(20):
-        q = np.array(HOLD) + rng.uniform(-0.8, 0.8, 6)
-        cfg = dict(HOLD_POSE, **dict(zip(JOINTS, q)))
+        q = np.array(STOW) + rng.uniform(-0.8, 0.8, 6)
+        cfg = dict(STOW_POSE, **dict(zip(JOINTS, q)))
         truth = np.linalg.inv(model.link_pose('left_base_link', cfg)) @ model.link_pose('left_tool0', cfg)
         assert pose_error(kin.fk(q), truth) < (1e-9, 1e-9)
-        solved = kin.ik(truth, HOLD)
+        solved = kin.ik(truth, STOW)
         dp, da = pose_error(kin.fk(solved), truth)
         assert dp < 1e-4 and da < 1e-3
 
@@ -82,44 +82,44 @@ def test_a_time_parameterised_motion_keeps_every_joint_within_its_speed_and_acce
 
 
 def test_the_hold_pose_is_clear_of_the_body_and_a_folded_arm_is_not(body):
-    assert body.nearest(HOLD_POSE, 0.0) is None
-    folded = dict(HOLD_POSE, left_elbow_joint=HOLD_POSE['left_elbow_joint'] - 1.4)
+    assert body.nearest(STOW_POSE, 0.0) is None
+    folded = dict(STOW_POSE, left_elbow_joint=STOW_POSE['left_elbow_joint'] - 1.4)
     near = body.nearest(folded, 0.0)
     assert near is not None and near.distance <= 0.0
 
 
 @pytest.mark.parametrize('kwargs, code, words', [
     ({}, INVALID_GOAL, 'give exactly one of pose, named_pose and joint_positions (given: none)'),
-    ({'named_pose': 'hold', 'joint_positions': HOLD}, INVALID_GOAL, '(given: named_pose, joint_positions)'),
+    ({'named_pose': 'stow', 'joint_positions': STOW}, INVALID_GOAL, '(given: named_pose, joint_positions)'),
     ({'named_pose': 'wave'}, INVALID_GOAL, "named_pose 'wave' is not a pose of this arm (its poses: hold)"),
-    ({'joint_positions': HOLD[:5]}, INVALID_GOAL, 'joint_positions has 5 values for the 6 joints'),
-    ({'joint_positions': HOLD[:5] + [float('nan')]}, INVALID_GOAL, 'left_wrist_3_joint is nan, not a finite angle'),
-    ({'joint_positions': HOLD[:5] + [7.0]}, INVALID_GOAL, 'left_wrist_3_joint at 7.000 rad is beyond'),
+    ({'joint_positions': STOW[:5]}, INVALID_GOAL, 'joint_positions has 5 values for the 6 joints'),
+    ({'joint_positions': STOW[:5] + [float('nan')]}, INVALID_GOAL, 'left_wrist_3_joint is nan, not a finite angle'),
+    ({'joint_positions': STOW[:5] + [7.0]}, INVALID_GOAL, 'left_wrist_3_joint at 7.000 rad is beyond'),
     ({'pose': np.diag([1.0, 1.0, 1.0, 1.0]) + np.array([[0, 0, 0, 2.0]] * 3 + [[0, 0, 0, 0]])}, NO_SOLUTION,
      'pose: no joint positions reach the target'),
-    ({'joint_positions': HOLD, 'speed_scale': 1.5}, INVALID_GOAL, 'speed_scale 1.5 must be in (0, 1]'),
+    ({'joint_positions': STOW, 'speed_scale': 1.5}, INVALID_GOAL, 'speed_scale 1.5 must be in (0, 1]'),
 ])
 def test_a_goal_that_cannot_be_is_refused_naming_its_field(kin, kwargs, code, words):
-    planner = ArmPlanner(kin, {'hold': HOLD})
+    planner = ArmPlanner(kin, {'stow': STOW})
     with pytest.raises(GoalRefused) as caught:
-        planner.plan(HOLD, **kwargs)
+        planner.plan(STOW, **kwargs)
     assert caught.value.code == code and words in str(caught.value), str(caught.value)
 
 
 def test_a_way_through_the_robots_own_body_is_refused_before_anything_moves(kin, body):
     planner = ArmPlanner(kin, {}, touches(body))
-    folded = list(HOLD)
+    folded = list(STOW)
     folded[JOINTS.index('left_elbow_joint')] -= 1.4
     with pytest.raises(GoalRefused) as caught:
-        planner.plan(HOLD, joint_positions=folded)
+        planner.plan(STOW, joint_positions=folded)
     assert caught.value.code == SELF_COLLISION and 'of the way: ' in str(caught.value)
 
 
 def test_a_pose_goal_plans_to_the_pose_within_the_limits(kin, body):
     planner = ArmPlanner(kin, {}, touches(body))
-    target = kin.fk(HOLD)
+    target = kin.fk(STOW)
     target[:3, 3] += [0.05, -0.1, 0.1]
-    points = planner.plan(HOLD, pose=target, speed_scale=0.4)
+    points = planner.plan(STOW, pose=target, speed_scale=0.4)
     assert pose_error(kin.fk(points[-1][1]), target) < (1e-4, 1e-3)
     for _, _, v in points:
         assert max(abs(x) for x in v) <= 0.4 * math.pi + 1e-9
@@ -135,26 +135,26 @@ def run_servo(servo, q, target, steps):
 
 def test_the_servo_brings_the_tool_onto_a_target(kin):
     servo = Servo(kin, 0.01)
-    target = kin.fk(HOLD)
+    target = kin.fk(STOW)
     target[:3, 3] += [0.08, 0.05, -0.06]
-    q, step = run_servo(servo, HOLD, target, 300)
+    q, step = run_servo(servo, STOW, target, 300)
     assert pose_error(kin.fk(q), target)[0] < 1e-4 and not step.halted
 
 
 def test_the_servo_keeps_each_joint_within_its_speed(kin):
     servo = Servo(kin, 0.01)
-    target = kin.fk(HOLD)
+    target = kin.fk(STOW)
     target[:3, 3] += [0.5, 0.0, 0.0]
-    step = servo.step(HOLD, target)
+    step = servo.step(STOW, target)
     assert max(abs(v) for v in step.velocities) <= math.pi + 1e-9
-    tip = kin.jacobian(HOLD) @ np.array(step.velocities)
+    tip = kin.jacobian(STOW) @ np.array(step.velocities)
     assert np.linalg.norm(tip[:3]) <= servo_rules.MAX_LINEAR + 1e-6
 
 
 def test_the_servo_slows_then_halts_towards_a_singularity_and_lets_the_arm_back_out(kin):
     """The UR's wrist singularity: wrist_2 at 0 aligns wrist_1's and wrist_3's axes."""
     servo = Servo(kin, 0.01)
-    q = list(HOLD)
+    q = list(STOW)
     q[WRIST_2] = -0.35
     toward = list(q)
     toward[WRIST_2] = 0.0
@@ -170,13 +170,13 @@ def test_the_servo_slows_then_halts_towards_a_singularity_and_lets_the_arm_back_
     assert halted is not None and 'near a singularity' in halted.why, conditions[-3:]
     assert servo_rules.SINGULARITY_STOP <= halted.condition < servo_rules.SINGULARITY_STOP * 1.5
     assert max(conditions[:-1]) >= servo_rules.SINGULARITY_SLOW    # it went through the slow band first
-    back = servo.step(q, kin.fk(HOLD))            # away from it: not slowed by it
+    back = servo.step(q, kin.fk(STOW))            # away from it: not slowed by it
     assert not back.halted and back.scale > 0
 
 
 def test_the_servo_halts_a_joint_at_its_margin(kin):
     servo = Servo(kin, 0.01)
-    q = list(HOLD)
+    q = list(STOW)
     q[0] = kin.limits[0].upper - 0.05                # within the 0.1 rad margin
     target_q = list(q)
     target_q[0] = kin.limits[0].upper                # and asked further
@@ -190,10 +190,10 @@ def test_the_servo_halts_before_the_arm_touches_the_body(kin, body):
         return near.distance if near else None
     servo = Servo(kin, 0.01, distance)
     # the tool sent across the robot, towards the other arm (a point in base_link)
-    arm_in_base = TreeModel(ROBOT_URDF).link_pose('left_base_link', HOLD_POSE)
-    target = kin.fk(HOLD)
+    arm_in_base = TreeModel(ROBOT_URDF).link_pose('left_base_link', STOW_POSE)
+    target = kin.fk(STOW)
     target[:3, 3] = (np.linalg.inv(arm_in_base) @ np.array([0.6, -0.3, 1.0, 1.0]))[:3]
-    q, halted = list(HOLD), None
+    q, halted = list(STOW), None
     for _ in range(600):
         step = servo.step(q, target)
         if step.halted:

@@ -712,7 +712,7 @@ def test_a_goal_sent_before_a_stop_that_arrives_after_it_is_rejected(navigation,
 
 def test_an_arm_swung_out_of_the_outline_holds_the_drive_and_its_return_lets_it_go_on(navigation_on_bare_motors,
                                                                                       rospy_client, collect):
-    """Issue 51, hole 6: the footprint holds the arms at their hold pose, and nothing stopped an arm being moved out
+    """Issue 51, hole 6: the footprint holds the arms at their stowed pose, and nothing stopped an arm being moved out
     past it while the base drove. The navigator now keeps every arm inside the outline (its URDF chain, from the
     joint states): an arm out holds the base at zero, a goal sent then is refused naming the arm, and the drive
     goes on once the arm is back. The arm is moved as its controller would, by setpoints to the sim's motors."""
@@ -727,7 +727,7 @@ def test_an_arm_swung_out_of_the_outline_holds_the_drive_and_its_return_lets_it_
     wait_for(lambda: motors.get_num_connections() > 0 and joints.last() is not None, HANG, 'the sim\'s arm motors')
 
     def move_arm(elbow_delta):
-        q = list(arm.named_poses['hold'])
+        q = list(arm.named_poses['stow'])
         q[2] += elbow_delta
         msg = JointState(name=list(arm.joints), position=q, velocity=[0.0] * len(q))
         msg.header.stamp = rospy_client.Time.now()

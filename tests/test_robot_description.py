@@ -18,7 +18,7 @@ from temoto_robot_manager.selection import choose_robot
 from vaultbot_sim.gripper import STROKE
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, resolve_world
 from vaultbot_sim.scene import Scene
-from vaultbot_sim.spec import BASE_JOINTS, HOLD_POSE
+from vaultbot_sim.spec import BASE_JOINTS, STOW_POSE
 from vaultbot_sim.world_map import world_map
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -61,7 +61,7 @@ def test_the_vaultbots_description_matches_the_simulated_robot():
     assert vaultbot.features == ['navigation', 'manipulation', 'gripper']
     assert vaultbot.gripper.arm == 'left_arm' and vaultbot.gripper.positions['open'] == STROKE
     for arm in vaultbot.manipulation.values():
-        assert arm.named_poses['hold'] == pytest.approx([HOLD_POSE[j] for j in arm.joints], abs=1e-3)
+        assert arm.named_poses['stow'] == pytest.approx([STOW_POSE[j] for j in arm.joints], abs=1e-3)
     assert [s.label for s in vaultbot.navigation.obstacle_sources] == [
         'base LIDAR scan', 'arm LIDAR stitched cloud', 'RGB-D camera cloud']
 
@@ -73,7 +73,7 @@ def test_the_vaultbots_footprint_covers_its_body_with_the_arms_held():
     outline = Footprint.of(vaultbot.navigation.footprint, vaultbot.navigation.protrusions)
     scene = Scene(ROBOT_URDF, resolve_world('lab'))
     try:
-        scene.set_robot(HOLD_POSE)
+        scene.set_robot(STOW_POSE)
         p, robot = scene.p, scene.robot
         for link in range(-1, p.getNumJoints(robot, physicsClientId=scene.cid)):
             (lx, ly, _), (hx, hy, _) = p.getAABB(robot, link, physicsClientId=scene.cid)
@@ -91,7 +91,7 @@ def test_every_named_place_of_the_vaultbot_is_free_in_the_lab():
     scene = Scene(ROBOT_URDF, resolve_world('lab'))
     try:
         for place, pose in vaultbot.navigation.places.items():
-            scene.set_robot(dict(HOLD_POSE, **dict(zip(BASE_JOINTS, pose))))
+            scene.set_robot(dict(STOW_POSE, **dict(zip(BASE_JOINTS, pose))))
             assert scene.contacts(margin=0.05) == [], 'place %s %s touches the lab' % (place, pose)
     finally:
         scene.close()

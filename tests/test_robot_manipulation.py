@@ -27,12 +27,12 @@ from temoto_testing.motion import ARM_CLIENT
 from temoto_testing.sensor_manager import er_processes, managers_idle, start_robot_manager, start_robot_stack
 from vaultbot_sim.kinematics import ROBOT_URDF, TreeModel, quat_from_matrix
 from vaultbot_sim.msg import ArmState
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE
 from temoto_core.action_client import TrackingActionClient
 
 HANG = 60.0
 LEFT = ['left_%s_joint' % j for j in ARM_JOINTS]
-HOLD = [HOLD_POSE[j] for j in LEFT]
+STOW = [STOW_POSE[j] for j in LEFT]
 MODEL = TreeModel(ROBOT_URDF)
 
 
@@ -74,7 +74,7 @@ def here(joints):
 
 
 def tool_in_base(q):
-    cfg = dict(HOLD_POSE, **dict(zip(LEFT, q)))
+    cfg = dict(STOW_POSE, **dict(zip(LEFT, q)))
     return MODEL.link_pose('left_tool0', cfg)        # base_link is the model's root
 
 
@@ -121,14 +121,14 @@ def settled(joints):
 
 def test_named_joint_and_pose_goals_put_the_arm_there(arm, truth):
     joints, _ = truth
-    target = list(HOLD)
+    target = list(STOW)
     target[0] += 0.4
     target[3] -= 0.3
     state, result, text = run(arm, MoveArmGoal(joint_positions=target, speed_scale=0.8))
     assert state == GoalStatus.SUCCEEDED and result.error_code == MoveArmResult.SUCCESS, text
     assert max(abs(a - b) for a, b in zip(settled(joints), target)) < 0.02
-    # a pose of the tool in base_link: 8 cm forward and 6 cm up from the hold pose's
-    goal_m = tool_in_base(HOLD)
+    # a pose of the tool in base_link: 8 cm forward and 6 cm up from the stowed pose's
+    goal_m = tool_in_base(STOW)
     goal_m[:3, 3] += [0.08, 0.0, 0.06]
     pose = PoseStamped()
     pose.header.frame_id = 'base_link'
@@ -139,17 +139,17 @@ def test_named_joint_and_pose_goals_put_the_arm_there(arm, truth):
     assert state == GoalStatus.SUCCEEDED, text
     dp, da = pose_error(tool_in_base(settled(joints)), goal_m)
     assert dp < 0.01 and da < 0.02, (dp, da)            # within the controller's 0.01 rad goal tolerance
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
-    assert max(abs(a - b) for a, b in zip(settled(joints), HOLD)) < 0.02
+    assert max(abs(a - b) for a, b in zip(settled(joints), STOW)) < 0.02
 
 
 @pytest.mark.parametrize('goal, code, words', [
     (MoveArmGoal(), MoveArmResult.INVALID_GOAL, 'give exactly one of pose, named_pose and joint_positions'),
     (MoveArmGoal(named_pose='wave'), MoveArmResult.INVALID_GOAL, "named_pose 'wave' is not a pose of this arm"),
     (MoveArmGoal(joint_positions=[0.0] * 5), MoveArmResult.INVALID_GOAL, 'joint_positions has 5 values'),
-    (MoveArmGoal(joint_positions=HOLD[:5] + [float('nan')]), MoveArmResult.INVALID_GOAL, 'is nan, not a finite'),
-    (MoveArmGoal(joint_positions=HOLD, speed_scale=2.0), MoveArmResult.INVALID_GOAL, 'speed_scale 2.0'),
+    (MoveArmGoal(joint_positions=STOW[:5] + [float('nan')]), MoveArmResult.INVALID_GOAL, 'is nan, not a finite'),
+    (MoveArmGoal(joint_positions=STOW, speed_scale=2.0), MoveArmResult.INVALID_GOAL, 'speed_scale 2.0'),
     ('far', MoveArmResult.NO_SOLUTION, 'pose: no joint positions reach the target'),
     ('frame', MoveArmResult.INVALID_GOAL, "pose.header.frame_id 'nowhere': no transform"),
     ('fold', MoveArmResult.SELF_COLLISION, 'touches the robot\'s own body'),
@@ -162,7 +162,7 @@ def test_a_goal_that_cannot_be_is_rejected_naming_why_and_nothing_moves(arm, tru
         pose.pose.position.x, pose.pose.orientation.w = 3.0, 1.0
         goal = MoveArmGoal(pose=pose)
     elif goal == 'fold':
-        folded = list(HOLD)
+        folded = list(STOW)
         folded[LEFT.index('left_elbow_joint')] -= 1.4
         goal = MoveArmGoal(joint_positions=folded)
     before = here(joints)
@@ -176,7 +176,7 @@ def test_a_goal_that_cannot_be_is_rejected_naming_why_and_nothing_moves(arm, tru
 
 def test_a_goal_whose_client_dies_stops_the_arm(stack, arm, truth):
     joints, states = truth
-    far = list(HOLD)
+    far = list(STOW)
     far[0] += 1.5
     client = stack.command(ARM_CLIENT + ['left_arm'] + [str(v) for v in far] + ['0.3'], 'arm_client')
     try:
@@ -192,23 +192,23 @@ def test_a_goal_whose_client_dies_stops_the_arm(stack, arm, truth):
         assert abs(q[0] - far[0]) > 0.1                               # it stopped on the way
     finally:
         client.stop()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
 def test_a_second_goal_preempts_the_first_and_the_arm_goes_to_the_second(arm, truth):
     joints, _ = truth
-    far = list(HOLD)
+    far = list(STOW)
     far[0] += 1.2
     arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.2))
-    wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.05, HANG, 'the arm moving to the first goal')
+    wait_for(lambda: abs(here(joints)[0] - STOW[0]) > 0.05, HANG, 'the arm moving to the first goal')
     second = TrackingActionClient('/left_arm/move_arm', MoveArmAction)
     assert second.wait_for_server(rospy.Duration(HANG))
-    state, _, text = run(second, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(second, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
     assert arm.wait_for_result(rospy.Duration(HANG))
     assert arm.get_state() == GoalStatus.PREEMPTED and 'preempted by goal' in arm.get_goal_status_text()
-    assert max(abs(a - b) for a, b in zip(settled(joints), HOLD)) < 0.02
+    assert max(abs(a - b) for a, b in zip(settled(joints), STOW)) < 0.02
 
 
 def test_a_burst_of_goals_each_preempting_the_last_ends_every_one(arm, truth):
@@ -220,16 +220,16 @@ def test_a_burst_of_goals_each_preempting_the_last_ends_every_one(arm, truth):
     for client in clients:
         assert client.wait_for_server(rospy.Duration(HANG))
     for k, client in enumerate(clients):
-        far = list(HOLD)
+        far = list(STOW)
         far[0] += 0.6 if k % 2 else -0.6
         client.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.2))
         wait_for(lambda: client.get_state() == GoalStatus.ACTIVE or client.get_state() == GoalStatus.REJECTED,
                  HANG, 'goal %d accepted' % k)
-        wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.02 or k == 0, HANG, 'the arm moving')
+        wait_for(lambda: abs(here(joints)[0] - STOW[0]) > 0.02 or k == 0, HANG, 'the arm moving')
     for k, client in enumerate(clients):
         assert client.wait_for_result(rospy.Duration(HANG)), 'goal %d never ended' % k
     assert [c.get_state() for c in clients] == [GoalStatus.PREEMPTED] * 5 + [GoalStatus.SUCCEEDED]
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -261,7 +261,7 @@ def test_the_tool_follows_a_servo_stream_and_the_arm_holds_when_it_falls_silent(
     assert len(steps) > 100, 'the servo commands made from the stream'
     assert all(m.header.stamp in stamps for m in steps), 'each servo command carries the stamp of its target'
     pub.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -305,7 +305,7 @@ def test_a_streamer_s_hold_stops_the_arm_at_once_naming_why(arm, truth, collect)
               and m.speed >= REST_RAD_S]
     assert not moving, 'the arm still moved after the manipulator said it held: %s rad/s' % moving
     hold.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -333,7 +333,7 @@ def test_stop_mid_trajectory_holds_the_arm_and_says_why_typed(arm, truth, collec
     assert abs(here(joints)[0] - far[0]) > 0.05, 'the arm stopped on its way, not at the goal'
     assert rest.header.stamp.to_sec() - halted < 5.0
     halt.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -371,7 +371,7 @@ def test_a_servo_stream_that_goes_on_after_a_stop_does_not_move_the_arm_until_it
         stop.set()
         stream.join(HANG)
     halt.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -407,7 +407,7 @@ def test_a_streamer_s_hold_brakes_the_arm_where_it_is_and_never_pulls_it_back(ar
     back = [(round(t - moment, 3), j, v[j]) for t, v in after for j, v0 in going.items() if v[j] * v0 < -1e-9]
     assert back == [], 'joints turned back after the hold: %s' % back[:5]
     hold.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
@@ -435,27 +435,27 @@ def test_servo_targets_held_up_on_the_way_are_not_followed_late(arm, truth, coll
         (m for m in states.msgs[-5:] if m.arm == 'left_arm' and m.commanded_speed > 0.0), None), HANG,
         'the arm following a target sent now')
     pub.unregister()
-    state, _, text = run(arm, MoveArmGoal(named_pose='hold'))
+    state, _, text = run(arm, MoveArmGoal(named_pose='stow'))
     assert state == GoalStatus.SUCCEEDED, text
 
 
 def test_temoto_robots_arm_moves_an_arm_and_refuses_what_cannot_be(arm, truth):
     joints, _ = truth
-    unknown = temoto('arm', 'tail_arm', 'hold')
+    unknown = temoto('arm', 'tail_arm', 'stow')
     assert unknown.returncode == 2 and "vaultbot has no arm 'tail_arm' (its arms: left_arm, right_arm)" in \
         unknown.stderr, unknown.stderr
-    both = temoto('arm', 'left_arm', 'hold', '--joints', '0', '0')
+    both = temoto('arm', 'left_arm', 'stow', '--joints', '0', '0')
     assert both.returncode == 2 and 'give one of a named POSE, --joints and --pose (given: POSE, --joints)' in \
         both.stderr, both.stderr
     short = temoto('arm', 'left_arm', '--joints', '0.1', '0.2')
     assert short.returncode == 1 and 'refused: joint_positions has 2 values for the 6 joints' in short.stdout, \
         short.stdout + short.stderr
-    target = list(HOLD)
+    target = list(STOW)
     target[0] += 0.3
     moved = temoto('arm', 'left_arm', '--joints', *[str(v) for v in target], '--speed', '0.9')
     assert moved.returncode == 0 and 'there' in moved.stdout, moved.stdout + moved.stderr
     assert max(abs(a - b) for a, b in zip(settled(joints), target)) < 0.02
-    back = temoto('arm', 'left_arm', 'hold')
+    back = temoto('arm', 'left_arm', 'stow')
     assert back.returncode == 0, back.stdout + back.stderr
 
 
@@ -466,10 +466,10 @@ def temoto(*args, timeout=120):
 
 def test_a_controller_that_crashes_mid_goal_aborts_it_naming_the_controller(arm, truth):
     joints, _ = truth
-    far = list(HOLD)
+    far = list(STOW)
     far[0] -= 1.2
     arm.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
-    wait_for(lambda: abs(here(joints)[0] - HOLD[0]) > 0.1, HANG, 'the arm moving')
+    wait_for(lambda: abs(here(joints)[0] - STOW[0]) > 0.1, HANG, 'the arm moving')
     pid = next(p['pid'] for p in er_processes() if 'left_arm_controller' in str(p['command']))
     os.kill(pid, signal.SIGKILL)
     assert arm.wait_for_result(rospy.Duration(HANG))
@@ -486,7 +486,7 @@ def test_the_arm_holds_at_once_when_the_robot_manager_dies_mid_goal(stack, truth
     _, states = truth
     right = TrackingActionClient('/right_arm/move_arm', MoveArmAction)
     assert right.wait_for_server(rospy.Duration(HANG))
-    far = [HOLD_POSE['right_%s_joint' % j] for j in ARM_JOINTS]
+    far = [STOW_POSE['right_%s_joint' % j] for j in ARM_JOINTS]
     far[0] += 1.2
     right.send_goal(MoveArmGoal(joint_positions=far, speed_scale=0.3))
     wait_for(lambda: next((m for m in states.msgs[-5:] if m.arm == 'right_arm' and m.speed > 0.2), None), HANG,
@@ -534,7 +534,7 @@ def test_a_servo_stream_holds_at_once_when_the_robot_manager_dies_while_it_goes_
         make().load_robot(['manipulation'], on_status=lambda event: None)
         wait_receiving([states.sub, joints.sub, status.sub], HANG, 'the arm states, joints and servo status')
         last = wait_for(joints.last, HANG, 'the joint states')
-        tool = MODEL.link_pose('right_tool0', dict(HOLD_POSE, **dict(zip(last.name, last.position))))
+        tool = MODEL.link_pose('right_tool0', dict(STOW_POSE, **dict(zip(last.name, last.position))))
         stop = threading.Event()
         stream = stream_targets('right_arm', tool, stop)
         try:
@@ -624,48 +624,3 @@ def test_a_manipulator_killed_mid_goal_leaves_no_trajectory_running(stack, truth
                                > stopped.header.stamp.to_sec() and m.speed == 0.0), None), HANG, 'the arm at rest')
         rest = dict(zip(joints.last().name, joints.last().position))
         assert abs(rest[names[0]] - far[0]) > 0.1, 'the arm stopped on its way, not at the trajectory\'s end'
-
-
-def test_stop_reaches_the_gripper_and_a_goal_sent_before_it_is_not_run_after_it(stack, collect):
-    """Issue 51, hole 3: the halt topic was not given to the gripper's controller, so "stop" left the fingers
-    closing. The Robot Manager now gives it, as to the base and the arms: the fingers stop at once and the goal
-    ends ABORTED naming the stop. A goal stamped before the stop that arrives after it is refused, and nothing
-    moves (it was on its way when the operator said stop)."""
-    from control_msgs.msg import GripperCommand, GripperCommandAction, GripperCommandActionGoal, GripperCommandGoal
-    from control_msgs.msg import GripperCommandActionResult
-    from vaultbot_sim.msg import GripperState
-    states = collect('/vaultbot_sim/gripper_state', GripperState)
-    results = collect('/gripper/gripper_command/result', GripperCommandActionResult)
-    halt = rospy.Publisher('/temoto/halt', String, queue_size=5, tcp_nodelay=True)
-    raw = rospy.Publisher('/gripper/gripper_command/goal', GripperCommandActionGoal, queue_size=5)
-    with made_interfaces(RobotManagerInterface) as make:
-        make().load_robot(['gripper'], on_status=lambda event: None)
-        client = TrackingActionClient('/gripper/gripper_command', GripperCommandAction)
-        assert client.wait_for_server(rospy.Duration(HANG))
-        wait_for(lambda: halt.get_num_connections() > 0 and raw.get_num_connections() > 0, HANG,
-                 'the gripper\'s controller listening')
-        wait_receiving([states.sub], HANG, 'the gripper\'s state')
-        wait_for(lambda: states.last(), HANG, 'the gripper\'s state')
-        goal = 0.085 if states.last().gap < 0.04 else 0.0        # across the stroke, wherever it is
-        client.send_goal(GripperCommandGoal(command=GripperCommand(position=goal)))
-        wait_for(lambda: states.last().speed != 0.0, HANG, 'the fingers moving')
-        before = rospy.Time.now()
-        halt.publish(String('test stop'))
-        halted = rospy.Time.now().to_sec()
-        assert client.wait_for_result(rospy.Duration(HANG)), 'the goal never ended'
-        assert client.get_state() == GoalStatus.ABORTED, client.get_goal_status_text()
-        assert client.get_goal_status_text().startswith('halted: test stop; stopped at'), client.get_goal_status_text()
-        rest = wait_for(lambda: next((m for m in states.msgs[-20:] if m.header.stamp.to_sec() > halted
-                                      and m.speed == 0.0), None), HANG, 'the fingers at rest')
-        assert abs(rest.gap - goal) > 0.005, 'the fingers stopped on their way, not at the goal'
-        # a goal stamped before the stop, arriving after it
-        late = GripperCommandActionGoal()
-        late.header.stamp = late.goal_id.stamp = before
-        late.goal_id.id = 'late_gripper_goal'
-        late.goal.command.position = goal
-        raw.publish(late)
-        refused = wait_for(lambda: next((r for r in results.msgs if r.status.goal_id.id == 'late_gripper_goal'), None),
-                           HANG, 'the late goal\'s end')
-        assert refused.status.status == GoalStatus.ABORTED and 'before the operator\'s stop' in refused.status.text, \
-            refused.status.text
-        assert abs(states.last().gap - rest.gap) < 0.001, 'the late goal moved the fingers'

@@ -16,7 +16,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from temoto_testing import wait_for, wait_receiving
 from temoto_testing.sensor_manager import set_cable
 from vaultbot_sim.msg import ArmState
-from vaultbot_sim.spec import ARM_JOINTS, HOLD_POSE, SWEEP_JOINT
+from vaultbot_sim.spec import ARM_JOINTS, STOW_POSE, SWEEP_JOINT
 from vaultbot_sim.srv import ReleaseArm, SetSweep
 from vaultbot_sim.arm import JointRange
 from vaultbot_sim.trajectory import Trajectory
@@ -244,7 +244,7 @@ def hokuyo_arm_held(procs, rospy_client, collect):
     client = TrackingActionClient('/right_arm/follow_joint_trajectory', FollowJointTrajectoryAction)
     assert client.wait_for_server(rospy_client.Duration(HANG))
     right = ['right_%s_joint' % j for j in ARM_JOINTS]
-    wait_for(lambda: joints.last() and abs(positions(joints, [SWEEP_JOINT])[0] - HOLD_POSE[SWEEP_JOINT]) > 0.2,
+    wait_for(lambda: joints.last() and abs(positions(joints, [SWEEP_JOINT])[0] - STOW_POSE[SWEEP_JOINT]) > 0.2,
              HANG, 'the sweep to turn the wrist')
     goal = positions(joints, right)
     goal[0] += 0.3

@@ -86,7 +86,7 @@ def test_a_bad_goal_names_its_field(position, effort, words):
 # --- the controller as a process ---------------------------------------------------------------------------
 def straddling_pose():
     """The base pose [x, y, yaw] at which the open fingers straddle the test world's pole, mid-pad."""
-    cfg = dict(spec.HOLD_POSE, **{j: STROKE / 2 for j in spec.GRIPPER_JOINTS})
+    cfg = dict(spec.STOW_POSE, **{j: STROKE / 2 for j in spec.GRIPPER_JOINTS})
     grasp = TreeModel(ROBOT_URDF).link_pose('gripper_link', cfg) @ np.array(
         [0.0, 0.0, GRIPPER_BODY[2] + FINGER[2] - 0.015, 1.0])
     return [float(TEST_POLE_XY[0] - grasp[0]), float(TEST_POLE_XY[1] - grasp[1]), 0.0]

@@ -88,7 +88,7 @@ def test_arm_matches_ur5_dh_table(model):
 def test_sensor_frames_fk_yourdfpy_vs_pybullet(urdf, model, scene):
     rng = np.random.default_rng(7)
     names = urdf.actuated_joint_names
-    held = dict(spec.HOLD_POSE, **{j: 0.02 for j in spec.GRIPPER_JOINTS})
+    held = dict(spec.STOW_POSE, **{j: 0.02 for j in spec.GRIPPER_JOINTS})
     configs = [held] + [dict(zip(names, rng.uniform(-math.pi, math.pi, len(names)))) for _ in range(4)]
     for cfg in configs:
         urdf.update_cfg(np.array([cfg[n] for n in names]))
@@ -102,11 +102,11 @@ def test_sensor_frames_fk_yourdfpy_vs_pybullet(urdf, model, scene):
 
 
 def test_hold_pose_camera_looks_ahead(model):
-    t = model.link_pose('d435_optical_frame', spec.HOLD_POSE)
+    t = model.link_pose('d435_optical_frame', spec.STOW_POSE)
     forward = t[:3, 2]
     assert forward[0] > 0.95 and t[2, 3] > 0.9          # looks along +x, from above the mount
     assert t[:3, 1][2] < -0.9                          # image "down" is world down
-    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)
+    h = model.link_pose('hokuyo_link', spec.STOW_POSE)
     assert h[0, 0] > 0.99                              # wrist_3 axis (scan x) points ahead
 
 
@@ -169,10 +169,10 @@ def test_stitcher_emits_one_cloud_per_sweep_in_base_frame(model):
     st = SweepStitcher(model, spec.SWEEP_JOINT, sweep_angle=math.pi, max_window=100.0)
     ranges = np.full(spec.HOKUYO.beams, 2.0)
     ranges[::2] = np.inf
-    centre = spec.HOLD_POSE[spec.SWEEP_JOINT]
+    centre = spec.STOW_POSE[spec.SWEEP_JOINT]
     clouds = []
     for k in range(81):   # 0 .. pi in steps of pi/40, then one more
-        cfg = dict(spec.HOLD_POSE)
+        cfg = dict(spec.STOW_POSE)
         cfg[spec.SWEEP_JOINT] = centre - math.pi / 2 + k * math.pi / 40
         out = st.add(k * 0.025, ranges, spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment, cfg)
         if out is not None:
@@ -180,7 +180,7 @@ def test_stitcher_emits_one_cloud_per_sweep_in_base_frame(model):
     assert [k for k, _ in clouds] == [40, 80]
     cloud = clouds[0][1]
     assert len(cloud) == 41 * (spec.HOKUYO.beams // 2)           # finite beams of 41 scans
-    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)[:3, 3]
+    h = model.link_pose('hokuyo_link', spec.STOW_POSE)[:3, 3]
     dist = np.sqrt((cloud['x'] - h[0]) ** 2 + (cloud['y'] - h[1]) ** 2 + (cloud['z'] - h[2]) ** 2)
     assert np.allclose(dist, 2.0, atol=1e-4)                       # points 2 m from the sensor, in base_link
 
@@ -201,9 +201,9 @@ def test_a_cloud_stitched_while_driving_shows_a_wall_where_it_is_now(model, kind
     cloud is on the wall, seen from where the base is at the newest scan, not smeared along the metre driven."""
     st = RollingStitcher(model, spec.SWEEP_JOINT) if kind == 'rolling' else \
         SweepStitcher(model, spec.SWEEP_JOINT, sweep_angle=math.pi, max_window=100.0)
-    centre, wall, out, x = spec.HOLD_POSE[spec.SWEEP_JOINT], 4.0, None, 0.0
+    centre, wall, out, x = spec.STOW_POSE[spec.SWEEP_JOINT], 4.0, None, 0.0
     for k in range(41):                        # pi of wrist in 1 s, 40 Hz scans, the base at 1 m/s
-        cfg = dict(spec.HOLD_POSE)
+        cfg = dict(spec.STOW_POSE)
         cfg[spec.SWEEP_JOINT] = centre - math.pi / 2 + k * math.pi / 40
         x = k * 0.025
         base = planar_matrix(x, 0.0, 0.0)
@@ -223,7 +223,7 @@ def test_the_self_box_holds_the_robot_at_its_hold_pose_with_a_margin(urdf):
         robot = p.loadURDF(ROBOT_URDF, useFixedBase=True, physicsClientId=cid)
         joints = {p.getJointInfo(robot, j, physicsClientId=cid)[1].decode(): j
                   for j in range(p.getNumJoints(robot, physicsClientId=cid))}
-        for name, q in spec.HOLD_POSE.items():
+        for name, q in spec.STOW_POSE.items():
             p.resetJointState(robot, joints[name], q, physicsClientId=cid)
         x0, x1, y0, y1, z0, z1 = spec.SELF_BOX
         for link in range(-1, p.getNumJoints(robot, physicsClientId=cid)):
@@ -238,9 +238,9 @@ def test_hits_on_the_robot_itself_are_dropped_before_a_moving_base_could_leave_t
     """A beam that ends on the robot's own body moves with the robot: kept in odom, it would trail behind a
     driving base as an obstacle just outside the footprint. Each scan's own hits go before it is kept."""
     st = RollingStitcher(model, spec.SWEEP_JOINT, self_box=spec.SELF_BOX)
-    centre = spec.HOLD_POSE[spec.SWEEP_JOINT]
+    centre = spec.STOW_POSE[spec.SWEEP_JOINT]
     for k in range(41):
-        cfg = dict(spec.HOLD_POSE)
+        cfg = dict(spec.STOW_POSE)
         cfg[spec.SWEEP_JOINT] = centre - math.pi / 2 + k * math.pi / 40
         # every beam ends 5 cm from the scanner, on the robot's own arm; nothing else is in sight
         st.add(k * 0.025, np.full(spec.HOKUYO.beams, 0.05), spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment,
@@ -248,7 +248,7 @@ def test_hits_on_the_robot_itself_are_dropped_before_a_moving_base_could_leave_t
     assert len(st.cloud()) == 0
     unfiltered = RollingStitcher(model, spec.SWEEP_JOINT)
     unfiltered.add(0.0, np.full(spec.HOKUYO.beams, 0.05), spec.HOKUYO.angle_min, spec.HOKUYO.angle_increment,
-                   dict(spec.HOLD_POSE), planar_matrix(0.0, 0.0, 0.0))
+                   dict(spec.STOW_POSE), planar_matrix(0.0, 0.0, 0.0))
     assert len(unfiltered.cloud()) == spec.HOKUYO.beams       # what the filter takes away
 
 

@@ -48,7 +48,7 @@ def test_sim_state_tf_and_devices(procs, rospy_client, collect):
     for side in ('left', 'right'):
         for j in spec.ARM_JOINTS:
             name = f'{side}_{j}_joint'
-            assert m.position[m.name.index(name)] == pytest.approx(spec.HOLD_POSE[name], abs=1e-9)
+            assert m.position[m.name.index(name)] == pytest.approx(spec.STOW_POSE[name], abs=1e-9)
     static_children = {t.child_frame_id for t in tf_static.last().transforms}
     # the base moves: the sim puts odom at the world's origin, and odom -> base_link is the base controller's
     assert {'odom', 'd435_link', 'd435_optical_frame', 'hokuyo_link', 'sick_link', 'left_tool0'} <= static_children
@@ -107,7 +107,7 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
         assert m.angle_max - m.angle_min == pytest.approx(math.radians(spec_.fov_deg), abs=1e-5)
         assert m.range_max == pytest.approx(spec_.range_max) and m.range_min == pytest.approx(spec_.range_min)
         angles = m.angle_min + np.arange(n) * m.angle_increment
-        pose = model.link_pose(spec_.frame, spec.HOLD_POSE)
+        pose = model.link_pose(spec_.frame, spec.STOW_POSE)
         expect, dirs = _expected_laser(pose, angles, spec_.range_max)
         got = np.asarray(m.ranges)
         sel = np.isfinite(expect) & (dirs[:, 0] > 0.3)      # forward beams: clear of the robot itself
@@ -124,7 +124,7 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
     xyz = np.stack([pts['x'], pts['y'], pts['z']], axis=1).astype(np.float64)
     ok = np.isfinite(xyz).all(axis=1) & (np.linalg.norm(xyz, axis=1) > 1.0)
     assert ok.sum() > 0.5 * len(pts)
-    cam = model.link_pose('d435_optical_frame', spec.HOLD_POSE)
+    cam = model.link_pose('d435_optical_frame', spec.STOW_POSE)
     world = xyz[ok] @ cam[:3, :3].T + cam[:3, 3]
     on_surface = (np.abs(world[:, 0] - TEST_WALL_X) < 0.02) | (np.abs(world[:, 2]) < 0.02)
     assert on_surface.mean() > 0.99, on_surface.mean()
@@ -145,12 +145,12 @@ def test_drivers_rates_sizes_frames_geometry_and_shutdown(procs, rospy_client, c
 def _sweep_scans(model, seconds, rate=40.0, speed=math.pi / 2, still=False):
     """Scans of a 2 m sphere around the Hokuyo while the wrist sweeps as the sim does (triangle wave)."""
     from vaultbot_sim.motion import WristSweep
-    centre = spec.HOLD_POSE[spec.SWEEP_JOINT]
+    centre = spec.STOW_POSE[spec.SWEEP_JOINT]
     wrist = WristSweep(centre, speed=speed, enabled=not still)
     ranges = np.full(spec.HOKUYO.beams, 2.0)
     ranges[::2] = np.inf
     for k in range(int(seconds * rate)):
-        cfg = dict(spec.HOLD_POSE)
+        cfg = dict(spec.STOW_POSE)
         cfg[spec.SWEEP_JOINT] = wrist.position
         yield k / rate, ranges, cfg
         wrist.advance(1.0 / rate)
@@ -180,7 +180,7 @@ def test_rolling_stitcher_holds_the_freshest_scan_of_every_direction_of_the_last
     # the cloud: every finite beam of the held scans, 2 m from the scanner, in base_link
     cloud = st.cloud()
     assert len(cloud) == len(st) * (spec.HOKUYO.beams // 2)
-    h = model.link_pose('hokuyo_link', spec.HOLD_POSE)[:3, 3]
+    h = model.link_pose('hokuyo_link', spec.STOW_POSE)[:3, 3]
     dist = np.sqrt((cloud['x'] - h[0]) ** 2 + (cloud['y'] - h[1]) ** 2 + (cloud['z'] - h[2]) ** 2)
     assert np.allclose(dist, 2.0, atol=1e-4)
     assert st.newest_stamp == pytest.approx(9.0 - 1 / 40.0)

@@ -69,7 +69,7 @@ class ArmPlant:
 
     def stop(self, now: float) -> bool:
         """Brake to a hold where the joints are (a UR's stopj): no setpoint, and no command timeout trip either. An arm
-        nobody holds (given back to the simulation's hold pose or sweep) has nothing to hold: the stop is moot
+        nobody holds (given back to the simulation's stowed pose or sweep) has nothing to hold: the stop is moot
         and takes nothing, as a command to a controller switched off does not reach the motors (a controller's
         hold that came after the give-back once took the wrist from its sweep, seed 17, step 2157). False then."""
         if not self.held:
@@ -78,7 +78,7 @@ class ArmPlant:
         return True
 
     def release(self, sent: float = 0.0) -> None:
-        """Nobody holds the arm any more: the simulation's hold pose (and sweep) drive it again from here.
+        """Nobody holds the arm any more: the simulation's stowed pose (and sweep) drive it again from here.
         ``sent``: the give-back's moment on the senders' clock; setpoints stamped before it take nothing."""
         self.held, self.setpoint = False, None
         self.velocity = {j: 0.0 for j in self.joints}

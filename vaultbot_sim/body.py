@@ -106,14 +106,14 @@ class Body:
 
     # --- a step of the simulation -------------------------------------------------------------------
     def step(self, now: float, hold: Mapping[str, float]) -> Step:
-        """Move every part to ``now``. ``hold``: the joints the simulation sets itself (the hold pose, the sweep);
+        """Move every part to ``now``. ``hold``: the joints the simulation sets itself (the stowed pose, the sweep);
         an arm's joints come from its motors once someone holds it."""
         with self.lock:
             cfg = dict(hold)
             for arm in self.arms.values():
                 if arm.held:
                     cfg.update(arm.position)
-                else:                         # follows the hold pose and the sweep until someone holds it
+                else:                         # follows the stowed pose and the sweep until someone holds it
                     arm.position.update({j: hold[j] for j in arm.joints if j in hold})
             out = Step([], [], [])
             speed = abs(self.base.velocity[0])

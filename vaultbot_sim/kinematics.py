@@ -149,7 +149,7 @@ class TreeModel:
 
 def solve_tool_pose(model: TreeModel, joints: list[str], tool: str, target_pos: np.ndarray,
                     target_rot: np.ndarray, q0: np.ndarray, iters: int = 200) -> np.ndarray:
-    """Damped least-squares IK (numerical Jacobian); used offline to choose the hold pose."""
+    """Damped least-squares IK (numerical Jacobian); used offline to choose the stowed pose."""
     q = np.array(q0, float)
 
     def err(qv):

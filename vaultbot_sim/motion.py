@@ -11,7 +11,7 @@ import bisect
 import math
 from typing import Mapping, Sequence
 
-from vaultbot_sim.spec import HOLD_POSE, PERSON_JOINT, SWEEP_JOINT
+from vaultbot_sim.spec import STOW_POSE, PERSON_JOINT, SWEEP_JOINT
 
 
 class WristSweep:
@@ -70,7 +70,7 @@ class SimState:
     """Robot and world joint state as a function of time."""
 
     def __init__(self, sweep: WristSweep | None = None, hand: HandWave | None = None,
-                 hold: Mapping[str, float] = HOLD_POSE):
+                 hold: Mapping[str, float] = STOW_POSE):
         self.hold = dict(hold)
         self.sweep = sweep or WristSweep(self.hold[SWEEP_JOINT])
         self.hand = hand or HandWave()

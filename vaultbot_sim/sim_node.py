@@ -46,7 +46,7 @@ from vaultbot_sim.motion import HandWave, SimState, WristSweep
 from vaultbot_sim.msg import ArmState, BaseState, Contact as ContactMsg, DeviceState, DeviceStates, GripperState
 from vaultbot_sim.rosmsgs import tf_message
 from vaultbot_sim.scene import Scene
-from vaultbot_sim.spec import ARM_JOINTS, GRIPPER_JOINTS, HOLD_POSE, SWEEP_JOINT, WHEEL_JOINTS
+from vaultbot_sim.spec import ARM_JOINTS, GRIPPER_JOINTS, STOW_POSE, SWEEP_JOINT, WHEEL_JOINTS
 from vaultbot_sim.world_map import world_map
 from vaultbot_sim.srv import (ReleaseArm, ReleaseArmResponse, SetDeviceState, SetDeviceStateResponse, SetSweep,
                               SetSweepResponse)
@@ -102,7 +102,7 @@ class SimNode:
         self.world_urdf = resolve_world(world)
         self.robot_urdf = params.text('robot_urdf', ROBOT_URDF, empty=False)
         self.rate = params.number('rate', 50.0, above=0, maximum=1000)
-        sweep = WristSweep(HOLD_POSE[SWEEP_JOINT], amplitude=params.number('sweep_amplitude', math.pi / 2, minimum=0),
+        sweep = WristSweep(STOW_POSE[SWEEP_JOINT], amplitude=params.number('sweep_amplitude', math.pi / 2, minimum=0),
                            speed=params.number('sweep_speed', math.pi / 2, above=0),
                            enabled=params.flag('sweep', True))
         hand = HandWave(amplitude=params.number('hand_amplitude', 0.3, minimum=0),
@@ -140,7 +140,7 @@ class SimNode:
         self.pub_gripper = rospy.Publisher('~gripper_state', GripperState, queue_size=50, tcp_nodelay=True)
         # the collision world: the robot and the world in a private pybullet copy, posed, never stepped
         ranges = {j.name: JointRange(j.lower, j.upper) for j in self.robot.joints}
-        arms = {arm: ArmPlant(joints, HOLD_POSE, ranges, motor_timeout)
+        arms = {arm: ArmPlant(joints, STOW_POSE, ranges, motor_timeout)
                 for arm, joints in joint_names(('left', 'right'), ARM_JOINTS).items()}
         gripper = GripperPlant(params.number('gripper_gap', STROKE, minimum=0, maximum=STROKE), motor_timeout)
         self.body = Body(Scene(self.robot_urdf, self.world_urdf), base, arms, gripper)

@@ -1,4 +1,4 @@
-"""Facts about the VaultBot's devices and its hold pose, in one place.
+"""Facts about the VaultBot's devices and its stowed pose, in one place.
 
 Sensor figures are the devices' datasheet ones. The hold
 pose was found with kinematics.solve_tool_pose: the D435 sits at about
@@ -17,7 +17,7 @@ WHEEL_JOINTS = ['front_left_wheel_joint', 'front_right_wheel_joint', 'rear_left_
 
 _LEFT = [-0.121, -1.694, -1.673, -3.018, -1.789, -0.802]
 _RIGHT = [0.579, -1.537, -1.999, -2.748, -0.991, -2.356]
-HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
+STOW_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
                                **{f'left_{n}_joint': q for n, q in zip(ARM_JOINTS, _LEFT)},
                                **{f'right_{n}_joint': q for n, q in zip(ARM_JOINTS, _RIGHT)}}
 
@@ -26,7 +26,7 @@ HOLD_POSE: dict[str, float] = {**{w: 0.0 for w in WHEEL_JOINTS},
 BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 
 SWEEP_JOINT = 'right_wrist_3_joint'
-# The robot's own body at HOLD_POSE, in base_link (x_min, x_max, y_min, y_max, z_min, z_max; m), with 5 cm
+# The robot's own body at STOW_POSE, in base_link (x_min, x_max, y_min, y_max, z_min, z_max; m), with 5 cm
 # around it: the stitcher drops the scanner's hits on its own robot inside it, scan by scan, before a moving
 # base would smear them out of the body (tests/test_vaultbot_model.py checks it against the URDF).
 SELF_BOX = (-0.55, 0.80, -0.74, 0.72, -0.05, 1.33)

@@ -108,7 +108,7 @@ class ManipulatorNode:
             self.kin = ArmKinematics(urdf, self.arm.base_frame, self.arm.tool_frame, self.arm.joints)
         except KinematicsError as err:
             raise ValueError('arm %s: %s' % (name, err)) from None
-        reference = dict(zip(self.arm.joints, self.arm.named_poses.get('hold', [0.0] * self.kin.n)))
+        reference = dict(zip(self.arm.joints, self.arm.named_poses.get('stow', [0.0] * self.kin.n)))
         self.body = SelfCollision(urdf, self.arm.joints, reference)
         # the map's obstacles, once the map comes; seen from as far as the servo slows down before them
         self.world = WorldClearance(self.arm.world_margin, reach=self.arm.world_margin + WORLD_SLOW)

@@ -28,7 +28,7 @@ class Nearest:
 class SelfCollision:
     def __init__(self, urdf_xml: str, arm_joints: Sequence[str], reference: Mapping[str, float]) -> None:
         """``arm_joints``: the joints whose links (and everything they carry) move; ``reference``: a
-        configuration in which the robot touches itself only by design (its hold pose)."""
+        configuration in which the robot touches itself only by design (its stowed pose)."""
         self._cid = pybullet.connect(pybullet.DIRECT)
         handle, path = tempfile.mkstemp(suffix='.urdf')
         try:

@@ -115,10 +115,10 @@ class FollowHand(RobotAction):
     def on_start(self):
         self.driving = (self.input('mode') or '').strip().lower() in BASE_WORDS
         if self.driving:
-            info = self.hold_robot('navigation')
+            info = self.claim_robot('navigation')
             self.part = 'base'
         else:
-            info = self.hold_robot('manipulation')
+            info = self.claim_robot('manipulation')
             self._choose_arm(info)
             self.part = self.arm
         self.dial = Dial()

@@ -20,7 +20,7 @@ class Gripper(RobotAction):
         command = (self.input('command') or '').strip().lower()
         if command not in POSITIONS:
             raise ActionError('gripper command "%s": say one of %s' % (command, ', '.join(sorted(POSITIONS))))
-        info = self.hold_robot('gripper')
+        info = self.claim_robot('gripper')
         gripper = info.get('gripper') or {}
         positions = gripper.get('positions') or {}
         self.position = POSITIONS[command]

@@ -36,7 +36,7 @@ DRIVE_TIMEOUT_S = 600.0
 class Navigate(RobotAction):
     def on_start(self):
         place = (self.input('place') or '').strip().lower()
-        info = self.hold_robot('navigation')
+        info = self.claim_robot('navigation')
         places = info.get('place_poses') or {}
         if place in POINTED_WORDS:
             self.target, self.target_text = self._pointed(info), 'the pointed goal'
