@@ -46,6 +46,13 @@ NEMESIS[5] = [(k, 3 if k == 'replug' else w) for k, w in NEMESIS[2]] + [
 # other stop case is the stack's own, since a live commander's stream keeps the motors' timeout from firing.
 CLIENT_OPS[6] = CLIENT_OPS[5] + [('arm_goal', 1.5)]
 NEMESIS[6] = NEMESIS[5] + [('halt', 0.75), ('kill_manipulator', 0.75)]
+# version 7 (issue 51): the stop cases measured often enough (at least 50 of each in 10,000 steps): more drives and
+# servo streams, the hand followed in half of them, and the faults that stop them drawn four times as often; the
+# gripper's goals go through its command gate (a goal with a negative force is the gate's to refuse)
+CLIENT_OPS[7] = [(k, {'navigate': 5.0, 'servo': 4.0}.get(k, w)) for k, w in CLIENT_OPS[6]]
+NEMESIS[7] = [(k, {'unplug_obstacle': 3.0, 'unplug_hand': 3.0, 'halt': 1.5, 'kill_manipulator': 1.5}.get(k, w))
+              for k, w in NEMESIS[6]]
+HAND_SHARE = {7: 0.5}          # of the servo streams, those that follow the hand (0.25 before version 7)
 FAULT_SHARE = 0.2
 # what a client asks for: a type and the topic types it needs (equal requests are shared by the manager)
 SENSOR_REQUESTS: List[Tuple[str, Tuple[str, ...]]] = [('depth camera', ('camera_data',)), ('lidar', ('lidar_data',)),
@@ -66,10 +73,10 @@ MANAGERS: Dict[int, Tuple[str, ...]] = {
 MANAGERS[2] = MANAGERS[1]
 MANAGERS[4] = MANAGERS[3]
 MANAGERS[5] = MANAGERS[3] + ('/temoto_robot_manager',)
-MANAGERS[6] = MANAGERS[5]
+MANAGERS[6] = MANAGERS[7] = MANAGERS[5]
 # how many clients a history has unless told (``step`` draws the client from them); from version 4 the
 # clients work concurrently (runner.py), and the draws are version 3's over twice as many clients
-CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6, 5: 6, 6: 6}
+CLIENTS: Dict[int, int] = {1: 3, 2: 3, 3: 3, 4: 6, 5: 6, 6: 6, 7: 6}
 CONCURRENT_FROM = 4
 MOTION_FROM = 5
 DEVICES = ('d435', 'hokuyo', 'sick')
@@ -123,7 +130,7 @@ def step(seed: int, index: int, clients: int, version: int = VERSION) -> Step:
         elif kind == 'navigate':
             args.update(_goal(rng))
         elif kind == 'servo':
-            args.update(_servo(rng))
+            args.update(_servo(rng, HAND_SHARE.get(version, 0.25)))
         elif kind == 'arm_goal':
             args.update(arm=rng.choice(ARM_GOAL_ARMS), speed=rng.choice((0.2, 0.5, 1.0)),
                         offsets=[round(rng.uniform(-0.3, 0.3), 3) if rng.random() < 0.5 else 0.0 for _ in range(6)])
@@ -178,13 +185,13 @@ def _goal(rng: random.Random) -> Dict[str, object]:
     return {'frame': frame, 'x': x, 'y': y, 'yaw': 0.0}
 
 
-def _servo(rng: random.Random) -> Dict[str, object]:
-    """A servo stream: a short path from where the tool is (a direction, 2 to 8 cm, there and back), or the
-    hand tracker followed at a dial's scale; 1 to 4 s."""
+def _servo(rng: random.Random, hand_share: float) -> Dict[str, object]:
+    """A servo stream: a short path from where the tool is (a direction, 2 to 8 cm, there and back), or (that
+    share of them) the hand tracker followed at a dial's scale; 1 to 4 s."""
     v = [rng.gauss(0.0, 1.0) for _ in range(3)]
     norm = math.sqrt(sum(c * c for c in v)) or 1.0
     length = rng.uniform(0.02, 0.08)
-    return {'arm': rng.choice(ARMS), 'source': 'hand' if rng.random() < 0.25 else 'path',
+    return {'arm': rng.choice(ARMS), 'source': 'hand' if rng.random() < hand_share else 'path',
             'offset': [round(c / norm * length, 4) for c in v], 'scale': rng.choice(SCALES),
             'seconds': round(rng.uniform(1.0, 4.0), 2)}
 

@@ -106,12 +106,13 @@ def plan(entry: SensorEntry, query: SensorQuery) -> LaunchPlan:
     requested = dict(query.topics)
     keys = query.topic_types or list(entry.output_topics)
     args = shlex.split(entry.args)
-    topics = {}
-    for key in list(keys) + [k for k in entry.output_topics if k not in keys]:
-        spec = entry.output_topics[key]
+    topics = {key: requested.get(key) or entry.output_topics[key].topic for key in keys}
+    # the arguments in the catalogue's order, whatever outputs are asked for and in whatever order: two requests
+    # for different outputs of one device are then one request of the ER Manager, which shares the running
+    # driver. In the request's order, the view's arm LIDAR cloud and navigation's arm LIDAR scan were two
+    # launches of one device, and the second was refused ("node name /hokuyo_driver ... is already in use")
+    for key, spec in entry.output_topics.items():
         name = requested.get(key) or spec.topic
-        if key in keys:
-            topics[key] = name
         if entry.is_launch_file:
             if spec.arg:
                 args.append('%s:=%s' % (spec.arg, name))

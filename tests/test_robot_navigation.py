@@ -23,10 +23,11 @@ from temoto_core.process_group import ended
 from temoto_core.msg import ResourceStatus
 from temoto_robot_manager.description import load_file
 from temoto_robot_manager.paths import DEFAULT_DESCRIPTION
-from temoto_testing import wait_for, wait_receiving
+from temoto_sensor_manager.interface import SensorManagerInterface
+from temoto_testing import made_interfaces, wait_for, wait_receiving
 from temoto_testing.motion import aborted_goal, commanded_zero_after
-from temoto_testing.sensor_manager import (er_processes, recovered_registry, robot_info, set_cable,
-                                           start_robot_manager, start_robot_stack)
+from temoto_testing.sensor_manager import (TopicWatch, er_processes, pid_gone, recovered_registry,
+                                           robot_info, set_cable, start_robot_manager, start_robot_stack)
 from vaultbot_sim.msg import BaseState
 
 HANG = 90.0
@@ -61,6 +62,29 @@ def status_log():
         with lock:
             heard.append(event)
     return heard, lock, on_status
+
+
+def test_the_view_s_arm_lidar_and_navigation_s_share_one_driver_in_either_order(stack):
+    """Issue 52: the view holds the arm LIDAR's scan and cloud, navigation asks for its cloud alone (and the other
+    way round): one driver serves both holders, and it runs until the last one lets go. Before, the second request
+    launched the device again, and was refused: "node name /hokuyo_driver ... is already in use"."""
+    for first_keys, second_keys in ((['lidar_data', 'cloud_data'], ['cloud_data']),
+                                    (['cloud_data'], ['lidar_data', 'cloud_data'])):
+        with made_interfaces(SensorManagerInterface) as make:
+            view, navigation = make(), make()
+            first = view.start_sensor('lidar', first_keys, executable='hokuyo.launch')
+            second = navigation.start_sensor('lidar', second_keys, executable='hokuyo.launch')
+            assert first.sensor_name == second.sensor_name == 'hokuyo_utm30lx'
+            assert first.topic('cloud_data') == second.topic('cloud_data')
+            drivers = [p for p in er_processes() if 'hokuyo.launch' in p['label']]
+            assert len(drivers) == 1, drivers
+            view.stop_sensor(first.resource_id)
+            watch = TopicWatch(second.topic('cloud_data'))
+            wait_for(lambda: watch.count >= 2, 20, 'the cloud still flowing for the second holder')
+            watch.close()
+            assert [p['pid'] for p in er_processes() if 'hokuyo.launch' in p['label']] == [drivers[0]['pid']]
+            navigation.stop_sensor(second.resource_id)
+            wait_for(lambda: pid_gone(drivers[0]['pid']), 20, 'the driver to stop with its last holder')
 
 
 def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_step(rmi, rospy_client, collect):

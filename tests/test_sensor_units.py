@@ -60,6 +60,17 @@ def test_requested_names_become_launch_args_or_node_remaps():
     assert plan(node, validate('lidar', '', '', [])).args == '_rate:=5 scan:=/n/scan'
 
 
+def test_requests_for_different_outputs_of_one_device_launch_it_alike():
+    """Issue 52: the view asked the arm LIDAR for its scan and cloud, navigation for its cloud alone, and the
+    arguments came in each request's order: two launches of one device, and the second was refused."""
+    lidar = parse_entry({'name': 'h', 'type': 'lidar', 'package': 'p', 'executable': 'h.launch', 'output_topics': {
+        'lidar_data': {'topic': '/h/scan', 'arg': 'scan_topic'}, 'cloud_data': {'topic': '/h/cloud', 'arg': 'cloud_topic'}}})
+    view = plan(lidar, validate('lidar', '', '', [('lidar_data', ''), ('cloud_data', '')]))
+    navigation = plan(lidar, validate('lidar', '', '', [('cloud_data', '')]))
+    assert view.args == navigation.args == 'scan_topic:=/h/scan cloud_topic:=/h/cloud'
+    assert list(view.topics) == ['lidar_data', 'cloud_data'] and navigation.topics == {'cloud_data': '/h/cloud'}
+
+
 def test_malformed_entries_are_reported_with_file_and_line(tmp_path):
     path = tmp_path / 'cat.yaml'
     path.write_text('sensors:\n'
