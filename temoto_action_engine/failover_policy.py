@@ -2,7 +2,8 @@
 
 Plain data and arithmetic, no ROS: ``show_environment`` (and any action with a priority list of
 sources) reads a :class:`FailoverConfig` from its configuration and its request, and asks a
-:class:`Backoff` per source when it may try that source again.
+``temoto_core.backoff.Backoff`` per source when it may try that source again (the Robot Manager's
+obstacle fail-back asks the same rule).
 
 Standby policies, the paper's power argument kept as a choice:
 
@@ -78,49 +79,3 @@ class FailoverConfig:
             raise ValueError('retry_max_s (%g) must not be under retry_initial_s (%g)'
                              % (out.retry_max_s, out.retry_initial_s))
         return out
-
-
-class Backoff:
-    """When a source may be tried again: exponential backoff, and quarantine for a flapping source.
-
-    Two kinds of failure count apart:
-
-    - a try that did not start (the device is still unplugged) doubles the wait, from ``initial`` to
-      ``maximum``. It never quarantines: a camera that stays unplugged for a minute must still be
-      taken back within ``maximum`` of its return;
-    - a *flap*: the source came up and failed again before it had run a whole hold. Flaps double the
-      wait too, and ``quarantine_after`` flaps in a row keep the source out for ``quarantine_s``. So a
-      source that toggles at 2 Hz costs at most one switch per window, and the windows grow.
-
-    A source that ran a whole hold is forgiven (:meth:`succeeded`).
-    """
-
-    def __init__(self, initial: float, maximum: float, quarantine_after: int, quarantine_s: float) -> None:
-        self.initial, self.maximum = initial, maximum
-        self.quarantine_after, self.quarantine_s = quarantine_after, quarantine_s
-        self.unavailable = 0        # tries in a row that did not start
-        self.flaps = 0              # failures in a row within a hold
-        self.not_before = 0.0
-
-    def failed(self, now: float, flapped: bool) -> float:
-        """Record a failure at ``now``; return the wait until the next try."""
-        if flapped:
-            self.flaps += 1
-        else:
-            self.unavailable += 1
-        wait = min(self.maximum, self.initial * 2.0 ** (self.flaps + self.unavailable - 1))
-        if self.quarantined:
-            wait = max(wait, self.quarantine_s)
-        self.not_before = now + wait
-        return wait
-
-    @property
-    def quarantined(self) -> bool:
-        return self.flaps >= self.quarantine_after
-
-    def succeeded(self) -> None:
-        self.unavailable = self.flaps = 0
-        self.not_before = 0.0
-
-    def ready(self, now: float) -> bool:
-        return now >= self.not_before

@@ -38,7 +38,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional, Protocol, Sequence
 
-from temoto_action_engine.failover_policy import Backoff, FailoverConfig, Standby
+from temoto_action_engine.failover_policy import FailoverConfig, Standby
+from temoto_core.backoff import Backoff
 from temoto_action_engine.view_sources import SensorChoice
 from temoto_core.errors import Subsystem
 from temoto_core.fallback import NoCandidateLeft, first_that_works

@@ -30,6 +30,7 @@ from std_msgs.msg import Float32
 from temoto_core.action_client import TrackingActionClient
 from temoto_core import map_file
 from temoto_core.errors import TemotoError
+from temoto_core.msg import MotionStatus
 from temoto_core.rr.deadlines import call_once
 from temoto_core.srv import GetRegistry
 from temoto_robot_manager.contract import ROBOTS, RR_NAME
@@ -212,6 +213,10 @@ def _go(opts) -> int:
     left = {'m': float('nan')}
     sub = rospy.Subscriber('/move_base/distance_remaining', Float32,
                            lambda m: left.update(m=m.data), queue_size=1)
+    # the base's gate: a pause (no fresh obstacle source, an arm out) is said as it comes, and its end
+    paused = {'held': False}
+    status = rospy.Subscriber('%s/motion_status' % (robot.get('navigator') or 'navigator'), MotionStatus,
+                              lambda m: _say_pause(m, paused), queue_size=10)
     code = 1
     try:
         if not client.wait_for_server(rospy.Duration(30.0)):
@@ -227,7 +232,7 @@ def _go(opts) -> int:
         client.send_goal(goal)
         deadline, shown = time.monotonic() + opts.timeout, 0.0
         while client.get_state() in (GoalStatus.PENDING, GoalStatus.ACTIVE) and time.monotonic() < deadline:
-            if time.monotonic() - shown >= 2.0 and math.isfinite(left['m']):
+            if time.monotonic() - shown >= 2.0 and math.isfinite(left['m']) and not paused['held']:
                 shown = time.monotonic()
                 print('  %.1f m to go' % left['m'], flush=True)
             time.sleep(0.1)
@@ -245,8 +250,19 @@ def _go(opts) -> int:
         code = 130
     finally:
         sub.unregister()
+        status.unregister()
         _let_go(held, 'temoto robots go')
     return code
+
+
+def _say_pause(msg: MotionStatus, paused: dict) -> None:
+    """One line when the drive pauses (the gate holds the base at zero, saying why) and one when it goes on."""
+    if msg.state == MotionStatus.HELD and not paused['held']:
+        paused['held'] = True
+        print('  paused: %s' % msg.text, flush=True)
+    elif msg.state == MotionStatus.MOVING and paused['held']:
+        paused['held'] = False
+        print('  driving on', flush=True)
 
 
 def _gap(word: str, positions: dict) -> Optional[float]:

@@ -33,6 +33,8 @@ One file holds a list under ``robots``::
           stale_periods: 3                   # an obstacle source silent this many of its periods: zero
           teleop_timeout: 0.1                # s a teleop stream's command lasts (its deadman)
           teleop_max_age: 0.1                # s old a teleop command may be on arrival; older: refused
+          obstacle_patience: 10.0            # s a goal waits, at zero, for a fresh obstacle source (the Robot
+                                             # Manager failing over, a stall taken back); then it is aborted
           obstacle_sources:                  # ranked: the Sensor Manager's sensors, flattened into the costmap
             - {label: base LIDAR scan, sensor_type: lidar, output_topic: lidar_data,
                package: vaultbot_sim, executable: sick_driver}     # optional: that device, not the best of the type
@@ -81,7 +83,7 @@ _ROBOT_KEYS = {'name', 'description', 'reliability', 'temoto_namespace'} | set(F
 _PART_KEYS = {'package', 'executable', 'args', 'running'}
 _NAVIGATION_KEYS = {'driver', 'controller', 'cmd_vel_topic', 'odom_topic', 'odom_rate', 'odom_patience', 'odom_frame',
                     'base_frame', 'footprint', 'protrusions', 'arm_inset', 'max_speed', 'max_turn', 'stop_margin',
-                    'slow_margin', 'braking', 'stale_periods', 'teleop_timeout', 'teleop_max_age',
+                    'slow_margin', 'braking', 'stale_periods', 'teleop_timeout', 'teleop_max_age', 'obstacle_patience',
                     'obstacle_sources', 'places'}
 _SOURCE_KEYS = {'label', 'sensor_type', 'output_topic', 'package', 'executable'}
 _ARM_KEYS = {'controller', 'manipulator', 'action', 'servo_topic', 'servo_timeout', 'world_margin', 'joints',
@@ -151,6 +153,7 @@ class Navigation:
     stale_periods: int = 3                # periods of an obstacle source's without a frame: stale
     teleop_timeout: float = 0.1           # s a teleop command lasts
     teleop_max_age: float = 0.1           # s old a teleop command may arrive
+    obstacle_patience: float = 10.0       # s a goal waits at zero for a fresh obstacle source, then ends ABORTED
 
 
 @dataclass(frozen=True)
@@ -343,7 +346,8 @@ class _Reader:
             self.number(raw, 'braking', at, 2.0, above=0.0, maximum=20.0),
             self.count(raw, 'stale_periods', at, 3, 1, 20),
             self.number(raw, 'teleop_timeout', at, 0.1, above=0.0, maximum=2.0),
-            self.number(raw, 'teleop_max_age', at, 0.1, above=0.0, maximum=2.0))
+            self.number(raw, 'teleop_max_age', at, 0.1, above=0.0, maximum=2.0),
+            self.number(raw, 'obstacle_patience', at, 10.0, above=0.0, maximum=120.0))
 
     def arm(self, name: str, value: Any, at: Sequence) -> Arm:
         raw = self.mapping(value, at, _ARM_KEYS, ('controller', 'action', 'joints', 'tool_frame'))

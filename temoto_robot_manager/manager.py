@@ -339,4 +339,5 @@ class RobotManager:
         } for r in self.robots.values()], 'problems': self.problems}, sort_keys=True)
 
     def shutdown(self) -> None:
+        self.obstacles.close()
         self.rr.shutdown()

@@ -10,17 +10,25 @@ status of the robot (``send_status``):
    has stopped already, by itself, when the source went stale (``freshness.py``);
 2. the next source that works, down the ranking, is started and the navigator told its topic on
    the robot's latched ``obstacle_source`` topic: UPDATE "obstacles from Y on T; the robot drives on";
-3. none works: FAILED, naming each source and why, as the Sensor Manager's own failover does.
+3. none works: FAILED, naming each source and why, as the Sensor Manager's own failover does;
+4. **fail-back**, by the view's rule (``temoto_core/backoff.py``): while a load drives on a source below the best,
+   each better one is tried again (after 2 s, doubling to 8 s while it does not start). One that starts runs
+   unseen for ``Failback.hold_s``; if it fails within that (a flap, counted towards a quarantine), it is let go.
+   Having run the whole hold, it is the navigator's again: UPDATE "obstacles from X ... again", and the lower
+   source is released. Without it, one stall verdict (a SICK starved for 0.4 s on a loaded machine) dropped
+   the base's own scanner for the rest of the robot's load.
 
-The failover runs on its own thread: a sensor's start takes seconds, and the registrar's status
-thread must stay free for the next status.
+The failover and the fail-back run on threads of their own: a sensor's start takes seconds, and the
+registrar's status thread must stay free for the next status.
 """
 from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 from typing import Callable, Dict, List, Optional, Sequence
 
+from temoto_core.backoff import Backoff
 from temoto_core.errors import TemotoError
 from temoto_core.fallback import first_that_works
 from temoto_core.msg import ResourceStatus
@@ -37,10 +45,24 @@ class Served:
     topic: str = ''
     sensor: str = ''
     released: bool = False
+    # a better source back, running unseen through its hold: (source, local id, sensor, topic, since)
+    candidate: Optional[tuple] = None
+    backoffs: Dict[str, Backoff] = dataclasses.field(default_factory=dict)     # by source label
 
     @property
     def summary(self) -> str:
         return '%s (%s) on %s' % (self.source.label, self.sensor, self.topic) if self.source else 'none'
+
+
+@dataclasses.dataclass(frozen=True)
+class Failback:
+    """When a better-ranked obstacle source is taken back: the view's numbers (``failover_policy.FailoverConfig``)."""
+    check_s: float = 2.0          # the first wait before a better source is tried again; doubles while it fails
+    max_s: float = 8.0            # the longest wait between two tries
+    hold_s: float = 2.0           # a source back runs this long without a FAILED before the navigator takes it
+    quarantine_after: int = 3     # flaps in a row (back, then FAILED within the hold) ...
+    quarantine_s: float = 60.0    # ... keep it out this long
+    period_s: float = 0.25        # between two looks
 
 
 # start(source) -> (local id, sensor name, topic); release(local id); tell(load id, code, message);
@@ -50,12 +72,19 @@ Start = Callable[[ObstacleSource], tuple]
 
 class ObstacleFailover:
     def __init__(self, start: Start, release: Callable[[int], None], tell: Callable[[int, int, str], None],
-                 announce: Callable[[int, Served], None], subsystem: int, log: Callable[[str], None]) -> None:
+                 announce: Callable[[int, Served], None], subsystem: int, log: Callable[[str], None],
+                 failback: Optional[Failback] = Failback()) -> None:
+        """``failback``: None keeps a load on the source it failed over to."""
         self._start, self._release, self._tell, self._announce = start, release, tell, announce
         self._subsystem, self._log = subsystem, log
         self._lock = threading.Lock()
         self._served: Dict[int, Served] = {}          # load_robot internal id -> its source
         self._by_source: Dict[int, int] = {}          # a source's local id -> the load it serves
+        self._candidates: Dict[int, int] = {}         # a source back, in its hold: local id -> its load
+        self.failback = failback
+        self._closed = threading.Event()
+        if failback is not None:
+            threading.Thread(target=self._watch_failback, name='obstacle failback', daemon=True).start()
 
     def _first(self, robot: str, ranked: Sequence[ObstacleSource], skip: Sequence[ObstacleSource] = ()):
         candidates = [s for s in ranked if s not in skip]
@@ -85,15 +114,24 @@ class ObstacleFailover:
             self._announce(load_id, served)
 
     def release(self, load_id: int) -> None:
-        """The robot is unloaded (or its load rolled back): its source goes too."""
+        """The robot is unloaded (or its load rolled back): its source goes too, and a source back in its hold."""
         with self._lock:
             served = self._served.pop(load_id, None)
             if served is None:
                 return
             served.released = True
             self._by_source.pop(served.local_id, None)
+            candidate, served.candidate = served.candidate, None
+            if candidate is not None:
+                self._candidates.pop(candidate[1], None)
         if served.local_id:
             self._release(served.local_id)
+        if candidate is not None:
+            self._release(candidate[1])
+
+    def close(self) -> None:
+        """Stop the fail-back's watch (the manager shuts down)."""
+        self._closed.set()
 
     def served(self, load_id: int) -> Optional[Served]:
         """A copy of what ``load_id`` holds now, or None."""
@@ -106,7 +144,10 @@ class ObstacleFailover:
             return local_id in self._by_source
 
     def failed(self, local_id: int, why: str) -> bool:
-        """The source ``local_id`` failed: fail over on a thread of its own. False if it is not one of ours."""
+        """The source ``local_id`` failed: fail over on a thread of its own (or, a source back in its hold, let it
+        go: a flap). False if it is not one of ours."""
+        if self._flapped(local_id, why):
+            return True
         with self._lock:
             load_id = self._by_source.pop(local_id, None)
             served = self._served.get(load_id) if load_id is not None else None
@@ -141,6 +182,93 @@ class ObstacleFailover:
         self._announce(load_id, served)
         self._tell(load_id, ResourceStatus.UPDATE, 'obstacles from %s (%s) on %s now; the robot drives on'
                    % (source.label, sensor, topic))
+
+    # -- fail-back ---------------------------------------------------------------------------------------------
+    def _flapped(self, local_id: int, why: str) -> bool:
+        with self._lock:
+            load_id = self._candidates.pop(local_id, None)
+            served = self._served.get(load_id) if load_id is not None else None
+            if served is None or served.candidate is None or served.candidate[1] != local_id:
+                return False
+            source, served.candidate = served.candidate[0], None
+            wait = self._backoff(served, source).failed(time.monotonic(), flapped=True)
+        self._log('%s: obstacle source %s came back and failed within its hold (%s): let go; tried again in %.0f s'
+                  % (served.robot, source.label, why, wait))
+        self._release(local_id)
+        return True
+
+    def _backoff(self, served: Served, source: ObstacleSource) -> Backoff:
+        """(with the lock)"""
+        fb = self.failback
+        return served.backoffs.setdefault(source.label, Backoff(fb.check_s, fb.max_s, fb.quarantine_after,
+                                                                fb.quarantine_s))
+
+    def _watch_failback(self) -> None:
+        while not self._closed.wait(self.failback.period_s):
+            try:
+                self._failback_once(time.monotonic())
+            except Exception as err:             # noqa: BLE001 - the watch must outlive one bad step; said
+                self._log('obstacle fail-back: %s: %s' % (type(err).__name__, err))
+
+    def _failback_once(self, now: float) -> None:
+        """One look at every load: a candidate through its hold is taken; else the best better source that may be
+        tried is started (outside the lock: it takes seconds)."""
+        with self._lock:
+            loads = list(self._served.items())
+        for load_id, served in loads:
+            with self._lock:
+                if served.released or served.source is None or not served.local_id:
+                    continue                      # failing over now: the failover's, not ours
+                candidate = served.candidate
+                if candidate is not None:
+                    if now - candidate[4] >= self.failback.hold_s:
+                        self._take_back(load_id, served)
+                    continue
+                better = list(served.ranked[:list(served.ranked).index(served.source)]) \
+                    if served.source in served.ranked else []
+                ready = [s for s in better if self._backoff(served, s).ready(now)]
+            if ready:
+                self._try_back(load_id, served, ready[0])
+
+    def _try_back(self, load_id: int, served: Served, source: ObstacleSource) -> None:
+        try:
+            local_id, sensor, topic = self._start(source)
+        except TemotoError as err:
+            with self._lock:
+                wait = self._backoff(served, source).failed(time.monotonic(), flapped=False)
+            self._log('%s: obstacle source %s is not back: %s; tried again in %.0f s'
+                      % (served.robot, source.label, err, wait))
+            return
+        with self._lock:
+            keep = not served.released and served.candidate is None and served.local_id != 0
+            if keep:
+                served.candidate = (source, local_id, sensor, topic, time.monotonic())
+                self._candidates[local_id] = load_id
+        if not keep:
+            self._release(local_id)
+            return
+        self._log('%s: obstacle source %s (%s) is back on %s: held %.1f s before the navigator takes it'
+                  % (served.robot, source.label, sensor, topic, self.failback.hold_s))
+
+    def _take_back(self, load_id: int, served: Served) -> None:
+        """(with the lock) The candidate ran its whole hold: it is the navigator's source; the lower one goes."""
+        source, local_id, sensor, topic, _ = served.candidate
+        served.candidate = None
+        self._candidates.pop(local_id, None)
+        lower = served.local_id
+        self._by_source.pop(lower, None)
+        served.source, served.local_id, served.topic, served.sensor = source, local_id, topic, sensor
+        self._by_source[local_id] = load_id
+        self._backoff(served, source).succeeded()
+        threading.Thread(target=self._switched, args=(load_id, dataclasses.replace(served), lower),
+                         name='obstacle failback switch', daemon=True).start()
+
+    def _switched(self, load_id: int, served: Served, lower: int) -> None:
+        """Said and done outside the lock: the navigator told first, then the lower source released."""
+        self._announce(load_id, served)
+        self._tell(load_id, ResourceStatus.UPDATE, 'obstacles from %s (%s) on %s again: it works again; the robot '
+                   'drives on' % (served.source.label, served.sensor, served.topic))
+        self._release(lower)
 
     def summary(self) -> List[dict]:
         with self._lock:

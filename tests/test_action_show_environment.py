@@ -612,7 +612,7 @@ def test_the_failover_configuration_is_checked_and_names_what_is_wrong():
 
 
 def test_backoff_doubles_quarantines_only_a_flapping_source_and_forgives_a_whole_hold():
-    from temoto_action_engine.failover_policy import Backoff
+    from temoto_core.backoff import Backoff
     b = Backoff(initial=1.0, maximum=8.0, quarantine_after=3, quarantine_s=60.0)
     assert [b.failed(0.0, flapped=False) for _ in range(5)] == [1.0, 2.0, 4.0, 8.0, 8.0]
     assert not b.quarantined and not b.ready(7.9) and b.ready(8.0)

@@ -91,7 +91,7 @@ def test_the_hold_pose_is_clear_of_the_body_and_a_folded_arm_is_not(body):
 @pytest.mark.parametrize('kwargs, code, words', [
     ({}, INVALID_GOAL, 'give exactly one of pose, named_pose and joint_positions (given: none)'),
     ({'named_pose': 'stow', 'joint_positions': STOW}, INVALID_GOAL, '(given: named_pose, joint_positions)'),
-    ({'named_pose': 'wave'}, INVALID_GOAL, "named_pose 'wave' is not a pose of this arm (its poses: hold)"),
+    ({'named_pose': 'wave'}, INVALID_GOAL, "named_pose 'wave' is not a pose of this arm (its poses: stow)"),
     ({'joint_positions': STOW[:5]}, INVALID_GOAL, 'joint_positions has 5 values for the 6 joints'),
     ({'joint_positions': STOW[:5] + [float('nan')]}, INVALID_GOAL, 'left_wrist_3_joint is nan, not a finite angle'),
     ({'joint_positions': STOW[:5] + [7.0]}, INVALID_GOAL, 'left_wrist_3_joint at 7.000 rad is beyond'),

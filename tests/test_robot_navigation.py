@@ -119,6 +119,42 @@ def test_the_obstacle_source_fails_over_on_the_way_and_the_holder_hears_each_ste
     set_cable('sick', 'plugged')
 
 
+def test_the_base_s_scanner_is_taken_back_once_it_works_again_and_the_drive_goes_on_with_it(rmi, rospy_client,
+                                                                                          collect):
+    """Issue 52: a stall verdict dropped the SICK for the rest of the robot's load. Now, plugged in again, it is
+    started again, runs its hold unseen, and is the navigator's again; the holder hears it; the arm LIDAR is let
+    go, and a drive completes on the SICK."""
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    source = collect('/temoto/temoto_robot_manager/vaultbot/obstacle_source', String)
+    heard, lock, on_status = status_log()
+    rm = rmi()
+    robot = rm.load_robot(['navigation'], on_status=on_status)
+    assert robot.parts['navigation.obstacles'].startswith('base LIDAR scan')
+    try:
+        set_cable('sick', 'unplugged', 'crash')
+        wait_for(lambda: next((e for e in heard if 'obstacles from arm LIDAR' in e.message), None), HANG,
+                 'the failover to the arm LIDAR')
+        set_cable('sick', 'plugged')
+        back = wait_for(lambda: next((e for e in heard if 'again' in e.message), None), HANG, 'the SICK taken back')
+    finally:
+        set_cable('sick', 'plugged')
+    assert back.code == ResourceStatus.UPDATE and back.message.startswith(
+        'obstacles from base LIDAR scan (sick_lms511) on /sick/scan again'), back.message
+    wait_for(lambda: source.last() is not None and source.last().data == '/sick/scan', HANG,
+             'the navigator told the SICK\'s topic')
+    wait_for(lambda: not any('hokuyo.launch' in p['label'] for p in er_processes()), HANG, 'the arm LIDAR let go')
+    client = TrackingActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, 'table'))
+    assert client.wait_for_result(rospy_client.Duration(HANG * 2)), 'the drive never ended'
+    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    with lock:
+        assert not any(e.code == ResourceStatus.FAILED for e in heard), [e.message for e in heard]
+    rm.release(robot.resource_id)
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
+
+
 def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi, rospy_client, collect):
     truth = collect('/vaultbot_sim/base_state', BaseState)
     statuses = collect('/move_base/status', GoalStatusArray)

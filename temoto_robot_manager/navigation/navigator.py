@@ -14,7 +14,7 @@ this class decides. A goal is:
   (``guards.py``: the odometry fresh, the arms inside the outline) holds it, until it passes again, for
   ``BLOCKED_PATIENCE_S`` at most;
 - **ended**: arrived, cancelled, or aborted with the reason (no path, blocked, no fresh obstacles for
-  ``SOURCE_PATIENCE_S``, no odometry for the description's ``odom_patience``, or a guard's final reason:
+  the description's ``obstacle_patience``, no odometry for the description's ``odom_patience``, or a guard's final reason:
   :meth:`Navigator.abort`).
 
 Every state is one of :class:`State`; :meth:`tick` moves between them and returns the command.
@@ -38,7 +38,7 @@ from temoto_robot_manager.navigation.path_follower import FollowerLimits, PathFo
 
 REPLAN_PERIOD_S = 1.0
 BLOCKED_PATIENCE_S = 10.0          # stopped by an obstacle this long: the goal is aborted, not held forever
-SOURCE_PATIENCE_S = 45.0           # no fresh obstacle source this long: aborted (a sensor starts within 40 s)
+OBSTACLE_PATIENCE_S = 10.0         # no fresh obstacle source this long: aborted (the description's default)
 NO_PATH_PATIENCE_S = 3.0           # replans that find no path, this long: aborted
 MONITOR_RADIUS = 2.5               # m around the robot of the map's obstacles the monitor checks
 APPROACH = 0.8                     # m: the last stretch, driven straight along the goal's heading
@@ -98,10 +98,14 @@ def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
 class Navigator:
     def __init__(self, footprint: Footprint, freshness: Freshness,
                  follower: Optional[PathFollower] = None, monitor: Optional[CollisionMonitor] = None,
-                 odometry: Optional[OdometryFresh] = None, guards: Sequence = ()) -> None:
-        """``guards``: more rules a command must pass (each with ``check(now) -> Optional[StopReason]``)."""
+                 odometry: Optional[OdometryFresh] = None, guards: Sequence = (),
+                 obstacle_patience: float = OBSTACLE_PATIENCE_S) -> None:
+        """``guards``: more rules a command must pass (each with ``check(now) -> Optional[StopReason]``);
+        ``obstacle_patience``: seconds a goal waits at zero for a fresh obstacle source before it ends. It was 45 s:
+        a goal whose source had stalled waited that long, its holder told "0.1 m to go" again and again."""
         self.footprint = footprint
         self.freshness = freshness
+        self.obstacle_patience = obstacle_patience
         self.odometry = odometry                   # None: the pose is trusted as it is (the rules' own tests)
         self.guards = ([odometry] if odometry is not None else []) + list(guards)
         self.held_by: Optional[StopReason] = None  # why a guard holds the goal now
@@ -325,9 +329,9 @@ class Navigator:
         if not self.freshness.fresh(now):
             if self.state is not State.WAITING:
                 self._enter(State.WAITING, now)
-            elif now - self._since > SOURCE_PATIENCE_S:
+            elif now - self._since > self.obstacle_patience:
                 return self._end(Outcome.ABORTED, 'no fresh obstacle source for %.0f s: the robot will not drive '
-                                 'blind' % SOURCE_PATIENCE_S, StopCode.OBSTACLES_STALE)
+                                 'blind' % self.obstacle_patience, StopCode.OBSTACLES_STALE)
             return Tick(0.0, 0.0, State.WAITING, self.remaining())
         if self.state in (State.WAITING, State.HELD):
             self._enter(State.DRIVING, now)
@@ -402,4 +406,5 @@ def described(navigation: Navigation, odometry: Optional[OdometryFresh] = None, 
     monitor = CollisionMonitor(footprint, MonitorSettings(stop_margin=navigation.stop_margin,
                                                           slow_margin=navigation.slow_margin, decel=navigation.braking))
     follower = PathFollower(FollowerLimits(max_speed=navigation.max_speed, max_turn=navigation.max_turn))
-    return Navigator(footprint, Freshness(periods=navigation.stale_periods), follower, monitor, odometry, guards)
+    return Navigator(footprint, Freshness(periods=navigation.stale_periods), follower, monitor, odometry, guards,
+                     navigation.obstacle_patience)
