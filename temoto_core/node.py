@@ -109,6 +109,19 @@ def init_node(name: str, **kwargs) -> None:
     after_init_node()
 
 
+def run_node(name: str, make: Callable[[], object]) -> None:
+    """A motion node's ``main``: :func:`init_node`, then ``make()`` (its constructor reads its parameters and its
+    robot description) and the node's ``spin()``. A ``ValueError`` from ``make`` is a bad parameter or description:
+    said, naming it, and the process exits 2, which the ER Manager reports to whoever started it."""
+    init_node(name)
+    try:
+        node = make()
+    except ValueError as err:
+        rospy.logerr('%s: %s', name, err)
+        raise SystemExit(2)
+    node.spin()
+
+
 def after_init_node() -> None:
     """What every TeMoto node sets up right after ``rospy.init_node``, this module's ``init_node`` or its
     own (the RViz host's and the action engine's, which handle their signals themselves)."""

@@ -53,13 +53,18 @@ def world():
     failover.close()
 
 
-def test_a_source_that_works_again_is_taken_back_after_its_hold(world):
-    devices, failover = world
+def on_the_arm_lidar_with_the_sick_working_again(devices, failover):
+    """A load on the SICK, failed over to the arm LIDAR by a stall; then the SICK starts again."""
     failover.take(1, 'vaultbot', (SICK, HOKUYO))
     devices.working[SICK.label] = False
     failover.failed(devices.id_of(SICK.label), 'stalled')
     wait_for(lambda: devices.announced[-1:] == [HOKUYO.label], 5, 'the failover to the arm LIDAR')
     devices.working[SICK.label] = True
+
+
+def test_a_source_that_works_again_is_taken_back_after_its_hold(world):
+    devices, failover = world
+    on_the_arm_lidar_with_the_sick_working_again(devices, failover)
     back = wait_for(lambda: next((t for c, t in devices.told if 'again' in t), None), 5, 'the SICK taken back')
     assert back.startswith('obstacles from base LIDAR scan') and devices.announced[-1] == SICK.label
     assert failover.served(1).source == SICK
@@ -69,11 +74,7 @@ def test_a_source_that_works_again_is_taken_back_after_its_hold(world):
 
 def test_a_source_that_fails_within_its_hold_is_let_go_and_quarantined_after_flapping(world):
     devices, failover = world
-    failover.take(1, 'vaultbot', (SICK, HOKUYO))
-    devices.working[SICK.label] = False
-    failover.failed(devices.id_of(SICK.label), 'stalled')
-    wait_for(lambda: devices.announced[-1:] == [HOKUYO.label], 5, 'the failover to the arm LIDAR')
-    devices.working[SICK.label] = True
+    on_the_arm_lidar_with_the_sick_working_again(devices, failover)
     for flap in range(FAST.quarantine_after):
         wait_for(lambda: SICK.label in devices.running.values(), 5, 'the SICK tried again (%d)' % flap)
         failover.failed(devices.id_of(SICK.label), 'stalled again')
@@ -86,11 +87,7 @@ def test_a_source_that_fails_within_its_hold_is_let_go_and_quarantined_after_fla
 
 def test_an_unloaded_robot_lets_go_of_a_source_in_its_hold(world):
     devices, failover = world
-    failover.take(1, 'vaultbot', (SICK, HOKUYO))
-    devices.working[SICK.label] = False
-    failover.failed(devices.id_of(SICK.label), 'stalled')
-    wait_for(lambda: devices.announced[-1:] == [HOKUYO.label], 5, 'the failover to the arm LIDAR')
-    devices.working[SICK.label] = True
+    on_the_arm_lidar_with_the_sick_working_again(devices, failover)
     wait_for(lambda: SICK.label in devices.running.values(), 5, 'the SICK back, in its hold')
     failover.release(1)
     assert devices.running == {}, 'a source left running for nobody'

@@ -40,7 +40,7 @@ from temoto_core.action_client import TrackingActionClient
 from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
-from temoto_core.node import init_node, ok, stop_requested
+from temoto_core.node import ok, run_node, stop_requested
 from temoto_core.rospy_internals import wait_sent
 from temoto_robot_manager import command_gate
 from temoto_robot_manager.command_gate import CommandGate, Input
@@ -230,10 +230,4 @@ class GripperNode:
 
 
 def main() -> None:
-    init_node('gripper')
-    try:
-        node = GripperNode()
-    except ValueError as err:                     # a bad parameter or description: say which
-        rospy.logerr('gripper: %s', err)
-        raise SystemExit(2)
-    node.spin()
+    run_node('gripper', GripperNode)

@@ -52,7 +52,7 @@ from temoto_core import clocks, params
 from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
-from temoto_core.node import init_node, ok, stop_requested
+from temoto_core.node import ok, run_node, stop_requested
 from temoto_core.rospy_internals import sender_of, wait_sent
 from temoto_robot_manager.manipulation.arm_kinematics import ArmKinematics, KinematicsError
 from temoto_robot_manager import command_gate
@@ -567,10 +567,4 @@ class ManipulatorNode:
 
 
 def main() -> None:
-    init_node('manipulator')
-    try:
-        node = ManipulatorNode()
-    except ValueError as err:                     # a bad parameter or description: say which
-        rospy.logerr('manipulator: %s', err)
-        raise SystemExit(2)
-    node.spin()
+    run_node('manipulator', ManipulatorNode)

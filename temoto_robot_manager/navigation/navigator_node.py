@@ -67,7 +67,7 @@ from temoto_core import clocks, params
 from temoto_core.goal_holders import GoalHolders
 from temoto_core.halt import HALT_TYPE, halt_topic, reason_of
 from temoto_core.msg import MotionStatus
-from temoto_core.node import init_node, ok, stop_requested
+from temoto_core.node import ok, run_node, stop_requested
 from temoto_core.rospy_internals import connection_header, live_publisher_nodes, sender_of, wait_sent
 from temoto_core.serialized import header_stamp
 from temoto_core.wait import wait_for
@@ -609,10 +609,4 @@ class NavigatorNode:
 
 
 def main() -> None:
-    init_node('navigator')
-    try:
-        node = NavigatorNode()
-    except ValueError as err:                     # a bad parameter or description: say which
-        rospy.logerr('navigator: %s', err)
-        raise SystemExit(2)
-    node.spin()
+    run_node('navigator', NavigatorNode)
