@@ -46,7 +46,7 @@ from temoto_context_manager.trackers import Filter, Tracker, TrackerCatalogue
 from temoto_core.reliability import Reliability
 from temoto_er_manager.contract import LOAD_PROCESS, LOAD_PROCESS_TYPE, RR_NAME as ER_MANAGER
 from temoto_sensor_manager.contract import RR_NAME as SENSOR_MANAGER, START_SENSOR, START_SENSOR_TYPE
-from temoto_sensor_manager.stall_detector import TopicProbe
+from temoto_core.stall.detector import TopicProbe
 
 SUB = Subsystem.CONTEXT_MANAGER
 PIPE_KEY = 'pipe/%d'                  # owner state of either registrar: a loaded tracker's pipe, by internal id

@@ -8,7 +8,7 @@ with it, its FAILED forwarded by the registrar); a candidate that fails to
 start, crashes, or stays silent is released and the next is tried. Reliability goes up on success
 and down on a load failure, a crash, or a stall.
 
-While a sensor is held, its topics are watched (``stall_detector.StallDetector``); a
+While a sensor is held, its topics are watched (``temoto_core.stall.detector.StallDetector``); a
 topic silent for longer than its limit makes this manager send FAILED for the
 sensor, exactly as the registrar forwards a crash reported by the ER Manager.
 The stalled driver is stopped when the consumer unloads the failed sensor
@@ -41,7 +41,7 @@ from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SEN
 from temoto_sensor_manager.diagnostics import DriverReports, local_node_pid
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
 from temoto_sensor_manager.start_times import StartTimes
-from temoto_sensor_manager.stall_detector import StallDetector, TopicProbe
+from temoto_core.stall.detector import StallDetector, TopicProbe
 
 SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)

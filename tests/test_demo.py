@@ -258,7 +258,7 @@ def test_demo_across_two_hosts_fails_over_with_the_sensors_on_the_robot_and_rviz
 # Beside the other worker, the station's 20 Hz scanner once went 0.20 s without a message just after the link
 # healed (limit 0.19 s), was found stalled, and the view failed back early (a clean-clone suite at 2634e2e), so
 # this ran alone for a while. The stall detector now counts what the driver and its own threads waited for a
-# CPU (temoto_sensor_manager/starvation.py; bench_stall_hosts.py: 0 false FAILED in 10 min of cut and healed
+# CPU (temoto_core/stall/starvation.py; bench_stall_hosts.py: 0 false FAILED in 10 min of cut and healed
 # links beside 2 CPU hogs), and the test runs with the others again.
 def test_demo_across_two_hosts_under_hot_standby_shows_the_station_scanner_while_the_robot_is_cut_off(
         tmp_path_factory):

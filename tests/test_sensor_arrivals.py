@@ -1,11 +1,11 @@
-"""Stall detection from a stream's own rhythm (temoto_sensor_manager/arrivals.py): pure logic. A real
+"""Stall detection from a stream's own rhythm (temoto_core/stall/arrivals.py): pure logic. A real
 stall caught with the adaptive limit, across processes, is in test_sensor_manager.py."""
 import random
 
 import pytest
 
-from temoto_sensor_manager import arrivals
-from temoto_sensor_manager.arrivals import ArrivalModel
+from temoto_core.stall import arrivals
+from temoto_core.stall.arrivals import ArrivalModel
 from temoto_sensor_manager.catalogue import parse_entry
 
 

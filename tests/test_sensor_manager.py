@@ -18,7 +18,7 @@ from temoto_core.errors import ErrorCode, TemotoError
 from temoto_core.master_lookup import lookup_node, node_pid
 from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
-from temoto_sensor_manager import arrivals
+from temoto_core.stall import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_sensor_manager.srv import LoadSensor
 from temoto_testing.sensor_manager import (FAKE_CATALOGUE, FakeCables, TopicWatch, catalogue, catalogue_problems,
@@ -143,7 +143,7 @@ def test_stall_is_reported_within_its_limit_and_the_stalled_driver_is_stopped(sm
     sent = FakeCables().send('stall', res.sensor_name.replace('fake_', ''))
     wait_for(lambda: failed_events(events), 10, 'the stall detector FAILED at the client')
     delay = time.monotonic() - sent
-    # the limit follows the stream's rhythm (temoto_sensor_manager/arrivals.py): never under 2.5 periods
+    # the limit follows the stream's rhythm (temoto_core/stall/arrivals.py): never under 2.5 periods
     floor = arrivals.FLOOR_PERIODS / catalogue()[res.sensor_name]['output_topics']['lidar_data']['rate']
     assert floor <= delay + 0.02 and delay < limit + 2.0, (delay, limit)     # generous hang bound
     assert 'stalled' in events[0].message and res.topic('lidar_data') in events[0].message
@@ -207,7 +207,7 @@ def test_a_stall_is_caught_by_the_stream_s_own_rhythm_well_within_the_catalogue_
 def test_a_manager_held_back_by_the_machine_does_not_call_its_own_lateness_a_stall(smi):
     """The Sensor Manager is stopped (SIGSTOP) for several of a healthy stream's learnt limits, three times:
     when it runs again, its stall detector wakes late beside a receive thread with messages waiting unread, and
-    it used to fail the sensor on a silence that was its own (stall_detector.py, starvation.py). A stall that
+    it used to fail the sensor on a silence that was its own (temoto_core/stall/detector.py, starvation.py). A stall that
     follows is still caught by the rhythm's limit."""
     sm = smi()
     events = []

@@ -14,7 +14,7 @@ from temoto_testing import made_interfaces
 from temoto_core.errors import TemotoError
 from temoto_core.msg import ResourceStatus
 from temoto_testing import wait_for
-from temoto_sensor_manager import arrivals
+from temoto_core.stall import arrivals
 from temoto_sensor_manager.interface import SensorManagerInterface
 from temoto_testing.sensor_manager import (GENEROUS_ALLOWANCE, TopicWatch, catalogue, er_processes, managers_idle,
                                            pid_gone, set_cable, start_er_manager, start_sensor_manager, start_sim)

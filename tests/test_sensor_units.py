@@ -11,7 +11,7 @@ from temoto_context_manager.blob import find_blob, parse_rgb
 from temoto_sensor_manager.catalogue import Catalogue, load_file, parse_entry
 from temoto_core.reliability import Reliability
 from temoto_sensor_manager.selection import candidates, plan, validate
-from temoto_sensor_manager.stall_detector import StallDetector
+from temoto_core.stall.detector import StallDetector
 
 
 def test_reliability_is_a_100_sample_moving_average_from_the_prior():
@@ -217,7 +217,7 @@ def test_stall_detector_allows_for_the_time_its_receive_thread_waited_for_a_cpu(
 
 
 def test_usual_lateness_is_not_counted_only_what_goes_beyond_it():
-    from temoto_sensor_manager.stall_detector import Lateness
+    from temoto_core.stall.detector import Lateness
     seen = Lateness()
     assert [seen.beyond_usual(0.03) for _ in range(30)][-1] == 0.0      # a loaded machine's norm
     assert abs(seen.beyond_usual(0.53) - 0.5) < 1e-9                     # held back for half a second
@@ -235,7 +235,7 @@ def test_stall_detector_allows_for_the_time_the_publishing_driver_waited_for_a_c
 
 
 def test_a_wait_meter_counts_only_what_goes_beyond_the_usual_rate():
-    from temoto_sensor_manager.starvation import WaitMeter
+    from temoto_core.stall.starvation import WaitMeter
     total = [0.0]
     meter = WaitMeter(lambda: total[0])
     t = 100.0
@@ -259,7 +259,7 @@ def test_a_process_made_to_wait_for_its_cpu_shows_it_in_its_run_queue_time():
     import os
     import subprocess
     import sys
-    from temoto_sensor_manager.starvation import process_wait
+    from temoto_core.stall.starvation import process_wait
     cpu = sorted(os.sched_getaffinity(0))[0]
     loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(2)]
     try:

@@ -9,7 +9,7 @@ things about the span it covers:
 
 - how long the probe's receive thread waited for a CPU since it last read a message (its run-queue
   time from ``/proc/self/task/<tid>/schedstat``): a message sent on time may still sit unread;
-- how much later than usual the stall detector's own timer woke (``stall_detector.Lateness``): the same
+- how much later than usual the stall detector's own timer woke (``detector.Lateness``): the same
   starvation, seen from the other thread; a wake-up more than 20 ms later than usual also gives the
   receive threads 50 ms to read what waited, once per silence, before the silence is judged;
 - how much more the machine's tasks waited for a CPU than they usually do (``/proc/pressure/cpu``,

@@ -24,8 +24,8 @@ from typing import Callable, List, Optional
 import rospy
 
 from temoto_core.rospy_internals import sender_of
-from temoto_sensor_manager.arrivals import ArrivalModel
-from temoto_sensor_manager.starvation import WaitMeter, machine_pressure, process_meter, thread_wait
+from temoto_core.stall.arrivals import ArrivalModel
+from temoto_core.stall.starvation import WaitMeter, machine_pressure, process_meter, thread_wait
 
 
 # seconds: the longest an adaptive probe goes unchecked (its limit may have shrunk since the last look)
