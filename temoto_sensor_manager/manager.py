@@ -40,13 +40,15 @@ from temoto_sensor_manager.catalogue import Catalogue, SensorEntry, TopicSpec
 from temoto_sensor_manager.contract import CATALOGUE, RR_NAME as NAME, START_SENSOR, START_SENSOR_TYPE
 from temoto_sensor_manager.diagnostics import DriverReports, local_node_pid
 from temoto_sensor_manager.selection import LaunchPlan, candidates, plan, validate
-from temoto_sensor_manager.start_times import StartTimes
+from temoto_sensor_manager.start_times import StartDeadline, StartTimes
 from temoto_core.stall.detector import StallDetector, TopicProbe
+from temoto_core.stall.starvation import tree_wait
 
 SUB = Subsystem.SENSOR_MANAGER
 # seconds a registered driver may take to start publishing (load its model, connect to the simulation)
 # before its rate counts; the VaultBot's simulated drivers need 0.4 to 0.9 s (BENCHMARKS.md, bench_sim.py)
 DEFAULT_FIRST_DATA_ALLOWANCE = 4.0
+START_LOOK_S = 0.25                   # s between two looks at a starting driver's CPU waiting
 RELIABILITIES_KEY = 'reliabilities'   # owner state: {sensor name: reliability samples}
 START_TIMES_KEY = 'start_times'       # owner state: {sensor name: seconds from a driver's start to its data}
 RHYTHMS_KEY = 'rhythms'               # owner state: {"sensor/topic type": [mean, spread, longest gap]}
@@ -64,6 +66,18 @@ def probe_of(spec: TopicSpec, topic: str, on_first=None, rhythm=None) -> TopicPr
     if probe.arrivals is not None:
         probe.arrivals.seed(rhythm)
     return probe
+
+
+def driver_wait(pid: int, executable: str):
+    """The run-queue seconds of a starting driver's processes (``starvation.tree_wait``), when ``pid`` is that
+    driver on this host (its command line names ``executable``); else a reader of nothing (no allowance for load:
+    a pid of another host's ER Manager means another process here)."""
+    try:
+        with open('/proc/%d/cmdline' % pid, 'rb') as f:
+            ours = executable.encode() in f.read()
+    except OSError:
+        ours = False
+    return (lambda: tree_wait(pid)) if ours else (lambda: None)
 
 
 def rhythm_key(entry_name: str, topic_key: str) -> str:
@@ -241,13 +255,16 @@ class SensorManager:
             if stalled:
                 limit = min(limit, STALLED_RECHECK_S + max(entry.output_topics[key].silence_limit()
                                                            for key in launch.topics))
-            deadline = time.monotonic() + limit
+            # the allowance counts the driver's progress: its CPU waiting on a busy machine is added (a stalled
+            # driver gets none: it has shown it runs)
+            deadline = StartDeadline(time.monotonic(), limit, limit if stalled else self.first_data_timeout,
+                                     driver_wait(started.pid, entry.executable))
             with attempt.cond:
                 while not attempt.failure and not all(p.first.is_set() for p in probes):
-                    remaining = deadline - time.monotonic()
+                    remaining = deadline.remaining(time.monotonic())
                     if remaining <= 0:
                         break
-                    attempt.cond.wait(remaining)
+                    attempt.cond.wait(min(remaining, START_LOOK_S))
             if attempt.failure:
                 raise TemotoError(ErrorCode.PROCESS_STOPPED, SUB, 'sensor %s: its driver (pid %d) failed before '
                                   'data arrived: %s' % (entry.name, started.pid, attempt.failure))
@@ -258,8 +275,8 @@ class SensorManager:
                                   'runs, and has sent nothing since it stalled (%s)' % (
                                       entry.name, ', '.join(silent), limit, started.pid, stalled))
             if silent:
-                raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %.1f s after its driver '
-                                  '(pid %d) started (%s)' % (entry.name, ', '.join(silent), limit,
+                raise TemotoError(ErrorCode.TIMEOUT, SUB, 'sensor %s: no data on %s within %s after its driver '
+                                  '(pid %d) started (%s)' % (entry.name, ', '.join(silent), deadline.describe(),
                                                              started.pid, self.start_times.describe(entry.name)))
             if not stalled:
                 self.start_times.add(entry.name, time.monotonic() - answered)

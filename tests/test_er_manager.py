@@ -2,19 +2,30 @@
 
 Consumers are Resource Registrars in this test process (one hop away from the manager).
 """
+import glob
 import itertools
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
+import xmlrpc.client
 
 import pytest
+import rosgraph
+import rospy
 
-from temoto_core.errors import TemotoError
-from temoto_core.msg import ResourceStatus
-from temoto_testing import ProcessGroupLauncher, wait_for
 from temoto_core import master_lookup as er_master
+from temoto_core.errors import ErrorCode, TemotoError
+from temoto_core.msg import ResourceStatus
+from temoto_core.rr import ResourceRegistrar
+from temoto_core.srv import GetRegistry
+from temoto_er_manager.cli import ps_main
+from temoto_er_manager.interface import ERManagerInterface
+from temoto_er_manager.srv import LoadProcess
+from temoto_testing import ProcessGroupLauncher, wait_for
 
 SRV = 'load_process'
 MGR = 'temoto_er_manager'
@@ -50,12 +61,10 @@ class Consumer:
     """A registrar in this process, with the status events it received."""
 
     def __init__(self, namespace='temoto'):
-        from temoto_core.rr import ResourceRegistrar
         self.rr = ResourceRegistrar('er_test_consumer_%d' % next(_names), namespace=namespace)
         self.events = []
 
     def load(self, executable, args='', package='temoto_er_manager', action='ros_execute', ns=''):
-        from temoto_er_manager.srv import LoadProcess
         req = LoadProcess._request_class(action=action, package_name=package, executable=executable, args=args,
                                          ros_namespace=ns)
         return self.rr.call(MGR, SRV, req, status_cb=lambda ev: self.events.append((time.monotonic(), ev)))
@@ -78,14 +87,10 @@ def consumers(rospy_client, manager):
 
 
 def registry():
-    import rospy
-    from temoto_core.srv import GetRegistry
     return json.loads(rospy.ServiceProxy('/temoto/%s/registry' % MGR, GetRegistry)().json)
 
 
 def processes():
-    import rospy
-    from temoto_core.srv import GetRegistry
     return json.loads(rospy.ServiceProxy('/temoto/%s/processes' % MGR, GetRegistry)().json)['processes']
 
 
@@ -186,7 +191,6 @@ def test_launch_file_node_failing_at_start_fails_the_load_and_stops_the_others(c
 
 
 def test_launch_file_params_names_remaps_env(consumers, rospy_client):
-    import rospy
     rospy.set_param('/lp/grp/stale', 'old')
     c = consumers()
     r = c.load('er_features.launch', 'prefix:=xy topic:=renamed', ns='/lp')
@@ -280,7 +284,6 @@ def test_a_process_being_stopped_is_listed_until_it_is_gone(consumers):
 
 
 def test_ps_lists_running_processes(consumers, capsys):
-    from temoto_er_manager.cli import ps_main
     c = consumers()
     r = c.load('er_test_node', '__name:=ps_node')
     lr = c.load('er_two_nodes.launch', ns='/ps_launch')
@@ -348,7 +351,6 @@ def test_manager_sigkill_leaves_no_process(own_manager):
 
 def test_stop_while_a_load_is_starting_leaks_nothing(own_manager, tmp_path):
     """The manager is stopped while a load waits for a node that never registers: nothing survives."""
-    import threading
     mgr, c = own_manager(registration_timeout=30.0)
     result = []
     try:
@@ -406,7 +408,6 @@ def _is_test_node(pid):
 
 
 def test_interface_load_unload_and_update_callback(rospy_client, manager):
-    from temoto_er_manager.interface import ERManagerInterface
     er = ERManagerInterface()
     events = []
     er.register_update_callback(events.append)
@@ -424,7 +425,6 @@ def test_interface_load_unload_and_update_callback(rospy_client, manager):
 
 
 def test_interface_default_policy_restarts_the_process(rospy_client, manager):
-    from temoto_er_manager.interface import ERManagerInterface
     er = ERManagerInterface()
     try:
         r = er.load('temoto_er_manager', 'er_test_node', args='__name:=restarted_node')
@@ -455,8 +455,6 @@ rospy.spin()
 def test_consumer_dying_while_its_load_starts_leaks_nothing(manager, ros_master, tmp_path):
     """The consumer is SIGKILLed while the manager still waits for the node: once the load completes,
     the registrar finds the consumer dead and releases it, and the process is stopped."""
-    import subprocess
-    import sys
     log = open(tmp_path / 'consumer.log', 'wb')
     consumer = subprocess.Popen([sys.executable, '-c', CONSUMER_SCRIPT], env=ros_master.env, stdout=log,
                                 stderr=subprocess.STDOUT, start_new_session=True)
@@ -488,15 +486,12 @@ def _up_pid(node_name, manager_proc):
 
 
 def _er_logs(manager_proc):
-    import glob
     argv = manager_proc.argv
     log_dir = [a.split(':=', 1)[1] for a in argv if a.startswith('_log_dir:=')][0]
     return [__import__('pathlib').Path(p) for p in glob.glob(os.path.join(log_dir, '*er_test_node.log'))]
 
 
 def test_a_node_name_in_use_by_a_live_node_is_refused_and_that_node_lives_on(consumers, rospy_client):
-    import rospy
-    from temoto_core.errors import ErrorCode
     c = consumers()
     own = rospy.get_name()            # this test process is a live node the request tries to take over
     with pytest.raises(TemotoError) as err:
@@ -516,10 +511,7 @@ def test_a_name_left_by_a_dead_node_whose_port_another_node_has_now_is_free(cons
     """A SIGKILLed node never unregisters. When its port goes to another node, that node answers at the dead one's
     URI: the name must still count as free (CI once refused a test's own restart so), and starting it must not
     shut down the node that has the port now."""
-    import xmlrpc.client
 
-    import rosgraph
-    import rospy
     master = xmlrpc.client.ServerProxy(rosgraph.get_master_uri())
     # the dead /ghost's registration, at the URI this process (a live node) has now
     code, _msg, _ = master.registerPublisher('/ghost', '/ghost/chatter', 'std_msgs/String', rospy.get_node_uri())
@@ -534,7 +526,6 @@ def test_a_name_left_by_a_dead_node_whose_port_another_node_has_now_is_free(cons
 def test_two_different_requests_for_one_explicit_name_cannot_kill_each_other(consumers):
     """``__name:=d _v:=1`` and ``__name:=d _v:=2`` at once: one starts, the other is refused (the master
     used to shut the first down when the second registered)."""
-    import threading
     c = consumers()
     results = {}
 

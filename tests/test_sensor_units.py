@@ -1,4 +1,7 @@
 """ROS-free parts of the sensor and context managers: reliability, catalogue, selection, stall detector, blob finding."""
+import os
+import subprocess
+import sys
 import threading
 import time
 import types
@@ -11,7 +14,10 @@ from temoto_context_manager.blob import find_blob, parse_rgb
 from temoto_sensor_manager.catalogue import Catalogue, load_file, parse_entry
 from temoto_core.reliability import Reliability
 from temoto_sensor_manager.selection import candidates, plan, validate
+from temoto_sensor_manager.start_times import StartDeadline
+from temoto_core.stall import starvation
 from temoto_core.stall.detector import StallDetector
+from temoto_testing import wait_for
 
 
 def test_reliability_is_a_100_sample_moving_average_from_the_prior():
@@ -285,3 +291,33 @@ def test_the_driver_s_and_the_reader_s_waits_add_up():
     probe.publisher_starved = lambda since, now: 0.03
     silence = first_stall(probe)
     assert silence >= 0.26 and probe.starved >= 0.06, (silence, probe.starved)
+
+
+def test_a_start_allowance_grows_by_the_cpu_time_the_driver_waited_and_never_past_its_cap():
+    """Issue 52, item 5: a fixed allowance in seconds failed a D435 that started slowly beside other work. The time
+    the driver's processes wait for a CPU is added; a driver that runs and sends nothing gets nothing more."""
+    waited = {'s': 1.0}
+    deadline = StartDeadline(start=100.0, limit=4.0, cap=20.0, waited=lambda: waited['s'])
+    assert deadline.remaining(101.0) == pytest.approx(3.0) and deadline.describe() == '4.0 s'
+    waited['s'] = 3.5                                   # 2.5 s on a run queue since the start
+    assert deadline.remaining(104.0) == pytest.approx(2.5)
+    assert deadline.describe() == '4.0 s, and 2.5 s its driver waited for a CPU'
+    waited['s'] = None                                  # the driver gone: what it waited stays counted
+    assert deadline.remaining(104.0) == pytest.approx(2.5)
+    waited['s'] = 60.0                                  # a machine stuck for a minute: the cap holds
+    assert deadline.remaining(104.0) == pytest.approx(16.0)
+    idle = StartDeadline(start=0.0, limit=4.0, cap=20.0, waited=lambda: 0.0)
+    assert idle.remaining(4.0) == pytest.approx(0.0), 'an idle silent driver fails at its allowance'
+
+
+def test_a_process_tree_s_cpu_waiting_counts_its_children():
+    child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'])
+    try:
+        wait_for(lambda: os.path.exists('/proc/%d/task' % child.pid), 5, 'the child')
+        mine, tree = starvation.process_wait(os.getpid()), starvation.tree_wait(os.getpid())
+        assert mine is not None and tree is not None and tree >= mine
+        assert starvation.tree_wait(child.pid) is not None
+    finally:
+        child.kill()
+        child.wait()
+    assert starvation.tree_wait(child.pid) is None

@@ -77,6 +77,27 @@ def process_wait(pid: int) -> Optional[float]:
     return total
 
 
+def tree_wait(pid: int) -> Optional[float]:
+    """:func:`process_wait` of ``pid`` and of every process below it (a ``roslaunch`` and the nodes it started),
+    or None if ``pid`` is gone."""
+    total = process_wait(pid)
+    if total is None:
+        return None
+    try:
+        tids = os.listdir('/proc/%d/task' % pid)
+    except OSError:
+        return total
+    for tid in tids:
+        try:
+            with open('/proc/%d/task/%s/children' % (pid, tid)) as f:
+                children = [int(c) for c in f.read().split()]
+        except (OSError, ValueError):
+            continue
+        for child in children:
+            total += tree_wait(child) or 0.0
+    return total
+
+
 class WaitMeter:
     """Readings of a total of CPU waiting (the machine's, or a process's), and how much a span had beyond
     the usual rate. ``sample`` is called often (every look of the stall detector); it reads at most every
