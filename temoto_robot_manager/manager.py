@@ -253,8 +253,11 @@ class RobotManager:
             self._robot_of_part[served.local_id] = robot.name
         parts.append(KeyValue('navigation.obstacles', served.summary))
         if nav.controller is not None:
+            # no obstacle topic among its arguments: it hears the source on the robot's latched topic (announced
+            # above), so that every load of the robot asks for the same navigator and shares it. With the topic,
+            # two loads on different sources (one of them failed over) asked for two navigators of one base, and
+            # the second was refused: "node name /chaos/vaultbot_navigator is already in use" (chaos, history 7)
             args = ' '.join(a for a in (nav.controller.args, '_description:=%s' % robot.path, '_robot:=%s' % robot.name,
-                                        '_obstacle_topic:=%s' % served.topic,
                                         '_obstacle_source_topic:=%s' % self.source_topic(robot.name),
                                         '_halt_topic:=%s' % halt_topic(self.namespace)) if a)
             parts.append(self._part(robot, 'navigation.controller', dataclasses.replace(nav.controller, args=args),

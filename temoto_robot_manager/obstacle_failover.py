@@ -128,6 +128,12 @@ class ObstacleFailover:
             self._release(served.local_id)
         if candidate is not None:
             self._release(candidate[1])
+        # another load of the robot shares its navigator: the navigator reads that load's source from now on
+        with self._lock:
+            other = next(((i, dataclasses.replace(s)) for i, s in self._served.items()
+                          if s.robot == served.robot and s.topic), None)
+        if other is not None:
+            self._announce(*other)
 
     def close(self) -> None:
         """Stop the fail-back's watch (the manager shuts down)."""

@@ -91,3 +91,15 @@ def test_an_unloaded_robot_lets_go_of_a_source_in_its_hold(world):
     wait_for(lambda: SICK.label in devices.running.values(), 5, 'the SICK back, in its hold')
     failover.release(1)
     assert devices.running == {}, 'a source left running for nobody'
+
+
+def test_a_robot_s_second_load_is_announced_again_when_the_first_lets_go(world):
+    """Two loads of one robot share its navigator (one request of the ER Manager); the navigator reads the last
+    source announced. When that load lets go, the other's source is announced again, or the navigator would wait on
+    a topic that nobody holds."""
+    devices, failover = world
+    failover.take(1, 'vaultbot', (SICK, HOKUYO))
+    failover.take(2, 'vaultbot', (HOKUYO,))
+    assert devices.announced == [SICK.label, HOKUYO.label]
+    failover.release(2)
+    assert devices.announced[-1] == SICK.label

@@ -155,6 +155,29 @@ def test_the_base_s_scanner_is_taken_back_once_it_works_again_and_the_drive_goes
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with the robot')
 
 
+def test_two_loads_of_one_robot_share_its_navigator(rmi, rospy_client, collect):
+    """Two holders of the robot's navigation (other features beside it, so two loads): one navigator process. It
+    used to take the load's obstacle topic among its arguments, and a second load on another source asked for a
+    second navigator of the same base, which the ER Manager refused (chaos, history 7)."""
+    first, second = rmi(), rmi()
+    one = first.load_robot(['navigation'], on_status=lambda event: None)
+    two = second.load_robot(['navigation', 'gripper'], on_status=lambda event: None)
+    assert one.resource_id != two.resource_id
+    navigators = [p for p in er_processes() if 'navigator' in str(p['command'])]
+    assert len(navigators) == 1, navigators
+    first.release(one.resource_id)
+    assert [p['pid'] for p in er_processes() if 'navigator' in str(p['command'])] == [navigators[0]['pid']]
+    truth = collect('/vaultbot_sim/base_state', BaseState)
+    client = TrackingActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, 'shelf'))
+    assert client.wait_for_result(rospy_client.Duration(HANG * 2)), 'the drive never ended'
+    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    second.release(two.resource_id)
+    wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with its last holder')
+
+
 def test_the_base_stops_at_once_when_the_robot_manager_dies_mid_drive(stack, rmi, rospy_client, collect):
     truth = collect('/vaultbot_sim/base_state', BaseState)
     statuses = collect('/move_base/status', GoalStatusArray)
