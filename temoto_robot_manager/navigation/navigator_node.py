@@ -22,9 +22,9 @@ On the wire, as move_base is, so RViz's "2D Nav Goal" tool and any move_base cli
   after the operator's stop).
 
 In: ``map`` (latched ``OccupancyGrid``), the odometry, and one obstacle source at a time (a
-``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic``
-or, when the Robot Manager fails over, on the latched ``~obstacle_source_topic`` (default
-``~obstacle_source``). Out: ``cmd_vel``.
+``LaserScan`` or a ``PointCloud2``, told by the message's own type), named by ``~obstacle_topic`` (a
+navigator started by hand) or on the latched ``~obstacle_source_topic`` (default ``~obstacle_source``: the
+Robot Manager names its source there, and names it again as it fails over and back). Out: ``cmd_vel``.
 
 A goal whose holder is gone ends at once, the robot stopped (``goal_holders.py``): a
 robot must not drive for nobody. Every arm must be inside the driving outline (``guards.ArmsInEnvelope``,
