@@ -12,7 +12,8 @@ ROS so that every rule is tested alone:
   one topic of the sources it subscribes to, as the master says) has sent nothing within its freshness bound
   plus the base's braking time, which a stop that came in time still needs. Another source flowing does not
   make a drive on a silent one safe. While the active source is not known (no navigator, or before the first
-  look), any source fresh will do.
+  look), any source fresh will do. A switch of the active source keeps the cover its predecessor gave: a base
+  braking from a stop that came in time is not blind because the navigator now reads a silent source.
 
   The bound is the navigator's contract (docs/robots.md), worked out here on its own, never with the stack's
   code: three of the source's periods and 20 ms. The period is the one the robot's sensor catalogue declares
@@ -106,9 +107,15 @@ class SourceClock:
         learnt = self.declared is None or period > self.declared
         return stale_after(period) + (LEARNT_TOLERANCE_S if learnt else 0.0)
 
-    def fresh(self, t: float) -> bool:
+    def covers_until(self) -> Optional[float]:
+        """Until when a base driving on this source may still be moving: its freshness bound after its last
+        message, and the braking a stop that came in time still needs; None until it is heard with a period."""
         stale = self.stale_bound()
-        return self.last is not None and stale is not None and t - self.last <= stale + BASE_BRAKING_S
+        return self.last + stale + BASE_BRAKING_S if self.last is not None and stale is not None else None
+
+    def fresh(self, t: float) -> bool:
+        until = self.covers_until()
+        return until is not None and t <= until
 
 
 @dataclasses.dataclass
@@ -125,6 +132,11 @@ class GroundTruth:
         self.moving: Dict[str, _Open] = {}              # part -> its span under way
         self.last: Dict[str, float] = {}                # part -> its last sample
         self._blind: Optional[_Open] = None
+        # until when the sources the navigator has driven on cover a base still moving: a switch of the active
+        # source does not take back the braking its predecessor's stop still needs (seed 17, history 7, step 6229:
+        # the SICK died mid-drive, the navigator switched to a cloud silent for 12 s, and the base, braking from
+        # the SICK's stop, was judged blind on the cloud's clock)
+        self._covered = float('-inf')
         self.events: Deque[dict] = collections.deque(maxlen=max_events)
         self.seq = 0
         self.samples = 0
@@ -175,9 +187,14 @@ class GroundTruth:
 
     # -- rules -------------------------------------------------------------------------------------------------
     def fresh(self, t: float) -> bool:
-        if self.active is not None:
-            return self.sources[self.active].fresh(t)
-        return any(clock.fresh(t) for clock in self.sources.values())
+        """Whether a base moving at ``t`` is covered: by the active source's last message (while it is not known,
+        any source's), or by what covered it before the active source changed."""
+        clocks = [self.sources[self.active]] if self.active is not None else list(self.sources.values())
+        for clock in clocks:
+            until = clock.covers_until()
+            if until is not None:
+                self._covered = max(self._covered, until)
+        return t <= self._covered
 
     def _sample(self, part: str, t: float, moving: bool, speed: float) -> None:
         self.samples += 1

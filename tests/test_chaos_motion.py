@@ -412,3 +412,27 @@ def test_the_watchs_declared_rates_are_the_sensor_catalogues():
             rates[output['topic']] = output.get('rate', sensor.get('rate'))
     for topic, period in OBSTACLE_SOURCES.items():
         assert rates[topic] is not None and period == pytest.approx(1.0 / rates[topic]), topic
+
+
+def test_a_switch_to_a_silent_source_keeps_the_braking_its_predecessor_gave_and_no_more():
+    """Seed 17, history 7, step 6229: the SICK died mid-drive, the navigator switched to a cloud silent for 12 s,
+    and the base, braking from the SICK's stop, was judged blind on the cloud's clock. The cover the SICK gave
+    stands through the switch; a base still moving past it, on the silent cloud, is blind."""
+    cloud = 'laser_stitcher/cloud'
+    truth = GroundTruth({SICK: 0.04, cloud: 0.1})
+    for i in range(12):
+        truth.obstacle(i * 0.1, cloud)             # the cloud, heard long ago
+    truth.navigator_reads([SICK])
+    t = 10.0
+    for i in range(10):
+        truth.obstacle(t + i * 0.04, SICK)
+        truth.base(t + i * 0.04, 0.5, 0.0)
+    last = t + 9 * 0.04
+    truth.base(last + 0.1, 0.4, 0.0)
+    truth.navigator_reads([cloud])                 # the switch, mid-braking
+    truth.base(last + blind_after(0.04) - 0.01, 0.1, 0.0)
+    assert not [e for e in truth.since(0)['events'] if e['type'] == 'blind'], 'braking from a stop in time'
+    truth.base(last + blind_after(0.04) + 0.02, 0.1, 0.0)   # past the SICK's cover, on the silent cloud
+    truth.base(last + blind_after(0.04) + 0.1, 0.0, 0.0)
+    [blind] = [e for e in truth.since(0)['events'] if e['type'] == 'blind']
+    assert blind['active'] == cloud and blind['start'] == pytest.approx(last + blind_after(0.04) + 0.02)
