@@ -61,7 +61,8 @@ class FirstFrameWatch:
             return True
         return False
 
-    def restart(self, frame_count: int) -> None:
-        """The topic changed: wait for data from the new one."""
-        self.data_frame = None if self.needs_data else frame_count
+    def restart(self, frame_count: int, holding: bool = False) -> None:
+        """The topic changed: wait for data from the new one. ``holding``: a hidden display shown again that holds
+        data already: it is on screen at the next frame, with no new message to wait for."""
+        self.data_frame = frame_count if holding or not self.needs_data else None
         self.drawn_frame = None

@@ -448,9 +448,12 @@ class RvizHost:
     def _reveal(self, hd: HostedDisplay, fc: int) -> None:
         """Give ``hd`` its Alpha back. Its first frame is then the next one rendered with its data: the
         data it already holds, so no blank frame between the switch and the picture."""
+        # read before the Alpha goes back: the count of what it holds is the display's own word (first_frame.py);
+        # read only after, at the watch's next sample, a reveal once waited 10 s for a first frame (CI, twice)
+        holding = bool(self.messages_received(hd)) if hd.watch.needs_data else False
         display_config.resolve(hd.handle, (ALPHA,)).setValue(hd.hidden_alpha)
         hd.hidden_alpha = None
-        hd.watch.restart(fc)
+        hd.watch.restart(fc, holding=holding)
         hd.added_at = time.monotonic()
         self.on_event('shown', hd.name, hd.cls, hd.topic, fc, 0.0)
         self._ensure_watching()

@@ -118,6 +118,11 @@ def test_first_frame_never_fires_before_a_frame_after_the_data():
     assert not probed.observe(6, 1) and probed.observe(7, 1)
     topicless = FirstFrameWatch(False, 3)
     assert not topicless.observe(3, None) and topicless.observe(4, None)
+    # a hidden display shown again with the data it holds: on screen at the next frame, whatever its status says
+    # then (a reveal once waited 10 s for a status read after it)
+    shown = FirstFrameWatch(True, 0)
+    shown.restart(30, holding=True)
+    assert not shown.observe(30, None) and shown.observe(31, None) and shown.drawn_frame == 31
 
 
 def test_framing_covers_the_robot():
