@@ -64,6 +64,16 @@ def status_log():
     return heard, lock, on_status
 
 
+def drive_to(rospy_client, truth, place):
+    """A move_base goal to a described place, through to its end: it must arrive."""
+    client = TrackingActionClient('/move_base', MoveBaseAction)
+    assert client.wait_for_server(rospy_client.Duration(HANG))
+    wait_receiving([truth.sub], HANG, 'the ground truth')
+    client.send_goal(goal_to(rospy_client, place))
+    assert client.wait_for_result(rospy_client.Duration(HANG * 2)), 'the drive never ended'
+    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+
+
 def test_the_view_s_arm_lidar_and_navigation_s_share_one_driver_in_either_order(stack):
     """Issue 52: the view holds the arm LIDAR's scan and cloud, navigation asks for its cloud alone (and the other
     way round): one driver serves both holders, and it runs until the last one lets go. Before, the second request
@@ -143,12 +153,7 @@ def test_the_base_s_scanner_is_taken_back_once_it_works_again_and_the_drive_goes
     wait_for(lambda: source.last() is not None and source.last().data == '/sick/scan', HANG,
              'the navigator told the SICK\'s topic')
     wait_for(lambda: not any('hokuyo.launch' in p['label'] for p in er_processes()), HANG, 'the arm LIDAR let go')
-    client = TrackingActionClient('/move_base', MoveBaseAction)
-    assert client.wait_for_server(rospy_client.Duration(HANG))
-    wait_receiving([truth.sub], HANG, 'the ground truth')
-    client.send_goal(goal_to(rospy_client, 'table'))
-    assert client.wait_for_result(rospy_client.Duration(HANG * 2)), 'the drive never ended'
-    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    drive_to(rospy_client, truth, 'table')
     with lock:
         assert not any(e.code == ResourceStatus.FAILED for e in heard), [e.message for e in heard]
     rm.release(robot.resource_id)
@@ -168,12 +173,7 @@ def test_two_loads_of_one_robot_share_its_navigator(rmi, rospy_client, collect):
     first.release(one.resource_id)
     assert [p['pid'] for p in er_processes() if 'navigator' in str(p['command'])] == [navigators[0]['pid']]
     truth = collect('/vaultbot_sim/base_state', BaseState)
-    client = TrackingActionClient('/move_base', MoveBaseAction)
-    assert client.wait_for_server(rospy_client.Duration(HANG))
-    wait_receiving([truth.sub], HANG, 'the ground truth')
-    client.send_goal(goal_to(rospy_client, 'shelf'))
-    assert client.wait_for_result(rospy_client.Duration(HANG * 2)), 'the drive never ended'
-    assert client.get_state() == GoalStatus.SUCCEEDED, client.get_goal_status_text()
+    drive_to(rospy_client, truth, 'shelf')
     second.release(two.resource_id)
     wait_for(lambda: not navigator_running(), HANG, 'the navigator to stop with its last holder')
 
